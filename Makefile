@@ -1,0 +1,33 @@
+# pbdyn — two commands set everything up: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench sysdeps mesh clean
+
+$(STAMP): setup.cfg pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+## Optional system libraries (libusb-1.0 for open3d's mesh backend), installed only when missing.
+sysdeps:
+	@bash tools/install_sysdeps.sh
+
+demo: $(STAMP)
+	$(VENV)/bin/pbdyn demo scenarios/quickstart.toml
+
+test: $(STAMP)
+	$(PY) -m pytest -q -p no:cacheprovider
+
+bench: $(STAMP)
+	$(PY) tools/bench/bench_trial.py
+
+## The open3d mesh extra (needs libusb-1.0 on Debian/Ubuntu).
+mesh: $(STAMP) sysdeps
+	$(PY) -m pip install --quiet -e '.[test,mesh]'
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

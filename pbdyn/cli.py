@@ -1,0 +1,168 @@
+"""The ``pbdyn`` command (DESIGN.md "Command line").
+
+Bad input exits with status 2 and one line on stderr naming the problem; ``--json`` prints exactly one JSON
+document on stdout; progress and logs go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+from pbdyn.errors import ConfigError, PbdynError
+
+EXIT_USAGE = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error message and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        sys.stderr.write(f"pbdyn: error: {message}\n")
+        raise SystemExit(EXIT_USAGE)
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer (got {text!r})") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer (got {text!r})")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number (got {text!r})") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number (got {text!r})")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every subcommand."""
+    parser = _Parser(prog="pbdyn", description="PyBullet testbed for MAV dynamic obstacle avoidance benchmarking.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="fly one trial and print its TrialResult")
+    run.add_argument("scenario", help="scenario TOML file")
+    run.add_argument("--planner", help="trajectory planner (registry name, entry label, or package.module:Class)")
+    run.add_argument("--gaze", help="gaze planner (registry name or package.module:Class)")
+    run.add_argument("--map", type=_nonneg_int, default=0, help="map index in the scenario's enumeration (default 0)")
+    run.add_argument("--start", help="start X,Y[,Z] in m (default: the first candidate)")
+    run.add_argument("--goal", help="goal X,Y[,Z] in m (default: the last candidate)")
+    run.add_argument("--vmax", type=_positive_float, help="MAV speed limit in m/s (default: the first drone.v_max)")
+    run.add_argument("--gui", action="store_true", help="show the PyBullet GUI (real time)")
+    run.add_argument("--trace", help="save per-step MAV state, yaw, tracks and plans to this .npz file")
+    run.add_argument("--json", action="store_true", help="print the result as one JSON document")
+
+    ro = sub.add_parser("rollout", help="compute a map's rollout and save it as .npz")
+    ro.add_argument("scenario")
+    ro.add_argument("--map", type=_nonneg_int, default=0)
+    ro.add_argument("--out", required=True, help="output .npz file")
+    ro.add_argument("--horizon", type=_positive_float, help="seconds to cover (default: time limit + dt)")
+    ro.add_argument("--json", action="store_true", help="print a JSON summary")
+
+    demo = sub.add_parser("demo", help="fly every planner pair over a few maps and start/goal pairs; print a table")
+    demo.add_argument("scenario")
+    demo.add_argument("--maps", type=_nonneg_int, default=4, help="number of maps (default 4)")
+    demo.add_argument("--pairs", type=_nonneg_int, default=3, help="start/goal pairs per map (default 3)")
+    demo.add_argument("--json", action="store_true")
+    return parser
+
+
+def _load(path: str):
+    from pbdyn.config import load_scenario
+    return load_scenario(path)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+    from pbdyn.world.maps import get_map
+    from pbdyn.world.rollout import get_rollout
+
+    scenario = _load(args.scenario)
+    spec_map = get_map(scenario, args.map)
+    spec = make_trial_spec(scenario, spec_map, planner=args.planner, gaze=args.gaze, v_max=args.vmax,
+                           start=args.start, goal=args.goal)
+    if args.trace is not None and not str(args.trace).endswith(".npz"):
+        raise ConfigError("--trace", "must name an .npz file", args.trace)
+    rollout = get_rollout(scenario, spec_map)
+    result = run_trial(spec, rollout, gui=args.gui, trace_path=args.trace,
+                       gui_sleep=scenario.world.dt if args.gui else 0.0)
+    if args.json:
+        sys.stdout.write(json.dumps(result.to_dict(), sort_keys=True) + "\n")
+    else:
+        for key, value in result.to_dict().items():
+            sys.stdout.write(f"{key:>22}: {value}\n")
+    return 0
+
+
+def cmd_rollout(args: argparse.Namespace) -> int:
+    from pbdyn.world.maps import get_map
+    from pbdyn.world.rollout import build_rollout
+
+    scenario = _load(args.scenario)
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise ConfigError("--out", "must name an .npz file", args.out)
+    if out.parent and not out.parent.exists():
+        raise ConfigError("--out", "folder does not exist", str(out.parent))
+    spec_map = get_map(scenario, args.map)
+    ro = build_rollout(scenario, spec_map, args.horizon)
+    ro.save(out)
+    summary = {"out": str(out), "map_index": spec_map.index, "map_id": spec_map.map_id, "setup": spec_map.setup,
+               "replicate": spec_map.replicate, "seed": spec_map.seed, "steps": ro.n_steps,
+               "obstacles": ro.n_obstacles, "horizon_s": ro.horizon}
+    if args.json:
+        sys.stdout.write(json.dumps(summary, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(f"wrote {out}: map {spec_map.index} ({spec_map.map_id}) {spec_map.setup} replicate "
+                         f"{spec_map.replicate}, {ro.n_obstacles} obstacles x {ro.n_steps} steps\n")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from pbdyn.sim.demo import run_demo
+
+    scenario = _load(args.scenario)
+    rows = run_demo(scenario, n_maps=args.maps, n_pairs=args.pairs, json_out=args.json)
+    if args.json:
+        sys.stdout.write(json.dumps(rows, sort_keys=True) + "\n")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "demo": cmd_demo}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``pbdyn`` console script."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except PbdynError as exc:
+        sys.stderr.write(f"pbdyn: error: {exc}\n")
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        sys.stderr.write("pbdyn: interrupted\n")
+        return 130
+    except Exception as exc:  # an internal failure: one line, details only on request
+        if os.environ.get("PBDYN_DEBUG"):
+            raise
+        sys.stderr.write(f"pbdyn: internal error: {type(exc).__name__}: {exc} (set PBDYN_DEBUG=1 for details)\n")
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,529 @@
+"""Scenario files (TOML) validated into frozen dataclasses (DESIGN.md "Defaults", README "Scenario reference").
+
+Every omitted field takes the documented default; unknown keys and invalid values raise ConfigError naming the
+field and the value. The resolved scenario (``Scenario.to_dict()``) is stored next to every result.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from pbdyn.errors import ConfigError
+
+PACKAGE_ROOT = Path(__file__).resolve().parent
+URDF_DIR = PACKAGE_ROOT.parent / "urdf"
+DEFAULT_MAV_URDF = "quadrotor.urdf"
+
+MOTIONS = ("cvm",)
+COLLISION_CHECKS = ("swept", "sampled")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# small validators
+# ----------------------------------------------------------------------------------------------------------------
+def _name(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _number(table: Mapping, key: str, where: str, default: float, *, lo: float | None = None,
+            lo_open: bool = False, hi: float | None = None) -> float:
+    if key not in table:
+        return float(default)
+    return _check_number(table[key], _name(where, key), lo=lo, lo_open=lo_open, hi=hi)
+
+
+def _check_number(value: Any, name: str, *, lo: float | None = None, lo_open: bool = False,
+                  hi: float | None = None) -> float:
+    if not _is_number(value):
+        raise ConfigError(name, "must be a number", value)
+    v = float(value)
+    if not math.isfinite(v):
+        raise ConfigError(name, "must be finite", value)
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise ConfigError(name, f"must be {'>' if lo_open else '>='} {lo:g}", value)
+    if hi is not None and v > hi:
+        raise ConfigError(name, f"must be <= {hi:g}", value)
+    return v
+
+
+def _integer(table: Mapping, key: str, where: str, default: int, *, lo: int | None = None) -> int:
+    if key not in table:
+        return int(default)
+    v = table[key]
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise ConfigError(_name(where, key), "must be an integer", v)
+    if lo is not None and v < lo:
+        raise ConfigError(_name(where, key), f"must be >= {lo}", v)
+    return int(v)
+
+
+def _string(table: Mapping, key: str, where: str, default: str, choices: tuple[str, ...] | None = None) -> str:
+    if key not in table:
+        return default
+    v = table[key]
+    if not isinstance(v, str):
+        raise ConfigError(_name(where, key), "must be a string", v)
+    if choices is not None and v not in choices:
+        raise ConfigError(_name(where, key), f"must be one of {', '.join(choices)}", v)
+    return v
+
+
+def _table(doc: Mapping, key: str, where: str = "") -> Mapping:
+    name = _name(where, key) if where else key
+    v = doc.get(key, {})
+    if not isinstance(v, Mapping):
+        raise ConfigError(name, "must be a table", v)
+    return v
+
+
+def _no_unknown(table: Mapping, allowed: tuple[str, ...], where: str) -> None:
+    for k in table:
+        if k not in allowed:
+            name = f"{where}.{k}" if where else k
+            raise ConfigError(name, f"unknown key (allowed: {', '.join(allowed)})", table[k], show_value=False)
+
+
+def _vector(value: Any, name: str, dims: int) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or len(value) != dims:
+        raise ConfigError(name, f"must be a list of {dims} numbers", value)
+    return tuple(_check_number(x, f"{name}[{i}]") for i, x in enumerate(value))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# dataclasses
+# ----------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Range:
+    """A closed interval [min, max]; values are drawn uniformly per obstacle."""
+
+    min: float
+    max: float
+
+    def to_json(self) -> dict:
+        return {"min": self.min, "max": self.max}
+
+
+GridValue = float | int | Range
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """World: dims (2|3), size (m per axis), dt (s), time_limit (s), grid_resolution (m), flight_height (m, 2D only)."""
+
+    dims: int = 2
+    size: tuple[float, ...] = (50.0, 50.0)
+    dt: float = 0.1
+    time_limit: float = 80.0
+    grid_resolution: float = 1.0
+    flight_height: float = 2.0
+
+    @property
+    def n_steps(self) -> int:
+        """Number of steps in the time limit."""
+        return int(round(self.time_limit / self.dt))
+
+
+@dataclass(frozen=True)
+class ObstacleConfig:
+    """Generated dynamic obstacles. count/radius/speed are grids (tuples); radius/speed entries may be Ranges."""
+
+    count: tuple[int, ...] = (10,)
+    radius: tuple[GridValue, ...] = (1.0,)
+    speed: tuple[GridValue, ...] = (2.0,)
+    radius_jitter: float = 0.0
+    motion: str = "cvm"
+    maps_per_setup: int = 1
+    root_seed: int = 0
+    grid_order: tuple[str, ...] = ("count", "radius", "speed")
+
+
+@dataclass(frozen=True)
+class StaticObstacleConfig:
+    """A static obstacle: kind pillar|box, center [d] (m), radius (pillar, m), size [d] (box full extents, m), yaw_deg."""
+
+    kind: str
+    center: tuple[float, ...]
+    radius: float = 0.0
+    size: tuple[float, ...] = ()
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class DroneConfig:
+    """The MAV: urdf path, radius (m), a_max (m/s^2), v_max grid (m/s), yaw_rate_limit (rad/s)."""
+
+    urdf: str = DEFAULT_MAV_URDF
+    radius: float = 1.0
+    a_max: float = 4.0
+    v_max: tuple[float, ...] = (2.0, 4.0, 6.0)
+    yaw_rate_limit: float = 1.4
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Depth sensor: horizontal fov_deg, range (m), ray resolution_deg, Gaussian position noise_std (m)."""
+
+    fov_deg: float = 90.0
+    range: float = 8.0
+    resolution_deg: float = 1.0
+    noise_std: float = 0.0
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Kalman filter (thesis eq. 2-1..2-9): Q = q I, R = r I, P0 = diag(p0_pos, p0_vel), drop above drop_pos_var m^2."""
+
+    q: float = 1e-5
+    r: float = 0.0
+    p0_pos: float = 0.01
+    p0_vel: float = 0.1
+    drop_pos_var: float = 1.5
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """Start/goal candidates [[x, y(, z)], ...] (m), goal_radius (m), spawn_clearance (m) around each candidate's MAV disc,
+    deadlock_steps (consecutive planning failures at rest)."""
+
+    candidates: tuple[tuple[float, ...], ...] = ()
+    goal_radius: float = 1.0
+    spawn_clearance: float = 1.0
+    deadlock_steps: int = 10
+
+    def pairs(self) -> list[tuple[int, int]]:
+        """All ordered (start, goal) index pairs with start != goal (72 for 9 candidates)."""
+        n = len(self.candidates)
+        return [(i, j) for i in range(n) for j in range(n) if i != j]
+
+
+@dataclass(frozen=True)
+class PlannerEntry:
+    """One (trajectory, gaze) planner pair with their parameter tables."""
+
+    trajectory: str
+    gaze: str
+    trajectory_params: Mapping[str, Any] = field(default_factory=dict)
+    gaze_params: Mapping[str, Any] = field(default_factory=dict)
+    name: str = ""
+
+    @property
+    def label(self) -> str:
+        """A readable label, e.g. 'lookahead+local_primitives'."""
+        return self.name or f"{self.gaze}+{self.trajectory}"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A whole validated scenario."""
+
+    name: str
+    world: WorldConfig
+    obstacles: ObstacleConfig
+    static_obstacles: tuple[StaticObstacleConfig, ...]
+    drone: DroneConfig
+    sensor: SensorConfig
+    tracking: TrackingConfig
+    task: TaskConfig
+    planners: tuple[PlannerEntry, ...]
+    collision_check: str = "swept"
+    source: str = ""  # path of the file it was loaded from (not part of the resolved spec)
+
+    def to_dict(self) -> dict:
+        """The resolved scenario as plain JSON-able data (no source path)."""
+        d = asdict(self)
+        d.pop("source", None)
+        return json.loads(json.dumps(d, default=_json_default))
+
+    def setups(self) -> list[dict]:
+        """The Cartesian product of the grid fields, in file order (first field slowest)."""
+        grids = {k: getattr(self.obstacles, k) for k in self.obstacles.grid_order}
+        out = []
+        for combo in itertools.product(*grids.values()):
+            out.append({k: _json_default(v) if isinstance(v, Range) else v for k, v in zip(grids, combo)})
+        return out
+
+    def mav_urdf_path(self) -> Path:
+        """Absolute path of the MAV URDF (relative paths: the scenario's folder, then the bundled urdf/)."""
+        p = Path(self.drone.urdf)
+        if p.is_absolute():
+            return p
+        if self.source:
+            cand = Path(self.source).resolve().parent / p
+            if cand.exists():
+                return cand
+        return URDF_DIR / p
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, Range):
+        return o.to_json()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {o!r}")
+
+
+def canonical_json(obj: Any) -> str:
+    """Canonical JSON (sorted keys, no spaces) used for hashes and keys."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=_json_default)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# parsing
+# ----------------------------------------------------------------------------------------------------------------
+def _parse_world(doc: Mapping) -> WorldConfig:
+    t = _table(doc, "world")
+    _no_unknown(t, ("dims", "size", "dt", "time_limit", "grid_resolution", "flight_height"), "world")
+    dims = _integer(t, "dims", "world", 2)
+    if dims not in (2, 3):
+        raise ConfigError("world.dims", "must be 2 or 3", dims)
+    default_size = (50.0, 50.0) if dims == 2 else (50.0, 50.0, 20.0)
+    size = _vector(t["size"], "world.size", dims) if "size" in t else default_size
+    for i, s in enumerate(size):
+        if s <= 0:
+            raise ConfigError(f"world.size[{i}]", "must be > 0", s)
+    dt = _number(t, "dt", "world", 0.1, lo=0.0, lo_open=True, hi=1.0)
+    time_limit = _number(t, "time_limit", "world", 80.0, lo=0.0, lo_open=True)
+    if time_limit < dt:
+        raise ConfigError("world.time_limit", f"must be >= world.dt ({dt:g})", time_limit)
+    res = _number(t, "grid_resolution", "world", 1.0, lo=0.0, lo_open=True)
+    if res > min(size) / 2:
+        raise ConfigError("world.grid_resolution", "must be at most half the arena's smallest side", res)
+    h = _number(t, "flight_height", "world", 2.0, lo=0.0, lo_open=True)
+    return WorldConfig(dims, tuple(size), dt, time_limit, res, h)
+
+
+def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: bool = True,
+                 lo: float = 0.0, lo_open: bool = True) -> tuple:
+    items = value if isinstance(value, list) else [value]
+    if isinstance(value, list) and not value:
+        raise ConfigError(name, "must not be an empty list", value)
+    out = []
+    for i, item in enumerate(items):
+        iname = f"{name}[{i}]" if isinstance(value, list) else name
+        if integer:
+            if not isinstance(item, int) or isinstance(item, bool):
+                raise ConfigError(iname, "must be an integer", item)
+            if item < lo:
+                raise ConfigError(iname, f"must be >= {lo:g}", item)
+            out.append(int(item))
+        elif isinstance(item, Mapping):
+            if not allow_range:
+                raise ConfigError(iname, "must be a number", dict(item))
+            _no_unknown(item, ("min", "max"), iname)
+            if "min" not in item or "max" not in item:
+                raise ConfigError(iname, "a range needs both min and max", dict(item))
+            a = _check_number(item["min"], f"{iname}.min", lo=lo, lo_open=lo_open)
+            b = _check_number(item["max"], f"{iname}.max", lo=lo, lo_open=lo_open)
+            if b < a:
+                raise ConfigError(f"{iname}.max", f"must be >= min ({a:g})", b)
+            out.append(Range(a, b))
+        else:
+            out.append(_check_number(item, iname, lo=lo, lo_open=lo_open))
+    if len(set(map(canonical_json, out))) != len(out):
+        raise ConfigError(name, "grid values must be distinct", value)
+    return tuple(out)
+
+
+def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
+    t = _table(doc, "obstacles")
+    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed")
+    _no_unknown(t, keys, "obstacles")
+    count = _grid_values(t.get("count", 10), "obstacles.count", integer=True, lo=0)
+    radius = _grid_values(t.get("radius", 1.0), "obstacles.radius")
+    speed = _grid_values(t.get("speed", 2.0), "obstacles.speed", lo=0.0, lo_open=False)
+    jitter = _number(t, "radius_jitter", "obstacles", 0.0, lo=0.0)
+    for i, r in enumerate(radius):
+        rmin = r.min if isinstance(r, Range) else r
+        if rmin - jitter <= 0:
+            raise ConfigError("obstacles.radius_jitter", f"must be < the smallest radius ({rmin:g})", jitter)
+    motion = _string(t, "motion", "obstacles", "cvm", MOTIONS)
+    maps = _integer(t, "maps_per_setup", "obstacles", 1, lo=1)
+    seed = _integer(t, "root_seed", "obstacles", 0, lo=0)
+    order = tuple(k for k in t if k in ("count", "radius", "speed"))
+    order += tuple(k for k in ("count", "radius", "speed") if k not in order)
+    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order)
+
+
+def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfig, ...]:
+    items = doc.get("static_obstacles", [])
+    if not isinstance(items, list):
+        raise ConfigError("static_obstacles", "must be an array of tables ([[static_obstacles]])", items)
+    out = []
+    for i, t in enumerate(items):
+        where = f"static_obstacles[{i}]"
+        if not isinstance(t, Mapping):
+            raise ConfigError(where, "must be a table", t)
+        _no_unknown(t, ("kind", "center", "radius", "size", "yaw_deg"), where)
+        kind = _string(t, "kind", where, "pillar", ("pillar", "box"))
+        if "center" not in t:
+            raise ConfigError(f"{where}.center", "is required", None, show_value=False)
+        center = _vector(t["center"], f"{where}.center", world.dims)
+        for k, c in enumerate(center):
+            if not 0 <= c <= world.size[k]:
+                raise ConfigError(f"{where}.center[{k}]", f"must lie in the arena [0, {world.size[k]:g}]", c)
+        yaw = _number(t, "yaw_deg", where, 0.0)
+        if kind == "pillar":
+            if "size" in t:
+                raise ConfigError(f"{where}.size", "is for boxes; a pillar has a radius", t["size"])
+            if "radius" not in t:
+                raise ConfigError(f"{where}.radius", "is required for a pillar", None, show_value=False)
+            radius = _check_number(t["radius"], f"{where}.radius", lo=0.0, lo_open=True)
+            out.append(StaticObstacleConfig(kind, center, radius, (), yaw))
+        else:
+            if "radius" in t:
+                raise ConfigError(f"{where}.radius", "is for pillars; a box has a size", t["radius"])
+            if "size" not in t:
+                raise ConfigError(f"{where}.size", "is required for a box", None, show_value=False)
+            size = _vector(t["size"], f"{where}.size", world.dims)
+            for k, s in enumerate(size):
+                if s <= 0:
+                    raise ConfigError(f"{where}.size[{k}]", "must be > 0", s)
+            out.append(StaticObstacleConfig(kind, center, 0.0, size, yaw))
+    return tuple(out)
+
+
+def _parse_drone(doc: Mapping) -> DroneConfig:
+    t = _table(doc, "drone")
+    _no_unknown(t, ("urdf", "radius", "a_max", "v_max", "yaw_rate_limit"), "drone")
+    urdf = _string(t, "urdf", "drone", DEFAULT_MAV_URDF)
+    radius = _number(t, "radius", "drone", 1.0, lo=0.0, lo_open=True)
+    a_max = _number(t, "a_max", "drone", 4.0, lo=0.0, lo_open=True)
+    v_max = _grid_values(t.get("v_max", [2.0, 4.0, 6.0]), "drone.v_max", allow_range=False)
+    yaw = _number(t, "yaw_rate_limit", "drone", 1.4, lo=0.0, lo_open=True)
+    return DroneConfig(urdf, radius, a_max, tuple(float(v) for v in v_max), yaw)
+
+
+def _parse_sensor(doc: Mapping) -> SensorConfig:
+    t = _table(doc, "sensor")
+    _no_unknown(t, ("fov_deg", "range", "resolution_deg", "noise_std"), "sensor")
+    fov = _number(t, "fov_deg", "sensor", 90.0, lo=0.0, lo_open=True, hi=360.0)
+    rng = _number(t, "range", "sensor", 8.0, lo=0.0, lo_open=True)
+    res = _number(t, "resolution_deg", "sensor", 1.0, lo=0.0, lo_open=True)
+    if res > fov:
+        raise ConfigError("sensor.resolution_deg", f"must be <= sensor.fov_deg ({fov:g})", res)
+    noise = _number(t, "noise_std", "sensor", 0.0, lo=0.0)
+    return SensorConfig(fov, rng, res, noise)
+
+
+def _parse_tracking(doc: Mapping) -> TrackingConfig:
+    t = _table(doc, "tracking")
+    _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var"), "tracking")
+    return TrackingConfig(
+        q=_number(t, "q", "tracking", 1e-5, lo=0.0),
+        r=_number(t, "r", "tracking", 0.0, lo=0.0),
+        p0_pos=_number(t, "p0_pos", "tracking", 0.01, lo=0.0, lo_open=True),
+        p0_vel=_number(t, "p0_vel", "tracking", 0.1, lo=0.0, lo_open=True),
+        drop_pos_var=_number(t, "drop_pos_var", "tracking", 1.5, lo=0.0, lo_open=True),
+    )
+
+
+def default_candidates(world: WorldConfig) -> tuple[tuple[float, ...], ...]:
+    """{4, L/2, L-4}^2 (thesis table 4-1: {4, 25, 46} m on the 50 m arena); 3D: the same at z = L_z / 2."""
+    xs = [(4.0, world.size[k] / 2.0, world.size[k] - 4.0) for k in range(2)]
+    pts = [(x, y) for x in xs[0] for y in xs[1]]
+    if world.dims == 3:
+        pts = [p + (world.size[2] / 2.0,) for p in pts]
+    return tuple(pts)
+
+
+def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskConfig:
+    t = _table(doc, "task")
+    _no_unknown(t, ("candidates", "goal_radius", "spawn_clearance", "deadlock_steps"), "task")
+    if "candidates" in t:
+        raw = t["candidates"]
+        if not isinstance(raw, list) or len(raw) < 2:
+            raise ConfigError("task.candidates", "must be a list of at least 2 points", raw)
+        cands = tuple(_vector(c, f"task.candidates[{i}]", world.dims) for i, c in enumerate(raw))
+    else:
+        cands = default_candidates(world)
+    for i, c in enumerate(cands):
+        for k, x in enumerate(c):
+            if not drone.radius <= x <= world.size[k] - drone.radius:
+                raise ConfigError(f"task.candidates[{i}]",
+                                  f"must lie inside the arena with the MAV's radius ({drone.radius:g} m) to spare",
+                                  list(c))
+    if len(set(cands)) != len(cands):
+        raise ConfigError("task.candidates", "must be distinct points", [list(c) for c in cands])
+    goal_radius = _number(t, "goal_radius", "task", 1.0, lo=0.0, lo_open=True)
+    clearance = _number(t, "spawn_clearance", "task", 1.0, lo=0.0)
+    deadlock = _integer(t, "deadlock_steps", "task", 10, lo=1)
+    return TaskConfig(cands, goal_radius, clearance, deadlock)
+
+
+def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:
+    items = doc.get("planners", [{"trajectory": "local_primitives", "gaze": "lookahead"}])
+    if not isinstance(items, list) or not items:
+        raise ConfigError("planners", "must be a non-empty array of tables ([[planners]])", items)
+    out = []
+    for i, t in enumerate(items):
+        where = f"planners[{i}]"
+        if not isinstance(t, Mapping):
+            raise ConfigError(where, "must be a table", t)
+        _no_unknown(t, ("trajectory", "gaze", "trajectory_params", "gaze_params", "name"), where)
+        traj = _string(t, "trajectory", where, "local_primitives")
+        gaze = _string(t, "gaze", where, "lookahead")
+        tp = _table(t, "trajectory_params", where)
+        gp = _table(t, "gaze_params", where)
+        name = _string(t, "name", where, "")
+        out.append(PlannerEntry(traj, gaze, dict(tp), dict(gp), name))
+    labels = [p.label for p in out]
+    if len(set(labels)) != len(labels):
+        raise ConfigError("planners", "two entries have the same label; give one a distinct name", labels)
+    return tuple(out)
+
+
+def _check_fit(obstacles: ObstacleConfig, world: WorldConfig) -> None:
+    """Reject counts whose obstacles cannot fit: total footprint above half the arena (a packing bound)."""
+    area = math.prod(world.size[:2]) if world.dims == 2 else math.prod(world.size)
+    for n in obstacles.count:
+        for r in obstacles.radius:
+            rmax = (r.max if isinstance(r, Range) else r) + obstacles.radius_jitter
+            fp = math.pi * rmax ** 2 if world.dims == 2 else 4.0 / 3.0 * math.pi * rmax ** 3
+            if n * fp > 0.5 * area:
+                raise ConfigError("obstacles.count", f"{n} obstacles of radius up to {rmax:g} m cannot fit in the arena", n)
+            if 2 * rmax >= min(world.size):
+                raise ConfigError("obstacles.radius", "an obstacle must fit in the arena", rmax)
+
+
+def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
+    """Validate a parsed TOML document into a Scenario."""
+    if not isinstance(doc, Mapping):
+        raise ConfigError("scenario", "must be a table", doc)
+    _no_unknown(doc, ("name", "world", "obstacles", "static_obstacles", "drone", "sensor", "tracking", "task",
+                      "planners", "collision_check"), "")
+    name = _string(doc, "name", "", Path(source).stem if source else "scenario")
+    world = _parse_world(doc)
+    obstacles = _parse_obstacles(doc)
+    _check_fit(obstacles, world)
+    static = _parse_static(doc, world)
+    drone = _parse_drone(doc)
+    sensor = _parse_sensor(doc)
+    tracking = _parse_tracking(doc)
+    task = _parse_task(doc, world, drone)
+    planners = _parse_planners(doc)
+    check = _string(doc, "collision_check", "", "swept", COLLISION_CHECKS)
+    return Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load and validate a TOML scenario file. Raises ConfigError (missing file, malformed TOML, invalid values)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError("scenario", "file not found", str(path))
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("scenario", f"malformed TOML in {p.name}: {exc}", None, show_value=False) from None
+    except UnicodeDecodeError:
+        raise ConfigError("scenario", f"{p.name} is not UTF-8 text", None, show_value=False) from None
+    return parse_scenario(doc, str(p))

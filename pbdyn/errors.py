@@ -1,0 +1,28 @@
+"""Errors pbdyn reports to users as one line (the CLI exits with status 2 on them)."""
+
+from __future__ import annotations
+
+
+class PbdynError(Exception):
+    """Base class of every error pbdyn reports as a one-line message."""
+
+
+class ConfigError(PbdynError, ValueError):
+    """An invalid scenario, world file or command-line value.
+
+    The message always names the field and the offending value, e.g.
+    ``obstacles.radius: must be > 0 (got -1.0)``.
+    """
+
+    def __init__(self, field: str, problem: str, value: object = None, *, show_value: bool = True):
+        self.field = field
+        self.problem = problem
+        self.value = value
+        text = f"{field}: {problem}"
+        if show_value:
+            text += f" (got {value!r})"
+        super().__init__(text)
+
+
+class HorizonError(PbdynError, IndexError):
+    """A time was asked of a rollout past its horizon."""

@@ -1,0 +1,121 @@
+"""The MAV's occupancy grid (thesis 2-4-2): UNKNOWN / FREE / OCCUPIED cells over the arena plus a 1-cell border.
+
+Cell (i, j[, k]) covers [lo + (i - 1) * res, lo + i * res) on each axis, so index 0 and index n + 1 are the wall
+border just outside the arena. Only static geometry (pillars, boxes, walls) is written: dynamic obstacles are
+tracked, not mapped. OCCUPIED is sticky (static geometry never moves), so a ray grazing a partly occupied cell
+never frees it again.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+UNKNOWN = np.int8(-1)
+FREE = np.int8(0)
+OCCUPIED = np.int8(1)
+
+
+class OccupancyGrid:
+    """A d-dimensional occupancy grid with resolution ``res`` (m) over the box [lo, hi] plus a 1-cell border."""
+
+    def __init__(self, lo, hi, res: float = 1.0):
+        self.lo = np.asarray(lo, dtype=float)
+        self.hi = np.asarray(hi, dtype=float)
+        self.res = float(res)
+        if self.lo.shape != self.hi.shape or self.lo.ndim != 1 or np.any(self.hi <= self.lo) or self.res <= 0:
+            raise ValueError("OccupancyGrid needs lo < hi of one shape [d] and res > 0")
+        inner = np.ceil((self.hi - self.lo) / self.res - 1e-9).astype(int)
+        self.shape = tuple(int(n) + 2 for n in inner)
+        self.cells = np.full(self.shape, UNKNOWN, dtype=np.int8)
+        self.origin = self.lo - self.res  # world coordinate of the corner of cell 0
+        self.version = 0  # incremented whenever a cell becomes OCCUPIED
+        self._window_cache: dict[int, np.ndarray] = {}
+
+    @property
+    def dims(self) -> int:
+        """Spatial dimension d."""
+        return self.lo.shape[0]
+
+    def index(self, points: np.ndarray) -> np.ndarray:
+        """Integer cell indices [..., d] of world points [..., d], clipped into the grid."""
+        idx = np.floor((np.asarray(points, dtype=float) - self.origin) / self.res).astype(np.int64)
+        return np.clip(idx, 0, np.asarray(self.shape) - 1)
+
+    def cell_center(self, idx: np.ndarray) -> np.ndarray:
+        """World centres [..., d] of cells with indices [..., d]."""
+        return self.origin + (np.asarray(idx) + 0.5) * self.res
+
+    def value_at(self, points: np.ndarray) -> np.ndarray:
+        """Cell values at world points [..., d] (UNKNOWN=-1, FREE=0, OCCUPIED=1)."""
+        idx = self.index(points)
+        return self.cells[tuple(np.moveaxis(idx, -1, 0))]
+
+    def mark_free(self, points: np.ndarray) -> None:
+        """Mark the cells holding world points [..., d] FREE, except cells already OCCUPIED."""
+        idx = self.index(np.asarray(points).reshape(-1, self.dims))
+        flat = np.ravel_multi_index(tuple(idx.T), self.shape)
+        view = self.cells.reshape(-1)
+        sel = flat[view[flat] != OCCUPIED]
+        view[sel] = FREE
+
+    def mark_occupied(self, points: np.ndarray) -> None:
+        """Mark the cells holding world points [..., d] OCCUPIED."""
+        idx = self.index(np.asarray(points).reshape(-1, self.dims))
+        if idx.shape[0] == 0:
+            return
+        flat = np.ravel_multi_index(tuple(idx.T), self.shape)
+        view = self.cells.reshape(-1)
+        if np.any(view[flat] != OCCUPIED):
+            view[flat] = OCCUPIED
+            self.version += 1
+
+    def discovered(self) -> int:
+        """Number of cells that are no longer UNKNOWN."""
+        return int(np.count_nonzero(self.cells != UNKNOWN))
+
+    def _window(self, reach: int) -> np.ndarray:
+        w = self._window_cache.get(reach)
+        if w is None:
+            rng = range(-reach, reach + 1)
+            w = np.array(list(itertools.product(rng, repeat=self.dims)), dtype=np.int64)
+            self._window_cache[reach] = w
+        return w
+
+    def clearance(self, points: np.ndarray, max_dist: float) -> np.ndarray:
+        """Distance (m) from each world point [K, d] to the nearest OCCUPIED cell square/cube, capped at max_dist.
+
+        Exact point-to-box distance over the cells within max_dist; 0 inside an occupied cell.
+        """
+        pts = np.asarray(points, dtype=float).reshape(-1, self.dims)
+        out = np.full(pts.shape[0], float(max_dist))
+        if pts.shape[0] == 0 or not np.any(self.cells == OCCUPIED):
+            return out
+        reach = int(np.ceil(max_dist / self.res)) + 1
+        base = self.index(pts)                                   # [K, d]
+        cand = base[:, None, :] + self._window(reach)[None]      # [K, W, d]
+        shape = np.asarray(self.shape)
+        inside = np.all((cand >= 0) & (cand < shape), axis=-1)
+        candc = np.clip(cand, 0, shape - 1)
+        occ = self.cells[tuple(np.moveaxis(candc, -1, 0))] == OCCUPIED
+        occ &= inside
+        if not occ.any():
+            return out
+        cmin = self.origin + candc * self.res
+        delta = np.maximum(np.maximum(cmin - pts[:, None, :], pts[:, None, :] - (cmin + self.res)), 0.0)
+        dist = np.sqrt(np.sum(delta * delta, axis=-1))
+        dist = np.where(occ, dist, np.inf)
+        return np.minimum(out, dist.min(axis=1))
+
+    def collides(self, points: np.ndarray, radius: float) -> np.ndarray:
+        """True for each world point [K, d] whose ball of ``radius`` (m) overlaps an OCCUPIED cell (thesis A-3)."""
+        return self.clearance(points, radius + self.res) < radius
+
+    def copy(self) -> "OccupancyGrid":
+        """A deep copy."""
+        g = OccupancyGrid.__new__(OccupancyGrid)
+        g.__dict__.update(self.__dict__)
+        g.cells = self.cells.copy()
+        g._window_cache = {}
+        return g

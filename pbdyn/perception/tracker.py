@@ -1,0 +1,132 @@
+"""Batched constant-velocity Kalman tracks of dynamic obstacles (thesis 2-4-2, eq. 2-1..2-9).
+
+One slot per obstacle: the obstacle index is the track id (data association is perfect). The state of a track is
+[p, v] in R^{2d} (m, m/s, world frame). All tracks are filtered together with numpy on [N, 2d, 2d] arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pbdyn.planning.view import Tracks
+
+
+class KalmanTracks:
+    """Kalman tracks of ``n_obstacles`` obstacles in ``dims`` dimensions with world step ``dt`` (s).
+
+    Model (thesis eq. 2-6..2-9): A = [[I, dt I], [0, I]], H = [I, 0], Q = q I_2d, R = r I_d,
+    P0 = diag(p0_pos I_d, p0_vel I_d). A track starts at its first detection with x = [z, 0], P = P0 (zero velocity:
+    the thesis program's choice) and is not updated in that step. It is dropped when the largest position variance
+    exceeds ``drop_pos_var`` (m^2) or its mean position leaves the arena box [bounds_lo, bounds_hi] (m); a dropped
+    obstacle that is seen again starts a new track. R = 0 (the program's value) is allowed as long as q > 0 or
+    the tracks' position covariance stays positive definite.
+    """
+
+    def __init__(self, n_obstacles: int, dims: int, dt: float, *, q: float = 1e-5, r: float = 0.0,
+                 p0_pos: float = 0.01, p0_vel: float = 0.1, drop_pos_var: float = 1.5,
+                 bounds_lo, bounds_hi):
+        if dims not in (2, 3):
+            raise ValueError(f"dims must be 2 or 3, got {dims}")
+        if n_obstacles < 0 or dt <= 0 or q < 0 or r < 0 or p0_pos <= 0 or p0_vel < 0 or drop_pos_var <= 0:
+            raise ValueError("KalmanTracks needs n_obstacles >= 0, dt > 0, q >= 0, r >= 0, p0_pos > 0, "
+                             "p0_vel >= 0, drop_pos_var > 0")
+        self.n = int(n_obstacles)
+        self.dims = d = int(dims)
+        self.dt = float(dt)
+        self.drop_pos_var = float(drop_pos_var)
+        self.bounds_lo = np.asarray(bounds_lo, dtype=float).reshape(d)
+        self.bounds_hi = np.asarray(bounds_hi, dtype=float).reshape(d)
+        eye = np.eye(d)
+        self.A = np.block([[eye, self.dt * eye], [np.zeros((d, d)), eye]])
+        self.Q = float(q) * np.eye(2 * d)
+        self.R = float(r) * eye
+        self.P0 = np.diag(np.r_[np.full(d, float(p0_pos)), np.full(d, float(p0_vel))])
+        self.x = np.zeros((self.n, 2 * d))
+        self.P = np.zeros((self.n, 2 * d, 2 * d))
+        self.active = np.zeros(self.n, dtype=bool)
+        self.ever = np.zeros(self.n, dtype=bool)
+        self.tracked_time_s = 0.0
+
+    @property
+    def ever_tracked(self) -> int:
+        """Number of obstacles that have ever had a track."""
+        return int(np.count_nonzero(self.ever))
+
+    @property
+    def n_active(self) -> int:
+        """Number of active tracks."""
+        return int(np.count_nonzero(self.active))
+
+    def predict(self) -> None:
+        """Predict every active track one step ahead (eq. 2-1, 2-2; no control input)."""
+        idx = np.flatnonzero(self.active)
+        if idx.size == 0:
+            return
+        d = self.dims
+        x = self.x[idx]
+        x[:, :d] += self.dt * x[:, d:]
+        self.x[idx] = x
+        self.P[idx] = self.A @ self.P[idx] @ self.A.T + self.Q
+
+    def update(self, ids, z) -> None:
+        """Update seen active tracks with measured centres z [m, d] (m) of obstacles ``ids`` [m] (eq. 2-3..2-5).
+
+        Ids without an active track are initialised (x = [z, 0], P = P0) and not updated in this step. The covariance
+        update uses the Joseph form of eq. 2-5 (algebraically equal for the optimal gain, keeps P symmetric).
+        """
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        z = np.asarray(z, dtype=float).reshape(ids.size, self.dims)
+        if ids.size == 0:
+            return
+        if np.any((ids < 0) | (ids >= self.n)):
+            raise IndexError(f"track ids must be in [0, {self.n}), got {ids}")
+        d = self.dims
+        seen = self.active[ids]
+        new = ids[~seen]
+        if new.size:
+            self.x[new, :d] = z[~seen]
+            self.x[new, d:] = 0.0
+            self.P[new] = self.P0
+            self.active[new] = True
+            self.ever[new] = True
+        upd = ids[seen]
+        if upd.size == 0:
+            return
+        x = self.x[upd]
+        P = self.P[upd]
+        S = P[:, :d, :d] + self.R                                  # H P H^T + R
+        K = np.linalg.solve(S, P[:, :d, :]).transpose(0, 2, 1)     # P H^T S^-1 (S, P symmetric)   [m, 2d, d]
+        x = x + np.einsum("mij,mj->mi", K, z[seen] - x[:, :d])
+        IKH = np.broadcast_to(np.eye(2 * d), P.shape).copy()
+        IKH[:, :, :d] -= K
+        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ self.R @ K.transpose(0, 2, 1)
+        self.x[upd] = x
+        self.P[upd] = P
+
+    def drop(self) -> None:
+        """Deactivate tracks whose largest position variance exceeds drop_pos_var or whose mean left the arena."""
+        idx = np.flatnonzero(self.active)
+        if idx.size == 0:
+            return
+        d = self.dims
+        pos_var = np.diagonal(self.P[idx, :d, :d], axis1=1, axis2=2).max(axis=1)
+        pos = self.x[idx, :d]
+        outside = np.any((pos < self.bounds_lo) | (pos > self.bounds_hi), axis=1)
+        self.active[idx[(pos_var > self.drop_pos_var) | outside]] = False
+
+    def step(self, ids, z) -> None:
+        """One world step (DESIGN.md step 3): predict, update with detections (ids [m], z [m, d]), drop.
+
+        Adds dt per track still active afterwards to ``tracked_time_s``.
+        """
+        self.predict()
+        self.update(ids, z)
+        self.drop()
+        self.tracked_time_s += self.dt * self.n_active
+
+    def tracks(self, radii) -> Tracks:
+        """The active tracks ordered by id, with obstacle radii taken from ``radii`` [N] (m)."""
+        idx = np.flatnonzero(self.active)
+        d = self.dims
+        radii = np.asarray(radii, dtype=float).reshape(self.n)
+        return Tracks(idx, self.x[idx, :d], self.x[idx, d:], self.P[idx], radii[idx])

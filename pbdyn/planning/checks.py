@@ -1,0 +1,77 @@
+"""Validity checks of a candidate trajectory, shared by the planners (thesis A-2 eq. A-2, A-3).
+
+A sample is in conflict when the MAV ball (radius limits.radius + margin) meets
+(a) a track's constant-velocity prediction at the sample's absolute time: centre = position + (t - view.t) velocity
+    (tracks' means are at view.t), radius = the track's radius;
+(b) an OCCUPIED grid cell (UNKNOWN cells count as free, as in the thesis program);
+(c) an arena wall. Walls use the smaller ball radius limits.radius + min(margin, WALL_MARGIN_CAP): the planners'
+    safety margin is meant for moving or perceived obstacles, and a full margin at the walls would push the
+    reachable box 0.5 m further in and starve the primitive fan near the start/goal candidates 4 m from a wall.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pbdyn.planning.view import View
+
+WALL_MARGIN_CAP = 0.1  # m; largest margin applied against the arena walls
+
+
+def first_conflict(view: View, p: np.ndarray, times: np.ndarray, margin: float = 0.5) -> int:
+    """Index of the first sample of positions p [K, d] (m) at absolute times [K] (s) that conflicts; -1 if none."""
+    p = np.asarray(p, dtype=float)
+    k = p.shape[0]
+    if k == 0:
+        return -1
+    bad = _static_bad(view, p, margin, grid=False)
+    tracks = view.tracks
+    if len(tracks):
+        tau = np.asarray(times, dtype=float) - view.t
+        rel = p[:, None, :] - tracks.position[None, :, :] - tau[:, None, None] * tracks.velocity[None, :, :]
+        reach = tracks.radius + (view.limits.radius + margin)
+        bad |= np.any(np.einsum("kmd,kmd->km", rel, rel) < reach * reach, axis=1)
+    first = int(np.argmax(bad)) if bad.any() else k
+    if first > 0:  # the grid query is the expensive one: only where nothing else failed earlier
+        grid_bad = view.grid.collides(p[:first], view.limits.radius + margin)
+        if grid_bad.any():
+            first = int(np.argmax(grid_bad))
+    return -1 if first == k else first
+
+
+def trajectory_clear(view: View, p: np.ndarray, times: np.ndarray, margin: float = 0.5) -> bool:
+    """True if no sample of positions p [K, d] (m) at absolute times [K] (s) conflicts (see module doc)."""
+    p = np.asarray(p, dtype=float)
+    if p.shape[0] == 0:
+        return True
+    if _static_bad(view, p, margin, grid=False).any():
+        return False
+    tracks = view.tracks
+    if len(tracks):
+        tau = np.asarray(times, dtype=float) - view.t
+        rel = p[:, None, :] - tracks.position[None, :, :] - tau[:, None, None] * tracks.velocity[None, :, :]
+        reach = tracks.radius + (view.limits.radius + margin)
+        if np.any(np.einsum("kmd,kmd->km", rel, rel) < reach * reach):
+            return False
+    return not view.grid.collides(p, view.limits.radius + margin).any()
+
+
+def static_clear(view: View, points: np.ndarray, margin: float = 0.5) -> np.ndarray:
+    """Per point [K, d] (m): True if the MAV ball is clear of the walls and of OCCUPIED cells (checks b, c)."""
+    return ~_static_bad(view, np.asarray(points, dtype=float), margin, grid=True)
+
+
+def _static_bad(view: View, p: np.ndarray, margin: float, grid: bool) -> np.ndarray:
+    wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
+    bad = np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=1)
+    if grid:
+        bad |= view.grid.collides(p, view.limits.radius + margin)
+    return bad
+
+
+def within_limits(v: np.ndarray, a: np.ndarray, v_max: float, a_max: float, tol: float = 1e-9) -> bool:
+    """True if every sample's speed |v| <= v_max + tol (m/s) and |a| <= a_max + tol (m/s^2); v, a [K, d]."""
+    v = np.asarray(v, dtype=float)
+    a = np.asarray(a, dtype=float)
+    return bool(np.all(np.einsum("kd,kd->k", v, v) <= (v_max + tol) ** 2)
+                and np.all(np.einsum("kd,kd->k", a, a) <= (a_max + tol) ** 2))

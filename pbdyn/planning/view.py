@@ -1,0 +1,121 @@
+"""The read-only snapshot a planner sees each step (DESIGN.md "Planner protocols").
+
+Planners never see the rollout: only the MAV's own state, its occupancy grid, the active Kalman tracks, the goal
+and the time. Arrays in a View are read-only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pbdyn.planning.trajectory import Trajectory
+
+if TYPE_CHECKING:  # pragma: no cover
+    from pbdyn.perception.grid import OccupancyGrid
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class Tracks:
+    """Active Kalman tracks of dynamic obstacles (thesis 2-4-2).
+
+    Attributes:
+        ids: obstacle index of each track [M] (int; the index into the rollout's obstacles).
+        position: estimated centres [M, d] (m, world frame) at the view's time.
+        velocity: estimated velocities [M, d] (m/s).
+        covariance: state covariances [M, 2d, 2d] over [p, v] (m^2, m^2/s, m^2/s^2).
+        radius: obstacle radii [M] (m).
+    """
+
+    ids: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    covariance: np.ndarray
+    radius: np.ndarray
+
+    def __post_init__(self) -> None:
+        ids = np.asarray(self.ids, dtype=np.int64)
+        ids.setflags(write=False)
+        object.__setattr__(self, "ids", ids)
+        for name in ("position", "velocity", "covariance", "radius"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+
+    @classmethod
+    def empty(cls, dims: int) -> "Tracks":
+        """No tracks, in d dimensions."""
+        return cls(np.zeros(0, np.int64), np.zeros((0, dims)), np.zeros((0, dims)),
+                   np.zeros((0, 2 * dims, 2 * dims)), np.zeros(0))
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def predict(self, dt_ahead: np.ndarray | float) -> np.ndarray:
+        """Constant-velocity predictions of the centres: [M, d] for a scalar, [K, M, d] for times [K] (s ahead)."""
+        tau = np.asarray(dt_ahead, dtype=float)
+        if tau.ndim == 0:
+            return self.position + tau * self.velocity
+        return self.position[None, :, :] + tau[:, None, None] * self.velocity[None, :, :]
+
+
+@dataclass(frozen=True)
+class MAVLimits:
+    """The MAV's physical limits. v_max (m/s) and a_max (m/s^2) bound Euclidean norms; yaw_rate (rad/s)."""
+
+    radius: float
+    v_max: float
+    a_max: float
+    yaw_rate: float
+
+
+@dataclass(frozen=True)
+class View:
+    """What the MAV knows at time t (all SI, world frame, z-up; d = 2 or 3).
+
+    Attributes:
+        t: time (s) of this step.
+        dt: world step (s).
+        position, velocity, acceleration: MAV state [d] (m, m/s, m/s^2).
+        yaw: MAV heading (rad, counter-clockwise from +x).
+        goal: goal position [d] (m); goal_radius (m) ends the trial on success.
+        limits: the MAV's radius and limits.
+        bounds_lo, bounds_hi: arena box [d] (m); the border is a wall.
+        grid: the MAV's occupancy grid (read it, never write it).
+        tracks: active Kalman tracks.
+        trajectory: the plan currently being executed, or None.
+        fov_deg: the sensor's horizontal field of view (deg); range_m: its range (m).
+    """
+
+    t: float
+    dt: float
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    yaw: float
+    goal: np.ndarray
+    goal_radius: float
+    limits: MAVLimits
+    bounds_lo: np.ndarray
+    bounds_hi: np.ndarray
+    grid: "OccupancyGrid"
+    tracks: Tracks
+    trajectory: Trajectory | None = None
+    fov_deg: float = 90.0
+    range_m: float = 8.0
+    extras: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("position", "velocity", "acceleration", "goal", "bounds_lo", "bounds_hi"):
+            object.__setattr__(self, name, _readonly(np.array(getattr(self, name), dtype=float)))
+
+    @property
+    def dims(self) -> int:
+        """Spatial dimension d."""
+        return int(self.position.shape[0])

@@ -1,0 +1,31 @@
+"""How a trial ends (thesis 2-5): an enum with readable reasons."""
+
+from __future__ import annotations
+
+from enum import Enum
+
+
+class Outcome(str, Enum):
+    """Trial outcome. The value is the name stored in results; ``reason`` explains it."""
+
+    SUCCESS = "success"
+    STATIC_COLLISION = "static_collision"
+    DYNAMIC_COLLISION = "dynamic_collision"
+    FREEZING = "freezing"
+    DEADLOCK = "deadlock"
+    ERROR = "error"
+
+    @property
+    def reason(self) -> str:
+        """A readable explanation of the outcome."""
+        return _REASONS[self]
+
+
+_REASONS = {
+    Outcome.SUCCESS: "reached the goal ball",
+    Outcome.STATIC_COLLISION: "touched a wall or a static obstacle",
+    Outcome.DYNAMIC_COLLISION: "touched a moving obstacle",
+    Outcome.FREEZING: "did not reach the goal within the time limit",
+    Outcome.DEADLOCK: "planning failed repeatedly with the MAV at rest",
+    Outcome.ERROR: "the trial raised an exception",
+}

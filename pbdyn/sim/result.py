@@ -1,0 +1,55 @@
+"""The record of one trial (thesis table 2-2, DESIGN.md "Outcomes and the record")."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass(frozen=True)
+class TrialResult:
+    """One result row. Table 2-2 fields first; every timing field's name contains "wall".
+
+    Units: times in s, distances in m, speeds in m/s; start/goal in m (world frame).
+    """
+
+    gaze: str
+    planner: str
+    motion_profile: str
+    map_index: int
+    map_id: str
+    map_seed: int
+    obstacle_count: int
+    obstacle_radius: float | dict
+    obstacle_speed: float | dict
+    mav_speed: float
+    start: tuple[float, ...]
+    goal: tuple[float, ...]
+    flight_time_s: float
+    grid_discovered: int
+    obstacles_tracked: int
+    tracked_time_s: float
+    outcome: str
+    final_state: str
+    reason: str
+    min_clearance_m: float
+    planning_failures: int
+    steps: int
+    planner_label: str
+    scenario: str
+    map_key: str
+    config_hash: str
+    wall_time_s: float = 0.0
+    wall_timings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """A flat JSON-able dict (wall_timings entries become top-level keys)."""
+        d = asdict(self)
+        timings = d.pop("wall_timings")
+        d["start"] = list(self.start)
+        d["goal"] = list(self.goal)
+        d.update(timings)
+        return d
+
+    def without_wall_times(self) -> dict:
+        """to_dict() minus every field whose name contains "wall" (what determinism compares)."""
+        return {k: v for k, v in self.to_dict().items() if "wall" not in k}

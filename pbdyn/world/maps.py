@@ -1,0 +1,146 @@
+"""Map enumeration, seeds and obstacle spawning (DESIGN.md "Maps and seeds", thesis 2-3).
+
+A map is identified by its setup values (count, radius, speed — each a number or a {min, max} range) and its
+replicate number, never by a position in a list, so adding a grid value adds maps without changing existing ones.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbdyn.config import Scenario, canonical_json
+from pbdyn.errors import ConfigError
+from pbdyn.world.geometry import StaticBody
+
+MAX_SPAWN_ATTEMPTS = 20000
+
+
+def stable_hash64(text: str) -> int:
+    """A process-independent 64-bit hash of a string (first 8 bytes of its sha256)."""
+    return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:8], "big")
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """One map: its setup values, replicate, position in the enumeration and seed entropy."""
+
+    index: int
+    setup: dict
+    replicate: int
+    root_seed: int
+
+    @property
+    def key(self) -> str:
+        """Canonical JSON of (setup values, replicate): the map's identity."""
+        return canonical_json({"setup": self.setup, "replicate": self.replicate})
+
+    @property
+    def map_id(self) -> str:
+        """A short readable id: the first 12 hex digits of the key's sha256."""
+        return hashlib.sha256(self.key.encode()).hexdigest()[:12]
+
+    def seed_sequence(self) -> np.random.SeedSequence:
+        """SeedSequence([root_seed, stable hash of the key])."""
+        return np.random.SeedSequence([self.root_seed, stable_hash64(self.key)])
+
+    @property
+    def seed(self) -> int:
+        """A 63-bit integer summarising the map's seed (for the record)."""
+        return int(self.seed_sequence().generate_state(2, np.uint64)[0] >> np.uint64(1))
+
+    def rng(self) -> np.random.Generator:
+        """The map's Generator."""
+        return np.random.default_rng(self.seed_sequence())
+
+
+def enumerate_maps(scenario: Scenario) -> list[MapSpec]:
+    """All maps: setups in file order (first grid field slowest), replicates fastest."""
+    out = []
+    for setup in scenario.setups():
+        for rep in range(scenario.obstacles.maps_per_setup):
+            out.append(MapSpec(len(out), setup, rep, scenario.obstacles.root_seed))
+    return out
+
+
+def get_map(scenario: Scenario, index: int) -> MapSpec:
+    """The map with enumeration index ``index``; ConfigError if out of range."""
+    maps = enumerate_maps(scenario)
+    if not isinstance(index, int) or not 0 <= index < len(maps):
+        raise ConfigError("--map", f"must be an index in [0, {len(maps) - 1}]", index)
+    return maps[index]
+
+
+def static_bodies(scenario: Scenario) -> tuple[StaticBody, ...]:
+    """The scenario's static obstacles as geometry."""
+    return tuple(StaticBody(s.kind, tuple(s.center), s.radius, tuple(s.size), float(np.deg2rad(s.yaw_deg)))
+                 for s in scenario.static_obstacles)
+
+
+def _draw(value, rng: np.random.Generator, n: int, jitter: float) -> np.ndarray:
+    if isinstance(value, dict):
+        return rng.uniform(value["min"], value["max"], n)
+    if jitter > 0:
+        return rng.uniform(value - jitter, value + jitter, n)
+    return np.full(n, float(value))
+
+
+def random_unit_vectors(rng: np.random.Generator, n: int, dims: int) -> np.ndarray:
+    """n uniformly random unit vectors [n, d] (2D: uniform heading; 3D: uniform on the sphere)."""
+    if dims == 2:
+        th = rng.uniform(0.0, 2.0 * np.pi, n)
+        return np.stack([np.cos(th), np.sin(th)], axis=1)
+    v = rng.standard_normal((n, dims))
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    norm[norm == 0] = 1.0
+    return v / norm
+
+
+def spawn_obstacles(scenario: Scenario, spec: MapSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Initial centres [N, d] (m), velocities [N, d] (m/s) and radii [N] (m) of a map's obstacles.
+
+    Radii: setup radius +- radius_jitter (uniform) or drawn from a range; speeds: exactly the setup speed or drawn
+    from a range; headings uniform; centres uniform inside the walls, rejection-sampled so that no obstacle overlaps
+    another, a static body, or any start/goal candidate's MAV disc plus the spawn clearance (thesis 2-3; unlike the
+    thesis' program, the layout never depends on which start is flown).
+    """
+    rng = spec.rng()
+    dims = scenario.world.dims
+    size = np.asarray(scenario.world.size, dtype=float)
+    n = int(spec.setup["count"])
+    radii = _draw(spec.setup["radius"], rng, n, scenario.obstacles.radius_jitter)
+    speeds = _draw(spec.setup["speed"], rng, n, 0.0)
+    dirs = random_unit_vectors(rng, n, dims)
+    velocities = dirs * speeds[:, None]
+    cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
+    keep_out = scenario.drone.radius + scenario.task.spawn_clearance
+    bodies = static_bodies(scenario)
+    centres = np.zeros((n, dims))
+    for i in range(n):
+        r = radii[i]
+        lo, hi = np.full(dims, r), size - r
+        # draw in batches and take the first admissible point: same result as one-by-one rejection, far fewer calls
+        placed = False
+        for _ in range(MAX_SPAWN_ATTEMPTS // 64):
+            pts = rng.uniform(lo, hi, size=(64, dims))
+            ok = np.ones(64, dtype=bool)
+            if i:
+                dist = np.linalg.norm(pts[:, None, :] - centres[None, :i, :], axis=-1)
+                ok &= np.all(dist >= radii[None, :i] + r, axis=1)
+            if cands.size:
+                dist = np.linalg.norm(pts[:, None, :] - cands[None, :, :], axis=-1)
+                ok &= np.all(dist >= r + keep_out, axis=1)
+            for b in bodies:
+                ok &= b.footprint_distance(pts) >= r
+            hit = np.flatnonzero(ok)
+            if hit.size:
+                centres[i] = pts[hit[0]]
+                placed = True
+                break
+        if not placed:
+            raise ConfigError("obstacles.count",
+                              f"cannot place {n} obstacles (radius ~{float(np.mean(radii)):.2f} m) without overlap "
+                              f"(map {spec.index}, obstacle {i})", n)
+    return centres, velocities, radii

@@ -1,0 +1,192 @@
+"""Rollouts: every obstacle's state at every step of a map, computed once and cached (DESIGN.md "The data flow").
+
+The .npz file holds these arrays (SI units, world frame):
+    times [T] (s), positions [T, N, d] (m), velocities [T, N, d] (m/s), radii [N] (m), arena_size [d] (m),
+    dt [] (s), static_kind [S] (0 = pillar, 1 = box), static_center [S, d] (m), static_radius [S] (m),
+    static_size [S, d] (m, box full extents), static_yaw [S] (rad), meta [] (JSON string: map key, seed, motion,
+    model version, scenario name).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pbdyn.config import Scenario, canonical_json
+from pbdyn.errors import ConfigError, HorizonError
+from pbdyn.world.geometry import StaticBody
+from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
+from pbdyn.world.motion import cvm_fold
+
+ROLLOUT_MODEL_VERSION = "rollout-1"
+STATIC_KINDS = ("pillar", "box")
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Positions and velocities of every obstacle at every step, plus the static geometry of the map."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    radii: np.ndarray
+    arena_size: np.ndarray
+    dt: float
+    static: tuple[StaticBody, ...] = ()
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("times", "positions", "velocities", "radii", "arena_size"):
+            arr = np.ascontiguousarray(getattr(self, name), dtype=float)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    @property
+    def dims(self) -> int:
+        """Spatial dimension d."""
+        return int(self.arena_size.shape[0])
+
+    @property
+    def n_obstacles(self) -> int:
+        """Number of dynamic obstacles N."""
+        return int(self.radii.shape[0])
+
+    @property
+    def n_steps(self) -> int:
+        """Number of time samples T."""
+        return int(self.times.shape[0])
+
+    @property
+    def horizon(self) -> float:
+        """Last time covered (s)."""
+        return float(self.times[-1])
+
+    def step_index(self, t: float) -> int:
+        """Index of the sample at time t (s); HorizonError past the horizon."""
+        k = int(round(t / self.dt))
+        if k < 0 or k >= self.n_steps:
+            raise HorizonError(f"time {t:.3f} s is outside the rollout's horizon [0, {self.horizon:.3f}] s")
+        return k
+
+    def at(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(positions [N, d], velocities [N, d]) at step k; HorizonError past the horizon."""
+        if k < 0 or k >= self.n_steps:
+            raise HorizonError(f"step {k} is outside the rollout's horizon (0..{self.n_steps - 1})")
+        return self.positions[k], self.velocities[k]
+
+    # ------------------------------------------------------------------ files
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The documented .npz arrays."""
+        d = self.dims
+        s = len(self.static)
+        kinds = np.array([STATIC_KINDS.index(b.kind) for b in self.static], dtype=np.int8)
+        center = np.array([np.asarray(b.center, float)[:d] for b in self.static]).reshape(s, d)
+        size = np.array([np.resize(np.asarray(b.size, float), d) if b.size else np.zeros(d)
+                         for b in self.static]).reshape(s, d)
+        return {
+            "times": self.times, "positions": self.positions, "velocities": self.velocities,
+            "radii": self.radii, "arena_size": self.arena_size, "dt": np.array(self.dt),
+            "static_kind": kinds, "static_center": center,
+            "static_radius": np.array([b.radius for b in self.static], dtype=float),
+            "static_size": size, "static_yaw": np.array([b.yaw for b in self.static], dtype=float),
+            "meta": np.array(json.dumps(self.meta, sort_keys=True)),
+        }
+
+    def save(self, path: str | Path) -> None:
+        """Write the rollout to an .npz file atomically (temp file + os.replace)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".rollout-", suffix=".npz", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, **self.to_arrays())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Rollout":
+        """Read a rollout written by save()."""
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        static = tuple(
+            StaticBody(STATIC_KINDS[int(k)], tuple(map(float, c)), float(r),
+                       tuple(map(float, s)) if int(k) == 1 else (), float(y))
+            for k, c, r, s, y in zip(a["static_kind"], a["static_center"], a["static_radius"], a["static_size"],
+                                     a["static_yaw"]))
+        return cls(a["times"], a["positions"], a["velocities"], a["radii"], a["arena_size"], float(a["dt"]),
+                   static, json.loads(str(a["meta"])))
+
+
+def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
+    """sha256 of everything a rollout depends on (and the model version)."""
+    w = scenario.world
+    payload = {
+        "version": ROLLOUT_MODEL_VERSION, "map": spec.key, "root_seed": spec.root_seed,
+        "world": {"dims": w.dims, "size": w.size, "dt": w.dt},
+        "obstacles": {"jitter": scenario.obstacles.radius_jitter, "motion": scenario.obstacles.motion},
+        "static": [vars(s) for s in scenario.static_obstacles],
+        "spawn": {"candidates": scenario.task.candidates, "mav_radius": scenario.drone.radius,
+                  "clearance": scenario.task.spawn_clearance},
+        "horizon": round(horizon, 9),
+    }
+    return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
+
+
+def default_horizon(scenario: Scenario) -> float:
+    """The trial time limit plus one step (the collision check at t_k+1 of the last step)."""
+    return scenario.world.time_limit + scenario.world.dt
+
+
+def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None) -> Rollout:
+    """Compute a map's rollout from (scenario, map spec) over [0, horizon] s."""
+    horizon = default_horizon(scenario) if horizon is None else float(horizon)
+    if horizon <= 0:
+        raise ConfigError("horizon", "must be > 0", horizon)
+    dt = scenario.world.dt
+    n_t = int(round(horizon / dt)) + 1
+    times = np.arange(n_t) * dt
+    p0, v0, radii = spawn_obstacles(scenario, spec)
+    size = np.asarray(scenario.world.size, dtype=float)
+    if scenario.obstacles.motion == "cvm":
+        pos, vel = cvm_fold(p0, v0, radii, size, times)
+    else:  # pragma: no cover - validation rejects other names
+        raise ConfigError("obstacles.motion", "unsupported", scenario.obstacles.motion)
+    meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": scenario.obstacles.motion,
+            "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name}
+    return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario), meta)
+
+
+def cache_dir() -> Path:
+    """The rollout cache folder: $PBDYN_CACHE, else $XDG_CACHE_HOME/pbdyn, else ~/.cache/pbdyn."""
+    env = os.environ.get("PBDYN_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "pbdyn"
+
+
+def get_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None, *, use_cache: bool = True) -> Rollout:
+    """The map's rollout, from the on-disk cache when present (keyed by rollout_key), else built and cached."""
+    horizon = default_horizon(scenario) if horizon is None else float(horizon)
+    if not use_cache:
+        return build_rollout(scenario, spec, horizon)
+    path = cache_dir() / "rollouts" / f"{rollout_key(scenario, spec, horizon)}.npz"
+    if path.is_file():
+        try:
+            return Rollout.load(path)
+        except (OSError, ValueError, KeyError):
+            path.unlink(missing_ok=True)
+    ro = build_rollout(scenario, spec, horizon)
+    try:
+        ro.save(path)
+    except OSError:
+        pass  # a read-only cache is not an error: the rollout is still correct
+    return ro
