@@ -232,16 +232,26 @@ def build_planners(spec: TrialSpec):
     return ctx, traj, gaze
 
 
+SPLITS = ("wall_world_s", "wall_rays_s", "wall_tracking_s", "wall_planning_s", "wall_gaze_s", "wall_collision_s")
+
+
 def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_path: str | Path | None = None,
-              gui_sleep: float = 0.0) -> TrialResult:
-    """Fly one trial and return its TrialResult (optionally saving a per-step trace .npz)."""
+              gui_sleep: float = 0.0, profile: dict | None = None) -> TrialResult:
+    """Fly one trial and return its TrialResult.
+
+    trace_path: save a per-step trace .npz there. profile: if a dict is given, it receives per-step lists of each
+    timing split (SPLITS, s) and "candidates_built" (the planner's ``last_candidates_built`` when it planned).
+    """
     wall0 = time.perf_counter()
     sc = spec.scenario
     ctx, planner, gaze = build_planners(spec)
     fov = getattr(gaze, "fov_deg", None)
     env = TrialEnv(spec, rollout, gui=gui, fov_deg=fov)
-    timings = {"wall_setup_s": time.perf_counter() - wall0, "wall_world_s": 0.0, "wall_rays_s": 0.0,
-               "wall_tracking_s": 0.0, "wall_planning_s": 0.0, "wall_gaze_s": 0.0, "wall_collision_s": 0.0}
+    timings = {"wall_setup_s": time.perf_counter() - wall0, **{name: 0.0 for name in SPLITS}}
+    step_walls: list[float] = []
+    if profile is not None:
+        for name in SPLITS + ("candidates_built",):
+            profile[name] = []
     trace = _Trace() if trace_path is not None else None
     dims, dt = ctx.dims, ctx.dt
     limits = ctx.limits
@@ -308,12 +318,13 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
             min_clearance = min(min_clearance, clearance)
             if trace is not None:
                 _record(trace, t, p, v, a, yaw, rate, traj, plan_ok, env, det)
-            timings["wall_world_s"] += c1 - c0
-            timings["wall_rays_s"] += c2 - c1
-            timings["wall_tracking_s"] += c3 - c2
-            timings["wall_planning_s"] += c4 - c3
-            timings["wall_gaze_s"] += c5 - c4
-            timings["wall_collision_s"] += c6 - c5
+            for name, dt_wall in zip(SPLITS, (c1 - c0, c2 - c1, c3 - c2, c4 - c3, c5 - c4, c6 - c5)):
+                timings[name] += dt_wall
+                if profile is not None:
+                    profile[name].append(dt_wall)
+            if profile is not None:
+                profile["candidates_built"].append(getattr(planner, "last_candidates_built", float("nan")))
+            step_walls.append(c6 - c0)
             p, v, a, yaw = p1, v1, a1, yaw1
             if hit is not None:
                 outcome = hit
@@ -339,8 +350,8 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
         _save_trace(trace, trace_path, p, v, a, yaw, outcome)
     ms = spec.map_spec
     wall = time.perf_counter() - wall0
-    loop = sum(v_ for k_, v_ in timings.items() if k_ != "wall_setup_s")
-    timings["wall_step_mean_s"] = loop / max(steps, 1)
+    timings["wall_step_mean_s"] = float(np.mean(step_walls)) if step_walls else 0.0
+    timings["wall_step_median_s"] = float(np.median(step_walls)) if step_walls else 0.0
     return TrialResult(
         gaze=spec.planner.gaze, planner=spec.planner.trajectory, motion_profile=sc.obstacles.motion,
         map_index=ms.index, map_id=ms.map_id, map_seed=ms.seed, obstacle_count=int(ms.setup["count"]),

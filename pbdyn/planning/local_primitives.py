@@ -1,0 +1,201 @@
+"""Local motion primitives (thesis 4-1-1, appendix A-2, Algorithm 3) on jerk-limited ruckig trajectories.
+
+Every step the planner fans end points on a circle (3D: a sphere) of radius step_m around the MAV, ranks them by
+the angle between their direction and the goal direction, and takes the first one whose trajectory is within the
+norm limits and clear (pbdyn.planning.checks). Trajectories are built lazily in rank order, so in open space one
+ruckig build per step is typical. The thesis program used minimum-jerk polynomials (Mueller et al.); ruckig gives
+jerk-limited, time-synchronised profiles with the same boundary conditions and the program's minimum duration.
+
+Norm limits from ruckig's per-axis limits: first build with per-axis (v_max, a_max, jerk_max); if a sample's
+|v| or |a| exceeds the norm limit, rebuild with the per-axis limits scaled by 0.95 * limit / observed peak (at most
+two rebuilds; the peak does not shrink in proportion to the limit, and the exact ratio tends to land just above it),
+then with the conservative per-axis v_max / sqrt(d), a_max / sqrt(d) (DESIGN.md "Limits are norms");
+a candidate that still violates, or that ruckig rejects, is skipped.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import ruckig
+
+from pbdyn.planning.checks import static_clear, trajectory_clear
+from pbdyn.planning.protocols import PlannerContext
+from pbdyn.planning.trajectory import Trajectory
+from pbdyn.planning.view import View
+
+_TOL = 1e-9
+_N_SCALED_REBUILDS = 2
+_SCALE_SAFETY = 0.95  # the peak does not scale linearly with the limits: aim slightly below
+
+
+class LocalPrimitives:
+    """Local motion primitives planner (registry name "local_primitives").
+
+    Args:
+        context: the trial's fixed facts (dims, dt, limits, arena box).
+        n_candidates: number of end points on the circle (2D: at angles 2 pi k / n) or sphere (3D).
+        step_m: distance (m) from the MAV to each end point.
+        end_speed_frac: end speed as a fraction of v_max, along the candidate's direction; end acceleration 0.
+        jerk_max: per-axis jerk limit (m/s^3).
+        margin: safety margin (m) added to the MAV radius in the collision check.
+        min_duration: minimum primitive duration (s); default max(1.2 step_m / v_max, 0.5) as the thesis program.
+
+    Diagnostics of the last plan() call: last_candidates_built (ruckig calculate() calls), last_candidates_tried,
+    last_rank (rank of the chosen candidate, 0 = best; None on failure), last_target (its end point [d]).
+    """
+
+    def __init__(self, context: PlannerContext, *, n_candidates: int = 72, step_m: float = 3.0,
+                 end_speed_frac: float = 0.5, jerk_max: float = 20.0, margin: float = 0.5,
+                 min_duration: float | None = None):
+        if int(n_candidates) < 1 or step_m <= 0 or not 0 <= end_speed_frac <= 1 or jerk_max <= 0 or margin < 0:
+            raise ValueError("local_primitives needs n_candidates >= 1, step_m > 0, 0 <= end_speed_frac <= 1, "
+                             "jerk_max > 0, margin >= 0")
+        if min_duration is not None and min_duration < 0:
+            raise ValueError(f"min_duration must be >= 0, got {min_duration}")
+        self.dims = d = int(context.dims)
+        self.dt = float(context.dt)
+        self.limits = context.limits
+        self.n_candidates = int(n_candidates)
+        self.step_m = float(step_m)
+        self.end_speed = float(end_speed_frac) * self.limits.v_max
+        self.jerk_max = float(jerk_max)
+        self.margin = float(margin)
+        if min_duration is None:
+            min_duration = max(1.2 * self.step_m / self.limits.v_max, 0.5)
+        self.min_duration = float(min_duration)
+        self.directions = self._candidate_directions(d)
+        self._otg = ruckig.Ruckig(d)
+        self._inp = ruckig.InputParameter(d)
+        self._traj = ruckig.Trajectory(d)
+        self._inp.minimum_duration = self.min_duration
+        self._inp.target_acceleration = [0.0] * d
+        self._inp.max_jerk = [self.jerk_max] * d
+        self.last_candidates_built = 0
+        self.last_candidates_tried = 0
+        self.last_rank: int | None = None
+        self.last_target: np.ndarray | None = None
+
+    def _candidate_directions(self, dims: int) -> np.ndarray:
+        """Unit directions [n, d] of the candidate end points (thesis eq. A-4).
+
+        2D: angles 2 pi k / n, k = 0..n-1. 3D: a Fibonacci lattice on the unit sphere (near-uniform; override this
+        method for another 3D fan).
+        """
+        n = self.n_candidates
+        k = np.arange(n)
+        if dims == 2:
+            ang = 2.0 * np.pi * k / n
+            return np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        if dims == 3:
+            z = 1.0 - (2.0 * k + 1.0) / n
+            rho = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+            phi = k * np.pi * (3.0 - np.sqrt(5.0))
+            return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+        raise ValueError(f"dims must be 2 or 3, got {dims}")
+
+    def replan_check(self, view: View) -> bool:
+        """Always True: the thesis program replans every step and executes one sample."""
+        return True
+
+    def ranked_candidates(self, view: View) -> np.ndarray:
+        """Candidate indices sorted by the angle between candidate and goal direction (ascending, ties by index)."""
+        g = view.goal - view.position
+        dist = math.sqrt(float(g @ g))
+        if dist < 1e-12:
+            return np.arange(self.n_candidates)
+        angle = np.arccos(np.clip(self.directions @ (g / dist), -1.0, 1.0))
+        return np.argsort(np.round(angle, 12), kind="stable")
+
+    def plan(self, view: View) -> Trajectory | None:
+        """The first clear, limit-respecting primitive in rank order, sampled at view.dt; None if none exists."""
+        self.last_candidates_built = 0
+        self.last_candidates_tried = 0
+        self.last_rank = None
+        self.last_target = None
+        p0 = view.position
+        g = view.goal - p0
+        order = self.ranked_candidates(view)
+        targets = p0 + self.step_m * self.directions          # [n, d]
+        end_vel = self.end_speed * self.directions             # [n, d]
+        static_ok = None
+        rank = 0
+        if math.sqrt(float(g @ g)) < self.step_m:
+            rank = -1  # the goal itself, reached at rest, is tried first
+        for r in range(rank, self.n_candidates):
+            if r < 0:
+                target, vel = view.goal, np.zeros(self.dims)
+            else:
+                i = order[r]
+                if r > 0:
+                    if static_ok is None:  # once the best candidate failed, prune blocked end points in one query
+                        static_ok = static_clear(view, targets, self.margin)
+                    if not static_ok[i]:
+                        continue
+                target, vel = targets[i], end_vel[i]
+            self.last_candidates_tried += 1
+            samples = self._build(view, target, vel)
+            if samples is None:
+                continue
+            p, v, a = samples
+            times = view.t + view.dt * np.arange(p.shape[0])
+            if trajectory_clear(view, p[1:], times[1:], self.margin):
+                self.last_rank = r + 1 if rank < 0 else r
+                self.last_target = np.array(target, dtype=float)
+                return Trajectory(view.t, view.dt, p, v, a)
+        return None
+
+    def _build(self, view: View, target: np.ndarray, vel: np.ndarray):
+        """Samples (p, v, a) [K, d] of the primitive to (target, vel, 0) within the norm limits, else None."""
+        d = self.dims
+        inp = self._inp
+        inp.current_position = view.position.tolist()
+        inp.current_velocity = view.velocity.tolist()
+        inp.current_acceleration = view.acceleration.tolist()
+        inp.target_position = np.asarray(target, dtype=float).tolist()
+        inp.target_velocity = np.asarray(vel, dtype=float).tolist()
+        v_max, a_max = self.limits.v_max, self.limits.a_max
+        v_lim, a_lim = v_max, a_max
+        stage = 0
+        while stage <= _N_SCALED_REBUILDS + 1:
+            if stage == _N_SCALED_REBUILDS + 1:
+                v_lim, a_lim = v_max / math.sqrt(d), a_max / math.sqrt(d)
+            samples = self._calculate(view, v_lim, a_lim)
+            if samples is None:
+                if stage > _N_SCALED_REBUILDS:
+                    return None
+                stage = _N_SCALED_REBUILDS + 1  # nothing to scale from: go to the conservative limits
+                continue
+            p, v, a = samples
+            v_peak = math.sqrt(float(np.max(np.einsum("kd,kd->k", v[1:], v[1:]))))
+            a_peak = math.sqrt(float(np.max(np.einsum("kd,kd->k", a[1:], a[1:]))))
+            if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
+                return samples
+            if v_peak > v_max:
+                v_lim *= _SCALE_SAFETY * v_max / v_peak
+            if a_peak > a_max:
+                a_lim *= _SCALE_SAFETY * a_max / a_peak
+            stage += 1
+        return None
+
+    def _calculate(self, view: View, v_lim: float, a_lim: float):
+        """One ruckig build with per-axis limits; samples (p, v, a) [K, d] at 0, dt, ..., or None on error."""
+        d = self.dims
+        inp = self._inp
+        inp.max_velocity = [v_lim] * d
+        inp.max_acceleration = [a_lim] * d
+        self.last_candidates_built += 1
+        try:
+            result = self._otg.calculate(inp, self._traj)
+        except ruckig.RuckigError:  # invalid input, e.g. a target velocity above the per-axis limit
+            return None
+        if result != ruckig.Result.Working and result != ruckig.Result.Finished:
+            return None
+        traj = self._traj
+        n = max(2, math.ceil(traj.duration / view.dt - 1e-9) + 1)
+        # Samples past the duration continue at the end velocity (end acceleration is 0).
+        s = np.array([traj.at_time(k * view.dt) for k in range(n)])   # [K, 3, d]
+        p, v, a = s[:, 0, :], s[:, 1, :], s[:, 2, :]
+        p[0], v[0], a[0] = view.position, view.velocity, view.acceleration
+        return p, v, a

@@ -1,0 +1,84 @@
+"""Planner registry: built-in names -> classes, and user plug-ins given as "package.module:Class" (duck typing)."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+
+from pbdyn.errors import ConfigError
+from pbdyn.planning.gaze import FullRange, LookAhead
+from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.protocols import PlannerContext
+from pbdyn.planning.straight_line import StraightLine
+
+TRAJECTORY_PLANNERS: dict[str, type] = {"local_primitives": LocalPrimitives, "straight_line": StraightLine}
+GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange}
+
+_TRAJECTORY_METHODS = ("replan_check", "plan")
+_GAZE_METHODS = ("yaw_rate",)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _resolve(name: object, field: str, kind: str, registry: dict[str, type], methods: tuple[str, ...]) -> type:
+    if not isinstance(name, str) or not name:
+        raise ConfigError(field, f"must be a {kind} planner name or 'package.module:Class'", name)
+    if name in registry:
+        return registry[name]
+    if ":" not in name:
+        known = ", ".join(sorted(registry))
+        raise ConfigError(field, f"unknown {kind} planner (known: {known}; or 'package.module:Class')", name)
+    module_name, _, attr = name.partition(":")
+    if not module_name or not attr:
+        raise ConfigError(field, "a plug-in must be given as 'package.module:Class'", name)
+    try:
+        obj = importlib.import_module(module_name)
+    except Exception as exc:  # any failure while importing user code is a configuration problem
+        raise ConfigError(field, f"cannot import module {module_name!r} ({_one_line(exc)})", name) from None
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ConfigError(field, f"module {module_name!r} has no attribute {attr!r}", name)
+        obj = getattr(obj, part)
+    if not callable(obj):
+        raise ConfigError(field, f"{attr!r} is not a class or factory", name)
+    missing = [m for m in methods if not callable(getattr(obj, m, None))]
+    if missing:
+        raise ConfigError(field, f"{attr!r} is not a {kind} planner: missing method(s) {', '.join(missing)}", name)
+    return obj
+
+
+def resolve_trajectory_planner(name: str, field: str = "trajectory") -> type:
+    """The trajectory planner class for a registry name or "package.module:Class"; ConfigError naming ``field``."""
+    return _resolve(name, field, "trajectory", TRAJECTORY_PLANNERS, _TRAJECTORY_METHODS)
+
+
+def resolve_gaze_planner(name: str, field: str = "gaze") -> type:
+    """The gaze planner class for a registry name or "package.module:Class"; ConfigError naming ``field``."""
+    return _resolve(name, field, "gaze", GAZE_PLANNERS, _GAZE_METHODS)
+
+
+def build_planner(cls: type, context: PlannerContext, params: dict | None, field: str):
+    """Instantiate ``cls(context, **params)``; unknown or invalid params raise ConfigError naming ``field``."""
+    params = dict(params or {})
+    name = getattr(cls, "__name__", repr(cls))
+    try:
+        sig = inspect.signature(cls)
+    except (TypeError, ValueError):
+        sig = None
+    if sig is not None:
+        ps = list(sig.parameters.values())
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in ps):
+            accepted = [p.name for p in ps[1:]
+                        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
+            for key in params:
+                if key not in accepted:
+                    hint = ", ".join(accepted) if accepted else "none"
+                    raise ConfigError(f"{field}.{key}", f"unknown parameter of {name} (accepted: {hint})",
+                                      params[key])
+    try:
+        return cls(context, **params)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(field, f"invalid parameters for {name} ({_one_line(exc)})", params) from None

@@ -1,0 +1,40 @@
+"""The occupancy grid: layout with a wall border, sticky OCCUPIED, exact clearance to occupied cells."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pbdyn.perception.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+
+
+def test_layout_includes_a_one_cell_border():
+    g = OccupancyGrid([0, 0], [50, 50], 1.0)
+    assert g.shape == (52, 52)
+    assert tuple(g.index(np.array([0.5, 49.5]))) == (1, 50)
+    assert tuple(g.index(np.array([-0.5, 50.5]))) == (0, 51)
+    assert np.all(g.cells == UNKNOWN) and g.discovered() == 0
+
+
+def test_occupied_is_sticky_and_free_marks_the_rest():
+    g = OccupancyGrid([0, 0], [10, 10], 1.0)
+    g.mark_occupied(np.array([[5.5, 5.5]]))
+    g.mark_free(np.array([[5.2, 5.7], [3.5, 3.5]]))
+    assert g.value_at(np.array([5.5, 5.5])) == OCCUPIED
+    assert g.value_at(np.array([3.5, 3.5])) == FREE
+    assert g.discovered() == 2
+
+
+def test_clearance_is_exact_point_to_square_distance():
+    g = OccupancyGrid([0, 0], [10, 10], 1.0)
+    g.mark_occupied(np.array([[5.5, 5.5]]))              # the square [5, 6] x [5, 6]
+    pts = np.array([[5.5, 5.5], [7.0, 5.5], [7.0, 7.0], [5.5, 3.0], [9.0, 9.0]])
+    d = g.clearance(pts, max_dist=2.0)
+    np.testing.assert_allclose(d, [0.0, 1.0, np.sqrt(2.0), 2.0, 2.0])
+    assert list(g.collides(pts, 1.0)) == [True, False, False, False, False]
+    assert list(g.collides(pts, 1.5)) == [True, True, True, False, False]
+
+
+def test_clearance_3d():
+    g = OccupancyGrid([0, 0, 0], [10, 10, 10], 1.0)
+    g.mark_occupied(np.array([[2.5, 2.5, 2.5]]))
+    np.testing.assert_allclose(g.clearance(np.array([[4.0, 4.0, 4.0]]), 5.0), [np.sqrt(3.0)])
