@@ -69,7 +69,7 @@ class KalmanTracks:
         self.P[idx] = self.A @ self.P[idx] @ self.A.T + self.Q
 
     def update(self, ids, z) -> None:
-        """Update seen active tracks with measured centres z [m, d] (m) of obstacles ``ids`` [m] (eq. 2-3..2-5).
+        """Update seen active tracks with measured centres z [m, d] (m) of obstacles ``ids`` [m, unique] (eq. 2-3..2-5).
 
         Ids without an active track are initialised (x = [z, 0], P = P0) and not updated in this step. The covariance
         update uses the Joseph form of eq. 2-5 (algebraically equal for the optimal gain, keeps P symmetric).
@@ -80,6 +80,8 @@ class KalmanTracks:
             return
         if np.any((ids < 0) | (ids >= self.n)):
             raise IndexError(f"track ids must be in [0, {self.n}), got {ids}")
+        if np.unique(ids).size != ids.size:
+            raise ValueError(f"track ids must be unique within one update, got {ids}")
         d = self.dims
         seen = self.active[ids]
         new = ids[~seen]

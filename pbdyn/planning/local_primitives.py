@@ -109,7 +109,14 @@ class LocalPrimitives:
         return np.argsort(np.round(angle, 12), kind="stable")
 
     def plan(self, view: View) -> Trajectory | None:
-        """The first clear, limit-respecting primitive in rank order, sampled at view.dt; None if none exists."""
+        """The first clear, limit-respecting primitive in rank order, sampled at view.dt; None if none exists.
+
+        Limits and clearance are checked on samples 1..K-1: sample 0 is the current state, which no plan can change.
+        When the goal is closer than step_m, the goal itself (end velocity 0) is tried before the fan. Once the best
+        candidate has failed, fan candidates whose end point is blocked by a wall or an occupied cell are skipped
+        unbuilt: the primitive ends inside the blocked region (stricter than the sampled check only when the end
+        time falls between samples).
+        """
         self.last_candidates_built = 0
         self.last_candidates_tried = 0
         self.last_rank = None
@@ -120,6 +127,10 @@ class LocalPrimitives:
         targets = p0 + self.step_m * self.directions          # [n, d]
         end_vel = self.end_speed * self.directions             # [n, d]
         static_ok = None
+        inp = self._inp
+        inp.current_position = p0.tolist()
+        inp.current_velocity = view.velocity.tolist()
+        inp.current_acceleration = view.acceleration.tolist()
         rank = 0
         if math.sqrt(float(g @ g)) < self.step_m:
             rank = -1  # the goal itself, reached at rest, is tried first
@@ -143,16 +154,15 @@ class LocalPrimitives:
             if trajectory_clear(view, p[1:], times[1:], self.margin):
                 self.last_rank = r + 1 if rank < 0 else r
                 self.last_target = np.array(target, dtype=float)
-                return Trajectory(view.t, view.dt, p, v, a)
+                return Trajectory(view.t, view.dt, np.ascontiguousarray(p), np.ascontiguousarray(v),
+                                  np.ascontiguousarray(a))
         return None
 
     def _build(self, view: View, target: np.ndarray, vel: np.ndarray):
-        """Samples (p, v, a) [K, d] of the primitive to (target, vel, 0) within the norm limits, else None."""
+        """Samples (p, v, a) [K, d] of the primitive to (target, vel, 0) within the norm limits (samples 1..K-1;
+        sample 0 is the given state), else None."""
         d = self.dims
         inp = self._inp
-        inp.current_position = view.position.tolist()
-        inp.current_velocity = view.velocity.tolist()
-        inp.current_acceleration = view.acceleration.tolist()
         inp.target_position = np.asarray(target, dtype=float).tolist()
         inp.target_velocity = np.asarray(vel, dtype=float).tolist()
         v_max, a_max = self.limits.v_max, self.limits.a_max
@@ -167,11 +177,10 @@ class LocalPrimitives:
                     return None
                 stage = _N_SCALED_REBUILDS + 1  # nothing to scale from: go to the conservative limits
                 continue
-            p, v, a = samples
-            v_peak = math.sqrt(float(np.max(np.einsum("kd,kd->k", v[1:], v[1:]))))
-            a_peak = math.sqrt(float(np.max(np.einsum("kd,kd->k", a[1:], a[1:]))))
+            vv_peak, aa_peak = np.einsum("kij,kij->ki", samples[1:, 1:], samples[1:, 1:]).max(axis=0).tolist()
+            v_peak, a_peak = math.sqrt(vv_peak), math.sqrt(aa_peak)
             if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                return samples
+                return samples[:, 0], samples[:, 1], samples[:, 2]
             if v_peak > v_max:
                 v_lim *= _SCALE_SAFETY * v_max / v_peak
             if a_peak > a_max:
@@ -180,7 +189,7 @@ class LocalPrimitives:
         return None
 
     def _calculate(self, view: View, v_lim: float, a_lim: float):
-        """One ruckig build with per-axis limits; samples (p, v, a) [K, d] at 0, dt, ..., or None on error."""
+        """One ruckig build with per-axis limits; samples [K, 3 (p, v, a), d] at 0, dt, ..., or None on error."""
         d = self.dims
         inp = self._inp
         inp.max_velocity = [v_lim] * d
@@ -194,8 +203,12 @@ class LocalPrimitives:
             return None
         traj = self._traj
         n = max(2, math.ceil(traj.duration / view.dt - 1e-9) + 1)
-        # Samples past the duration continue at the end velocity (end acceleration is 0).
-        s = np.array([traj.at_time(k * view.dt) for k in range(n)])   # [K, 3, d]
-        p, v, a = s[:, 0, :], s[:, 1, :], s[:, 2, :]
-        p[0], v[0], a[0] = view.position, view.velocity, view.acceleration
-        return p, v, a
+        flat: list[float] = []
+        for k in range(n):  # past the duration the end velocity is held (end acceleration is 0)
+            p, v, a = traj.at_time(k * view.dt)
+            flat += p
+            flat += v
+            flat += a
+        s = np.array(flat).reshape(n, 3, d)
+        s[0] = view.position, view.velocity, view.acceleration
+        return s

@@ -1,0 +1,515 @@
+"""The PyBullet world: the MAV, dynamic obstacles, static bodies and walls as collision geometry (DESIGN.md).
+
+Poses are set, then queried (ray tests, closest points); stepSimulation is never called. One BulletClient per
+world, created in the process that uses it (never fork after creating a world, never share it across threads).
+
+2D worlds (the MAV in the plane z = flight_height, "h"): dynamic obstacles and static pillars are vertical
+cylinders spanning the flight band [0, 2h] (their visual shape). Their *collision* shape is, by default, the
+sphere of the same radius centred in the flight plane: every query pbdyn makes in 2D lies in that plane (rays at
+z = h, the MAV sphere centred at z = h), where the sphere's and the cylinder's cross-sections are the same disc,
+so all results are identical -- while Bullet 3.2.7 ray tests against cylinders cost ~8 us per hit against
+~0.6 us for spheres. ``exact_pillars=True`` loads true cylinders instead. Walls are boxes just outside the arena.
+3D worlds: obstacles are spheres, static pillars span the full height, 6 walls (floor and ceiling included).
+
+Body ids are the small consecutive integers PyBullet assigns: the MAV first, then the obstacles in index order,
+then static bodies, then walls.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import functools
+import math
+import os
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from pbdyn.errors import ConfigError
+from pbdyn.world.geometry import StaticBody
+
+
+def _flush_c_stdout() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # pragma: no cover - platforms without a C runtime handle
+        pass
+
+
+@contextlib.contextmanager
+def stdout_to_stderr() -> Iterator[None]:
+    """Redirect file descriptor 1 to descriptor 2 for the duration (PyBullet prints on import, connect, loadURDF).
+
+    Python's and the C runtime's stdout buffers are flushed on both sides, so nothing printed inside the block can
+    reach the real stdout later.
+    """
+    sys.stdout.flush()
+    _flush_c_stdout()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no fd 1 at all: nothing to protect
+        yield
+        return
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        _flush_c_stdout()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+@contextlib.contextmanager
+def _quiet_import() -> Iterator[None]:
+    """Silence file descriptors 1 and 2 while PyBullet imports (its build-time banner carries no information;
+    import errors still raise as Python exceptions)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    _flush_c_stdout()
+    saved = [os.dup(1), os.dup(2)]
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        _flush_c_stdout()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+
+
+with _quiet_import():
+    import pybullet
+    from pybullet_utils import bullet_client
+
+URDF_DIR = Path(__file__).resolve().parents[2] / "urdf"
+"""The project's URDF models (quadrotor, pillar, box, sphere), unit size, scaled at load."""
+
+RAY_BATCH = 16383
+"""Rays per rayTestBatch call (PyBullet refuses batches of 16384 or more)."""
+
+MAV_GROUP = 0x100
+"""Collision filter group bit of the MAV; ray tests mask it out so they never report the MAV."""
+
+_RAY_MASK = ~MAV_GROUP
+_IDENTITY = (0.0, 0.0, 0.0, 1.0)
+_NONE, _MAV, _DYNAMIC, _STATIC, _WALL = 0, 1, 2, 3, 4
+_KIND_NAMES = ("none", "mav", "dynamic", "static", "wall")
+
+
+def urdf_path(name: str) -> str:
+    """Absolute path of one of the project's URDF models, e.g. ``urdf_path("pillar")``."""
+    return str(URDF_DIR / f"{name}.urdf")
+
+
+def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion (x, y, z, w) of a rotation by ``yaw`` (rad) about the world z axis."""
+    return (0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw))
+
+
+# --------------------------------------------------------------------------------------------- URDF scaling
+def _floats(text: str) -> np.ndarray:
+    return np.array([float(x) for x in text.split()], dtype=float)
+
+
+def _fmt(values) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def scale_urdf_text(text: str, scale_xyz: Sequence[float], base_dir: str | Path | None = None, *,
+                    cylinders_as_spheres: bool = False) -> str:
+    """Rewrite URDF text so its geometry is scaled per axis by ``scale_xyz`` = (sx, sy, sz).
+
+    Scales <box size>, <cylinder radius> (by sx; needs sx == sy) and <cylinder length> (by sz), <sphere radius>
+    (needs sx == sy == sz), <mesh scale>, and every <origin xyz>. Relative mesh filenames are made absolute against
+    ``base_dir`` so the text can be loaded from anywhere. Masses and inertias are kept. Origins with a rotation are
+    only exact under uniform scale. ``cylinders_as_spheres`` turns each *collision* cylinder into the sphere of its
+    (scaled) radius at the same origin (the 2D slice-equivalent shape; see the module docstring).
+    Raises ValueError on a scale the geometry cannot take.
+    """
+    s = np.asarray(scale_xyz, dtype=float).reshape(3)
+    if np.any(s <= 0) or not np.all(np.isfinite(s)):
+        raise ValueError(f"URDF scale must be finite and > 0 (got {tuple(s)})")
+    uniform = bool(np.allclose(s, s[0], rtol=1e-12, atol=0.0))
+    root = ET.fromstring(text)
+    for origin in root.iter("origin"):
+        xyz = origin.get("xyz")
+        if xyz is not None:
+            origin.set("xyz", _fmt(_floats(xyz) * s))
+    for holder in root.iter():
+        if holder.tag not in ("visual", "collision"):
+            continue
+        geometry = holder.find("geometry")
+        if geometry is None:
+            continue
+        for shape in list(geometry):
+            if shape.tag == "box":
+                shape.set("size", _fmt(_floats(shape.get("size", "1 1 1")) * s))
+            elif shape.tag == "cylinder":
+                if not math.isclose(s[0], s[1], rel_tol=1e-12):
+                    raise ValueError(f"a cylinder needs equal x and y scale (got {tuple(s)})")
+                radius = float(shape.get("radius", "1")) * s[0]
+                if cylinders_as_spheres and holder.tag == "collision":
+                    geometry.remove(shape)
+                    ET.SubElement(geometry, "sphere", {"radius": repr(float(radius))})
+                else:
+                    shape.set("radius", repr(float(radius)))
+                    shape.set("length", repr(float(float(shape.get("length", "1")) * s[2])))
+            elif shape.tag == "sphere":
+                if not uniform:
+                    raise ValueError(f"a sphere needs a uniform scale (got {tuple(s)})")
+                shape.set("radius", repr(float(float(shape.get("radius", "1")) * s[0])))
+            elif shape.tag == "mesh":
+                shape.set("scale", _fmt(_floats(shape.get("scale", "1 1 1")) * s))
+                name = shape.get("filename", "")
+                if base_dir is not None and name and "://" not in name and not os.path.isabs(name):
+                    shape.set("filename", str(Path(base_dir, name).resolve()))
+    return ET.tostring(root, encoding="unicode")
+
+
+@functools.lru_cache(maxsize=256)
+def _scaled_text(path: str, scale: tuple[float, float, float], cylinders_as_spheres: bool) -> str:
+    text = Path(path).read_text()
+    return scale_urdf_text(text, scale, Path(path).parent, cylinders_as_spheres=cylinders_as_spheres)
+
+
+def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], position: Sequence[float],
+                     orientation: Sequence[float] = _IDENTITY, *, cylinders_as_spheres: bool = False,
+                     use_fixed_base: bool = False) -> int:
+    """Load the URDF at ``path`` scaled per axis by ``scale_xyz`` at ``position`` (m) / ``orientation`` (xyzw).
+
+    The rewritten text (see scale_urdf_text; cached by (path, scale)) goes to a temporary file in the system temp
+    directory, which is deleted right after loading. Collision cylinders are loaded as implicit (exact) cylinders.
+    PyBullet's stdout chatter is sent to stderr. Returns the body id.
+    """
+    key = (str(Path(path).resolve()), tuple(float(x) for x in np.asarray(scale_xyz, dtype=float).reshape(3)))
+    text = _scaled_text(key[0], key[1], bool(cylinders_as_spheres))
+    fd, tmp = tempfile.mkstemp(prefix="pbdyn-", suffix=".urdf")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        with stdout_to_stderr():
+            body = client.loadURDF(tmp, basePosition=[float(x) for x in position],
+                                   baseOrientation=[float(x) for x in orientation],
+                                   useFixedBase=bool(use_fixed_base), flags=pybullet.URDF_USE_IMPLICIT_CYLINDER)
+    finally:
+        os.unlink(tmp)
+    if body < 0:
+        raise RuntimeError(f"PyBullet could not load {path}")
+    return int(body)
+
+
+# --------------------------------------------------------------------------------------------- the world
+def _check_positive(name: str, value: float) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        raise ConfigError(name, "must be a finite number > 0", value)
+    return v
+
+
+class PyBulletWorld:
+    """Collision geometry of one trial or metric run, in one PyBullet client (SI units, world frame, z-up).
+
+    Keyword-only arguments:
+        dims: 2 or 3. arena_size: [d] (m); the arena is [0, L] per axis.
+        flight_height: the 2D flight plane z = h (m); the 2D band is [0, 2h]. Unused in 3D.
+        mav_radius: MAV collision sphere radius (m). obstacle_radii: [N] (m), dynamic obstacles.
+        static_bodies: StaticBody list (pillars, boxes). mav_urdf: the MAV model (default urdf/quadrotor.urdf;
+        loaded scaled uniformly by mav_radius). wall_thickness: (m). gui: PyBullet GUI instead of DIRECT.
+        exact_pillars: load 2D pillars with cylinder collision shapes instead of the equivalent spheres.
+
+    Public attributes: client, dims, mav_id, obstacle_ids (int64 [N]), static_ids, wall_ids (int64), arena_size,
+    flight_height, mav_radius, obstacle_radii, obstacle_positions ([N, d], the last positions set; obstacles start
+    parked far outside the arena), mav_position [d], mav_yaw, dynamic_index_of / is_static_body (see body_kind).
+    """
+
+    def __init__(self, *, dims: int, arena_size: Sequence[float], flight_height: float = 2.0, mav_radius: float,
+                 obstacle_radii, static_bodies: Sequence[StaticBody] = (), mav_urdf: str | None = None,
+                 wall_thickness: float = 1.0, gui: bool = False, exact_pillars: bool = False):
+        if dims not in (2, 3):
+            raise ConfigError("dims", "must be 2 or 3", dims)
+        self.dims = int(dims)
+        size = np.asarray(arena_size, dtype=float).reshape(-1)
+        if size.shape != (self.dims,) or np.any(~np.isfinite(size)) or np.any(size <= 0):
+            raise ConfigError("arena_size", f"must be {self.dims} finite numbers > 0", tuple(np.ravel(arena_size)))
+        self.arena_size = size
+        self.flight_height = _check_positive("flight_height", flight_height)
+        self.mav_radius = _check_positive("mav_radius", mav_radius)
+        radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
+        if np.any(~np.isfinite(radii)) or np.any(radii <= 0):
+            raise ConfigError("obstacle_radii", "must all be finite and > 0", radii.tolist())
+        self.obstacle_radii = radii
+        self.wall_thickness = _check_positive("wall_thickness", wall_thickness)
+        if mav_urdf is not None and not Path(mav_urdf).is_file():
+            raise ConfigError("mav_urdf", "file not found", str(mav_urdf))
+        self._pid = os.getpid()
+        with stdout_to_stderr():
+            self.client = bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        self._closed = False
+        try:
+            self._build(mav_urdf, tuple(static_bodies), exact_pillars)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self, mav_urdf: str | None, static_bodies: tuple[StaticBody, ...], exact_pillars: bool) -> None:
+        try:
+            self.client.setPhysicsEngineParameter(numThreads=1)
+        except TypeError:  # not a parameter of this PyBullet build
+            pass
+        self._cid = self.client._client
+        self._reset_pose = functools.partial(pybullet.resetBasePositionAndOrientation, physicsClientId=self._cid)
+        self._ray_batch = functools.partial(pybullet.rayTestBatch, physicsClientId=self._cid)
+        self._closest = functools.partial(pybullet.getClosestPoints, physicsClientId=self._cid)
+        self._overlapping = functools.partial(pybullet.getOverlappingObjects, physicsClientId=self._cid)
+
+        h, size, radii = self.flight_height, self.arena_size, self.obstacle_radii
+        # The MAV: mass > 0, its own collision group (rays mask it out), at the arena centre.
+        self.mav_position = self._plane_point(0.5 * size)
+        self.mav_yaw = 0.0
+        self.mav_id = load_scaled_urdf(self.client, mav_urdf or urdf_path("quadrotor"), (self.mav_radius,) * 3,
+                                       self.to_world3(self.mav_position))
+        self.client.setCollisionFilterGroupMask(self.mav_id, -1, MAV_GROUP, -1)
+        self._mav_pose3 = self.to_world3(self.mav_position).tolist()
+        self._mav_quat = _IDENTITY
+        self._mav_parking = [-1.0e4, -1.0e4, -1.0e4]
+        self._probe = self.client.createCollisionShape(pybullet.GEOM_SPHERE, radius=self.mav_radius)
+
+        # Dynamic obstacles, parked far outside the arena until set_obstacle_positions.
+        parked = np.zeros((radii.shape[0], self.dims))
+        parked[:, 0] = -1.0e4 - 10.0 * (radii.max(initial=0.0) + 1.0) * np.arange(radii.shape[0])
+        if self.dims == 2:
+            parked[:, 1] = 0.5 * size[1]
+        ids = []
+        for r, p in zip(radii, parked):
+            if self.dims == 2:
+                ids.append(load_scaled_urdf(self.client, urdf_path("pillar"), (r, r, 2.0 * h), self.to_world3(p),
+                                            cylinders_as_spheres=not exact_pillars))
+            else:
+                ids.append(load_scaled_urdf(self.client, urdf_path("sphere"), (r, r, r), p))
+        self.obstacle_ids = np.asarray(ids, dtype=np.int64)
+        self.obstacle_positions = parked
+
+        self.static_bodies = static_bodies
+        self.static_ids = np.asarray([self._load_static(b, i, exact_pillars)
+                                      for i, b in enumerate(static_bodies)], dtype=np.int64)
+        self.wall_ids = np.asarray(self._load_walls(), dtype=np.int64)
+        self._build_lookup()
+
+    # ----------------------------------------------------------------------------------------- construction
+    def _plane_point(self, p: np.ndarray) -> np.ndarray:
+        return np.asarray(p, dtype=float)[: self.dims].copy()
+
+    def _load_static(self, body: StaticBody, i: int, exact_pillars: bool) -> int:
+        field = f"static_bodies[{i}]"
+        c = np.asarray(body.center, dtype=float).reshape(-1)
+        quat = yaw_quaternion(float(body.yaw))
+        h, size = self.flight_height, self.arena_size
+        if body.kind == "pillar":
+            r = _check_positive(f"{field}.radius", body.radius)
+            if c.shape[0] < 2:
+                raise ConfigError(f"{field}.center", "needs x and y", tuple(c))
+            if self.dims == 2:
+                return load_scaled_urdf(self.client, urdf_path("pillar"), (r, r, 2.0 * h), (c[0], c[1], h), quat,
+                                        cylinders_as_spheres=not exact_pillars)
+            return load_scaled_urdf(self.client, urdf_path("pillar"), (r, r, size[2]), (c[0], c[1], 0.5 * size[2]),
+                                    quat)
+        if body.kind == "box":
+            ext = np.asarray(body.size, dtype=float).reshape(-1)
+            if ext.shape[0] < self.dims or np.any(ext[: self.dims] <= 0) or c.shape[0] < self.dims:
+                raise ConfigError(field, f"a box needs {self.dims} positive sizes and a {self.dims}-d center",
+                                  (tuple(c), tuple(ext)))
+            if self.dims == 2:
+                return load_scaled_urdf(self.client, urdf_path("box"), (ext[0], ext[1], 2.0 * h), (c[0], c[1], h),
+                                        quat)
+            return load_scaled_urdf(self.client, urdf_path("box"), ext[:3], c[:3], quat)
+        raise ConfigError(f"{field}.kind", "must be 'pillar' or 'box'", body.kind)
+
+    def _load_walls(self) -> list[int]:
+        t, L = self.wall_thickness, self.arena_size
+        if self.dims == 2:
+            zc, zs = self.flight_height, 2.0 * self.flight_height
+            slabs = [((-0.5 * t, 0.5 * L[1], zc), (t, L[1] + 2 * t, zs)),
+                     ((L[0] + 0.5 * t, 0.5 * L[1], zc), (t, L[1] + 2 * t, zs)),
+                     ((0.5 * L[0], -0.5 * t, zc), (L[0] + 2 * t, t, zs)),
+                     ((0.5 * L[0], L[1] + 0.5 * t, zc), (L[0] + 2 * t, t, zs))]
+        else:
+            slabs = []
+            for axis in range(3):
+                for side in (0, 1):
+                    centre = 0.5 * L.copy()
+                    centre[axis] = -0.5 * t if side == 0 else L[axis] + 0.5 * t
+                    ext = L + 2 * t
+                    ext[axis] = t
+                    slabs.append((tuple(centre), tuple(ext)))
+        return [load_scaled_urdf(self.client, urdf_path("box"), ext, centre) for centre, ext in slabs]
+
+    def _build_lookup(self) -> None:
+        n = 1 + int(max([self.mav_id, *self.obstacle_ids, *self.static_ids, *self.wall_ids]))
+        # One extra trailing "none" entry so that index -1 (PyBullet's "no body") maps to it.
+        kind = np.full(n + 1, _NONE, dtype=np.int8)
+        index = np.full(n + 1, -1, dtype=np.int64)
+        kind[self.mav_id], index[self.mav_id] = _MAV, 0
+        for code, ids in ((_DYNAMIC, self.obstacle_ids), (_STATIC, self.static_ids), (_WALL, self.wall_ids)):
+            kind[ids] = code
+            index[ids] = np.arange(ids.shape[0])
+        self._kind, self._index = kind, index
+        self.dynamic_index_of = np.where(kind == _DYNAMIC, index, -1)
+        """Body id -> obstacle index, or -1 (index with -1 is valid: the last entry is "no body")."""
+        self.is_static_body = (kind == _STATIC) | (kind == _WALL)
+        """Body id -> True for static bodies and walls (index -1 gives False)."""
+
+    def add_static_urdf(self, path: str | Path, position: Sequence[float], orientation: Sequence[float] = _IDENTITY,
+                        scale_xyz: Sequence[float] = (1.0, 1.0, 1.0)) -> int:
+        """Load an extra static body from a URDF file (imported worlds); returns its body id (static index = order)."""
+        body = load_scaled_urdf(self.client, path, scale_xyz, position, orientation, use_fixed_base=True)
+        self.static_ids = np.append(self.static_ids, np.int64(body))
+        self._build_lookup()
+        return body
+
+    # ----------------------------------------------------------------------------------------- queries
+    def body_kind(self, body_id: int) -> tuple[str, int]:
+        """("dynamic", obstacle index) | ("static", static index) | ("wall", wall index) | ("mav", 0) | ("none", -1)."""
+        b = int(body_id)
+        if b < -1 or b >= self._kind.shape[0] - 1:
+            return ("none", -1)
+        return (_KIND_NAMES[self._kind[b]], int(self._index[b]))
+
+    def to_world3(self, points) -> np.ndarray:
+        """World points [..., d] -> [..., 3] (2D: z = flight_height appended)."""
+        pts = np.asarray(points, dtype=float)
+        if self.dims == 3:
+            return pts.copy()
+        z = np.full(pts.shape[:-1] + (1,), self.flight_height)
+        return np.concatenate([pts, z], axis=-1)
+
+    def set_obstacle_positions(self, positions) -> None:
+        """Move the dynamic obstacles to ``positions`` [N, d] (m); 2D pillars stay centred on the flight plane."""
+        if os.getpid() != self._pid:
+            raise RuntimeError("a PyBulletWorld cannot be used in a process forked after its creation")
+        pos = np.array(positions, dtype=float).reshape(self.obstacle_ids.shape[0], self.dims)
+        self.obstacle_positions = pos
+        reset = self._reset_pose
+        for body, p in zip(self.obstacle_ids.tolist(), self.to_world3(pos).tolist()):
+            reset(body, p, _IDENTITY)
+
+    def set_mav_pose(self, position, yaw: float) -> None:
+        """Place the MAV at ``position`` [d] (m) with ``yaw`` (rad)."""
+        self.mav_position = self._plane_point(position)
+        self.mav_yaw = float(yaw)
+        self._mav_pose3 = self.to_world3(self.mav_position).tolist()
+        self._mav_quat = yaw_quaternion(self.mav_yaw)
+        self._reset_pose(self.mav_id, self._mav_pose3, self._mav_quat)
+
+    def ray_test(self, origins, ends) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cast rays origins[i] -> ends[i] ([R, 3], m, world frame); the MAV body is never reported.
+
+        Returns (body_ids int64 [R], -1 for no hit; fractions [R] along each ray, 1.0 for no hit;
+        hit_points [R, 3] = origin + fraction (end - origin), the end point for no hit). Batches of < 16384 rays.
+        Hits on curved shapes are accurate to ~1 mm (Bullet's GJK ray cast; they err early, never late).
+        A ray starting inside a body reports that body at fraction 0 (spheres) or passes it (other shapes).
+        """
+        o = np.asarray(origins, dtype=float).reshape(-1, 3)
+        e = np.asarray(ends, dtype=float).reshape(-1, 3)
+        ids, frac = self.cast_rays(o, e)
+        return ids, frac, o + frac[:, None] * (e - o)
+
+    def cast_rays(self, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ray_test without the hit points: (body_ids int64 [R], fractions [R]) for float arrays [R, 3]."""
+        n = origins.shape[0]
+        if ends.shape[0] != n:
+            raise ValueError(f"ray_test: {n} origins but {ends.shape[0]} ends")
+        ids = np.empty(n, dtype=np.int64)
+        frac = np.empty(n, dtype=float)
+        # The mask alone keeps the MAV out of the results; parking it far away for the duration also spares
+        # Bullet the per-ray work of a shape enclosing every ray origin (~15 us per 91 rays, measured).
+        self._reset_pose(self.mav_id, self._mav_parking, _IDENTITY)
+        try:
+            for lo in range(0, n, RAY_BATCH):
+                hi = min(n, lo + RAY_BATCH)
+                res = self._ray_batch(origins[lo:hi], ends[lo:hi], numThreads=1, collisionFilterMask=_RAY_MASK)
+                ids[lo:hi] = [r[0] for r in res]
+                frac[lo:hi] = [r[2] for r in res]
+        finally:
+            self._reset_pose(self.mav_id, self._mav_pose3, self._mav_quat)
+        frac[ids < 0] = 1.0
+        return ids, frac
+
+    def clearance_to_bodies(self, position, body_ids, max_dist: float) -> np.ndarray:
+        """Signed distance (m) from the MAV sphere at ``position`` [d] to each body in ``body_ids``, capped at max_dist.
+
+        Uses a free-standing sphere of the MAV radius (the MAV body itself is not moved). Negative = penetration.
+        """
+        p3 = self.to_world3(self._plane_point(position)).tolist()
+        md = float(max_dist)
+        out = np.full(len(body_ids), md)
+        for k, b in enumerate(np.asarray(body_ids, dtype=np.int64).tolist()):
+            pts = self._closest(-1, b, md, collisionShapeA=self._probe, collisionShapePositionA=p3)
+            if pts:
+                out[k] = min(md, min(c[8] for c in pts))
+        return out
+
+    def nearest_static(self, position, max_dist: float) -> tuple[float, int]:
+        """(signed distance m, body id) from the MAV sphere at ``position`` [d] to the nearest static body or wall.
+
+        PyBullet getClosestPoints against the true static geometry, after a broadphase AABB query; returns
+        (max_dist, -1) if nothing is nearer than max_dist. The MAV body is not moved (a probe sphere is used).
+        """
+        p = self._plane_point(position)
+        p3 = self.to_world3(p)
+        md = float(max_dist)
+        reach = self.mav_radius + max(md, 0.0) + 1e-6
+        found = self._overlapping((p3 - reach).tolist(), (p3 + reach).tolist())
+        best, best_id = md, -1
+        if not found:
+            return best, best_id
+        p3l = p3.tolist()
+        is_static = self.is_static_body
+        for body, _link in found:
+            if body < 0 or body >= is_static.shape[0] - 1 or not is_static[body]:
+                continue
+            for c in self._closest(-1, body, md, collisionShapeA=self._probe, collisionShapePositionA=p3l):
+                if c[8] < best:
+                    best, best_id = float(c[8]), int(body)
+        return best, best_id
+
+    def static_clearance(self, position, max_dist: float) -> float:
+        """Signed distance (m) from the MAV sphere at ``position`` [d] to the nearest static body or wall.
+
+        Negative = penetration; max_dist if nothing is nearer. The MAV body is not moved: the query uses a free
+        probe sphere of the MAV radius, so it has no side effects.
+        """
+        return self.nearest_static(position, max_dist)[0]
+
+    # ----------------------------------------------------------------------------------------- lifetime
+    def close(self) -> None:
+        """Disconnect the PyBullet client (idempotent)."""
+        if not self._closed:
+            self._closed = True
+            with stdout_to_stderr():
+                self.client.disconnect()
+
+    def __enter__(self) -> "PyBulletWorld":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@contextlib.contextmanager
+def what_if_pose(world: PyBulletWorld, position, yaw: float) -> Iterator[PyBulletWorld]:
+    """Temporarily place the MAV at ``position`` [d] / ``yaw`` (rad); its previous pose is restored on exit."""
+    old_p, old_yaw = world.mav_position.copy(), world.mav_yaw
+    world.set_mav_pose(position, yaw)
+    try:
+        yield world
+    finally:
+        world.set_mav_pose(old_p, old_yaw)

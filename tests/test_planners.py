@@ -1,0 +1,442 @@
+"""Trajectory planners, gaze planners, the shared trajectory check and the registry, on synthetic Views."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pbdyn.errors import ConfigError
+from pbdyn.perception.grid import FREE, OCCUPIED, OccupancyGrid
+from pbdyn.planning import registry
+from pbdyn.planning.checks import WALL_MARGIN_CAP, first_conflict, trajectory_clear, within_limits
+from pbdyn.planning.gaze import FullRange, LookAhead, wrap_angle
+from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.protocols import GazePlanner, PlannerContext, TrajectoryPlanner
+from pbdyn.planning.straight_line import StraightLine
+from pbdyn.planning.trajectory import Trajectory
+from pbdyn.planning.view import MAVLimits, Tracks, View
+
+DT = 0.1
+SIZE = 50.0
+
+
+def _context(dims=2, v_max=4.0, a_max=4.0):
+    hi = np.array([SIZE, SIZE, 20.0][:dims])
+    return PlannerContext(dims, DT, MAVLimits(1.0, v_max, a_max, 1.4), np.zeros(dims), hi)
+
+
+def _grid(ctx, free=True):
+    g = OccupancyGrid(ctx.bounds_lo, ctx.bounds_hi, 1.0)
+    if free:
+        g.cells[(slice(1, -1),) * ctx.dims] = FREE
+    return g
+
+
+def _view(ctx, p, goal, v=None, a=None, grid=None, tracks=None, t=0.0, yaw=0.0, trajectory=None):
+    d = ctx.dims
+    return View(t=t, dt=ctx.dt, position=np.asarray(p, float), velocity=np.zeros(d) if v is None else v,
+                acceleration=np.zeros(d) if a is None else a, yaw=yaw, goal=np.asarray(goal, float),
+                goal_radius=1.0, limits=ctx.limits, bounds_lo=ctx.bounds_lo, bounds_hi=ctx.bounds_hi,
+                grid=_grid(ctx) if grid is None else grid, tracks=Tracks.empty(d) if tracks is None else tracks,
+                trajectory=trajectory)
+
+
+def _tracks(pos, vel, radius):
+    pos = np.atleast_2d(np.asarray(pos, float))
+    m, d = pos.shape
+    return Tracks(np.arange(m), pos, np.atleast_2d(np.asarray(vel, float)), np.zeros((m, 2 * d, 2 * d)),
+                  np.full(m, float(radius)))
+
+
+def _fly(planner, ctx, start, goal, steps=800, grid=None, tracks=None):
+    """Execute sample 1 of every plan; returns (reached, executed speeds, executed accelerations, n steps)."""
+    d = ctx.dims
+    p, v, a = np.asarray(start, float), np.zeros(d), np.zeros(d)
+    grid = _grid(ctx) if grid is None else grid
+    speeds, accs = [], []
+    for k in range(steps):
+        view = _view(ctx, p, goal, v, a, grid=grid, tracks=tracks, t=k * DT)
+        tr = planner.plan(view)
+        assert tr is not None, f"planning failed at step {k}"
+        assert tr.t0 == pytest.approx(view.t) and tr.dt == DT and tr.n_samples >= 2
+        np.testing.assert_allclose(tr.p[0], p, atol=1e-12)
+        np.testing.assert_allclose(tr.v[0], v, atol=1e-12)
+        p, v, a = tr.p[1].copy(), tr.v[1].copy(), tr.a[1].copy()
+        speeds.append(np.linalg.norm(v))
+        accs.append(np.linalg.norm(a))
+        if np.linalg.norm(p - goal) <= 1.0:
+            return True, np.array(speeds), np.array(accs), k + 1
+    return False, np.array(speeds), np.array(accs), steps
+
+
+# ---------------------------------------------------------------- checks
+
+def test_checks_walls_use_capped_margin_and_unknown_cells_are_free():
+    ctx = _context()
+    view = _view(ctx, [10, 10], [40, 10], grid=_grid(ctx, free=False))  # every cell UNKNOWN
+    wall_r = 1.0 + WALL_MARGIN_CAP
+    assert trajectory_clear(view, np.array([[wall_r + 0.01, 25.0], [25.0, SIZE - wall_r - 0.01]]), [0.1, 0.2])
+    assert not trajectory_clear(view, np.array([[25.0, 25.0], [wall_r - 0.01, 25.0]]), [0.1, 0.2])
+    assert first_conflict(view, np.array([[25.0, 25.0], [25.0, 25.0], [25.0, SIZE - wall_r + 0.01]]),
+                          [0.1, 0.2, 0.3]) == 2
+
+
+def test_checks_occupied_cells_with_margin():
+    ctx = _context()
+    grid = _grid(ctx)
+    grid.mark_occupied(np.array([[20.5, 25.5]]))  # the cell [20, 21) x [25, 26)
+    view = _view(ctx, [10, 10], [40, 10], grid=grid)
+    pts = np.array([[18.45, 25.5], [18.55, 25.5]])  # 1.55 m and 1.45 m from the cell's face at x = 20
+    assert first_conflict(view, pts, [0.1, 0.2], margin=0.5) == 1
+    assert trajectory_clear(view, pts[:1], [0.1], margin=0.5)
+    assert not trajectory_clear(view, pts[1:], [0.1], margin=0.5)
+    assert trajectory_clear(view, pts[1:], [0.1], margin=0.4)
+
+
+def test_checks_tracks_are_predicted_to_the_sample_time():
+    ctx = _context()
+    # track at view.t = 5 s is at (20, 10) moving +y at 2 m/s: at absolute time 7 s it is at (20, 14)
+    tracks = _tracks([[20.0, 10.0]], [[0.0, 2.0]], 0.5)
+    view = _view(ctx, [10, 10], [40, 10], tracks=tracks, t=5.0)
+    p = np.array([[20.0, 14.0]])
+    assert not trajectory_clear(view, p, [7.0])
+    assert first_conflict(view, p, [7.0]) == 0
+    assert trajectory_clear(view, p, [5.0])           # it is still 4 m away at 5 s
+    # the distance threshold is MAV radius + margin + track radius = 2.0 m
+    assert trajectory_clear(view, np.array([[22.01, 14.0]]), [7.0])
+    assert not trajectory_clear(view, np.array([[21.99, 14.0]]), [7.0])
+
+
+def test_within_limits_uses_norms():
+    v = np.array([[3.0, 3.0]])  # |v| = 4.24 although each axis is below 4
+    assert not within_limits(v, np.zeros((1, 2)), 4.0, 4.0)
+    assert within_limits(v, np.zeros((1, 2)), 4.25, 4.0)
+    assert not within_limits(np.zeros((1, 2)), np.array([[0.0, 4.0 + 1e-6]]), 4.0, 4.0)
+
+
+# ---------------------------------------------------------------- local primitives
+
+@pytest.mark.parametrize("v_max", [2.0, 4.0, 6.0])
+def test_local_primitives_reach_goals_in_empty_arena_within_limits(v_max):
+    ctx = _context(v_max=v_max)
+    pairs = [((4, 4), (46, 25)), ((46, 46), (4, 4)), ((25, 4), (25, 46)), ((4, 46), (46, 4)), ((46, 25), (4, 25))]
+    builds = []
+    for start, goal in pairs:
+        planner = LocalPrimitives(ctx)
+        reached, speeds, accs, steps = _fly(planner, ctx, start, goal)
+        assert reached, (start, goal)
+        assert speeds.max() <= v_max + 1e-9 and accs.max() <= 4.0 + 1e-9
+        assert speeds.max() > 0.75 * v_max  # it really cruises, not creeps
+        builds.append(planner.last_candidates_built)
+    assert max(builds) <= 4
+
+
+def test_local_primitives_reach_goal_in_3d():
+    ctx = _context(dims=3)
+    planner = LocalPrimitives(ctx)
+    assert planner.directions.shape == (72, 3)
+    np.testing.assert_allclose(np.linalg.norm(planner.directions, axis=1), 1.0)
+    reached, speeds, accs, _ = _fly(planner, ctx, (4, 4, 10), np.array([46.0, 25.0, 10.0]))
+    assert reached
+    assert speeds.max() <= 4.0 + 1e-9 and accs.max() <= 4.0 + 1e-9
+
+
+def test_local_primitives_ranking_and_first_candidate_points_at_goal():
+    ctx = _context()
+    planner = LocalPrimitives(ctx)
+    view = _view(ctx, [10, 10], [10 + 30 * math.cos(math.radians(35)), 10 + 30 * math.sin(math.radians(35))])
+    order = planner.ranked_candidates(view)
+    assert order[0] == 7 and set(order[1:3]) == {6, 8}
+    tr = planner.plan(view)
+    assert tr is not None and planner.last_rank == 0 and planner.last_candidates_built >= 1
+    np.testing.assert_allclose(planner.last_target, [10 + 3 * math.cos(math.radians(35)),
+                                                     10 + 3 * math.sin(math.radians(35))], atol=1e-12)
+    # ties (goal half way between candidates 7 and 8) go to the lower index
+    tie = _view(ctx, [10, 10], [10 + 30 * math.cos(math.radians(37.5)), 10 + 30 * math.sin(math.radians(37.5))])
+    assert list(planner.ranked_candidates(tie)[:2]) == [7, 8]
+
+
+def test_local_primitives_primitive_ends_at_candidate_with_end_velocity():
+    ctx = _context()
+    planner = LocalPrimitives(ctx)
+    tr = planner.plan(_view(ctx, [10, 10], [40, 10]))
+    duration = planner._traj.duration
+    assert duration >= planner.min_duration - 1e-12 and planner.min_duration == pytest.approx(0.9)
+    assert tr.n_samples == math.ceil(duration / DT - 1e-9) + 1
+    t_last = (tr.n_samples - 1) * DT  # past the duration the end velocity is held
+    np.testing.assert_allclose(tr.p[-1], [13.0 + 2.0 * (t_last - duration), 10.0], atol=1e-9)
+    np.testing.assert_allclose(tr.v[-1], [2.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(tr.a[-1], [0.0, 0.0], atol=1e-9)
+    # samples are the ruckig trajectory at k dt
+    for k in (1, 4):
+        p, v, a = planner._traj.at_time(k * DT)
+        np.testing.assert_allclose(tr.p[k], p), np.testing.assert_allclose(tr.v[k], v)
+
+
+def test_local_primitives_goal_within_step_is_first_candidate_at_rest():
+    ctx = _context()
+    planner = LocalPrimitives(ctx)
+    goal = np.array([12.0, 11.0])
+    tr = planner.plan(_view(ctx, [10, 10], goal))
+    assert planner.last_rank == 0
+    np.testing.assert_allclose(planner.last_target, goal)
+    np.testing.assert_allclose(tr.p[-1], goal, atol=1e-9)
+    np.testing.assert_allclose(tr.v[-1], 0.0, atol=1e-9)
+
+
+def test_local_primitives_avoid_occupied_wall():
+    ctx = _context()
+    grid = _grid(ctx)
+    for y in range(22, 29):
+        grid.mark_occupied(np.array([[13.5, y + 0.5]]))  # a wall segment x in [13, 14), y in [22, 29)
+    planner = LocalPrimitives(ctx)
+    view = _view(ctx, [10.5, 25.5], [40.5, 25.5], grid=grid)
+    tr = planner.plan(view)
+    assert tr is not None and planner.last_rank > 0
+    assert planner.last_candidates_tried >= 2
+    assert not np.any(grid.collides(tr.p[1:], 1.5))
+    # the straight candidate really is blocked, and an executed flight gets around the wall
+    assert grid.collides(np.array([[13.5, 25.5]]), 1.5)[0]
+    reached, speeds, _, _ = _fly(LocalPrimitives(ctx), ctx, (10.5, 25.5), np.array([40.5, 25.5]), grid=grid)
+    assert reached and speeds.max() <= 4.0 + 1e-9
+
+
+def test_local_primitives_avoid_predicted_track():
+    ctx = _context()
+    tracks = _tracks([[14.0, 25.0]], [[0.0, 0.0]], 1.0)  # a hovering obstacle on the straight path
+    planner = LocalPrimitives(ctx)
+    view = _view(ctx, [10.0, 25.0], [40.0, 25.0], tracks=tracks)
+    tr = planner.plan(view)
+    assert tr is not None and planner.last_rank > 0
+    dist = np.linalg.norm(tr.p[1:] - [14.0, 25.0], axis=1)
+    assert dist.min() >= 1.0 + 1.0 + 0.5
+    # an obstacle crossing the straight path when the MAV would be there: coming down from y = 29 at 4 m/s
+    crossing = _tracks([[12.0, 29.0]], [[0.0, -4.0]], 1.0)
+    view = _view(ctx, [10.0, 25.0], [40.0, 25.0], tracks=crossing, t=3.0)
+    tr = planner.plan(view)
+    assert tr is not None and planner.last_rank > 0
+    centres = crossing.predict(tr.times[1:] - view.t)[:, 0, :]
+    assert np.linalg.norm(tr.p[1:] - centres, axis=1).min() >= 2.5
+
+
+def test_local_primitives_all_blocked_returns_none():
+    ctx = _context()
+    grid = _grid(ctx)
+    grid.cells[1:-1, 1:-1] = OCCUPIED
+    grid.cells[10:13, 10:13] = FREE  # a 3 x 3 m free pocket around (10, 10)
+    planner = LocalPrimitives(ctx)
+    assert planner.plan(_view(ctx, [10.0, 10.0], [40.0, 10.0], grid=grid)) is None
+    assert planner.last_rank is None
+    ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    ring = _tracks(np.c_[10 + 3 * np.cos(ang), 10 + 3 * np.sin(ang)], np.zeros((12, 2)), 1.0)  # hovering ring
+    assert planner.plan(_view(ctx, [10.0, 10.0], [40.0, 10.0], tracks=ring)) is None
+    assert planner.last_candidates_tried == 72
+
+
+def test_local_primitives_limits_from_random_moving_states():
+    rng = np.random.default_rng(3)
+    for dims in (2, 3):
+        ctx = _context(dims=dims, v_max=6.0)
+        planner = LocalPrimitives(ctx)
+        n_ok = 0
+        for _ in range(60):
+            v = rng.normal(size=dims)
+            v *= rng.uniform(0, 6.0) / np.linalg.norm(v)
+            a = rng.normal(size=dims)
+            a *= rng.uniform(0, 4.0) / np.linalg.norm(a)
+            p = rng.uniform(10, [40, 40, 10][:dims])
+            goal = rng.uniform(5, [45, 45, 15][:dims])
+            tr = planner.plan(_view(ctx, p, goal, v=v, a=a))
+            assert planner.last_candidates_built <= 4 * planner.last_candidates_tried
+            if tr is None:
+                continue
+            n_ok += 1
+            np.testing.assert_allclose(tr.a[0], a)
+            assert within_limits(tr.v[1:], tr.a[1:], 6.0, 4.0)
+        assert n_ok >= 50
+
+
+def test_local_primitives_rejects_bad_parameters():
+    with pytest.raises(ValueError):
+        LocalPrimitives(_context(), n_candidates=0)
+    with pytest.raises(ValueError):
+        LocalPrimitives(_context(), step_m=-1.0)
+
+
+# ---------------------------------------------------------------- straight line
+
+def test_straight_line_reaches_goal_ignoring_tracks_and_respects_limits():
+    ctx = _context(v_max=6.0)
+    planner = StraightLine(ctx)
+    assert isinstance(planner, TrajectoryPlanner)
+    tracks = _tracks([[20.0, 20.0]], [[0.0, 0.0]], 1.5)  # right on the line
+    view_free = _view(ctx, [5.0, 5.0], [45.0, 45.0], v=np.array([0.0, 3.0]))
+    view_obst = _view(ctx, [5.0, 5.0], [45.0, 45.0], v=np.array([0.0, 3.0]), tracks=tracks)
+    a, b = planner.plan(view_free), planner.plan(view_obst)
+    np.testing.assert_array_equal(a.p, b.p)
+    reached, speeds, accs, _ = _fly(planner, ctx, (5.0, 5.0), np.array([45.0, 45.0]), tracks=tracks)
+    assert reached
+    assert speeds.max() <= 6.0 + 1e-9 and accs.max() <= 4.0 + 1e-9 and speeds.max() > 5.9
+
+
+def test_straight_line_corrects_misaligned_velocity_and_stops_at_goal():
+    ctx = _context(v_max=4.0)
+    planner = StraightLine(ctx)
+    p, v, a = np.array([25.0, 25.0]), np.array([-4.0, 0.0]), np.zeros(2)
+    goal = np.array([30.0, 25.0])
+    for k in range(300):
+        tr = planner.plan(_view(ctx, p, goal, v=v, a=a, t=k * DT))
+        assert tr.n_samples >= 2
+        assert within_limits(tr.v, tr.a, 4.0, 4.0)
+        # the plan is a consistent double integrator
+        np.testing.assert_allclose(tr.p[1:], tr.p[:-1] + tr.v[:-1] * DT + 0.5 * tr.a[:-1] * DT ** 2, atol=1e-12)
+        p, v, a = tr.p[1], tr.v[1], tr.a[1]
+    np.testing.assert_allclose(p, goal, atol=1e-3)
+    assert np.linalg.norm(v) < 1e-3
+
+
+def test_straight_line_and_lookahead_in_3d():
+    ctx = _context(dims=3)
+    reached, speeds, accs, _ = _fly(StraightLine(ctx), ctx, (4.0, 4.0, 5.0), np.array([46.0, 25.0, 15.0]))
+    assert reached and speeds.max() <= 4.0 + 1e-9 and accs.max() <= 4.0 + 1e-9
+    view = _view(ctx, [25, 25, 10], [40, 25, 10], v=np.array([0.0, 0.05, 3.0]), yaw=0.0)
+    assert LookAhead(ctx).yaw_rate(view, None) == pytest.approx(ctx.limits.yaw_rate)  # x-y part points at +y
+
+
+# ---------------------------------------------------------------- gaze
+
+def test_lookahead_turns_toward_velocity_at_most_the_limit_the_shortest_way():
+    ctx = _context()
+    gaze = LookAhead(ctx)
+    assert isinstance(gaze, GazePlanner)
+    limit = ctx.limits.yaw_rate
+
+    def rate(v, yaw, **kw):
+        return gaze.yaw_rate(_view(ctx, [25, 25], [40, 25], v=np.asarray(v, float), yaw=yaw, **kw), None)
+
+    assert rate([0, 2], 0.0) == pytest.approx(limit)                      # 90 deg left: full rate
+    assert rate([math.cos(3.0), math.sin(3.0)], -3.0) == pytest.approx(-limit)  # across +-pi: the short way
+    small = math.radians(5)
+    assert rate([math.cos(small), math.sin(small)], 0.0) == pytest.approx(small / DT)  # reached in one step
+    assert rate([-1, 0], math.pi - 0.05) == pytest.approx(0.05 / DT)
+    assert rate([1, 0], 0.0) == 0.0
+    # the yaw after one step never passes the target
+    yaw, target = 0.0, 2.0
+    for _ in range(30):
+        yaw += rate([math.cos(target), math.sin(target)], yaw) * DT
+    assert yaw == pytest.approx(target)
+
+
+def test_lookahead_fallbacks_when_hovering():
+    ctx = _context()
+    gaze = LookAhead(ctx)
+    n = 5
+    p = np.tile([25.0, 25.0], (n, 1))
+    v = np.zeros((n, 2))
+    v[1:] = [0.0, -1.0]
+    tr = Trajectory(0.0, DT, p, v, np.zeros((n, 2)))
+    view = _view(ctx, [25, 25], [40, 25], yaw=0.0)
+    assert gaze.yaw_rate(view, tr) == pytest.approx(-ctx.limits.yaw_rate)  # next sample's velocity: -90 deg
+    still = Trajectory(0.0, DT, np.array([[25.0, 25.0], [24.0, 25.0]]), np.zeros((2, 2)), np.zeros((2, 2)))
+    assert gaze.yaw_rate(_view(ctx, [25, 25], [40, 25], yaw=math.pi - 0.01), still) == pytest.approx(0.01 / DT)
+    assert gaze.yaw_rate(_view(ctx, [25, 25], [25, 26], yaw=0.0), None) == pytest.approx(ctx.limits.yaw_rate)
+
+
+def test_wrap_angle_range():
+    assert wrap_angle(math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(-math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
+    assert wrap_angle(-6.0) == pytest.approx(-6.0 + 2 * math.pi)
+
+
+def test_fullrange_has_360_fov_and_no_yaw_control():
+    ctx = _context()
+    g = FullRange(ctx)
+    assert g.fov_deg == 360.0 and FullRange.fov_deg == 360.0
+    assert g.yaw_rate(_view(ctx, [25, 25], [40, 25], v=np.array([0.0, 3.0])), None) == 0.0
+
+
+# ---------------------------------------------------------------- registry
+
+class PluginPlanner:
+    """A user plug-in: hovers in place."""
+
+    def __init__(self, context, *, hold_s=0.5):
+        self.context = context
+        self.hold_s = hold_s
+
+    def replan_check(self, view):
+        return True
+
+    def plan(self, view):
+        n = int(round(self.hold_s / view.dt)) + 1
+        p = np.tile(view.position, (n, 1))
+        return Trajectory(view.t, view.dt, p, np.zeros_like(p), np.zeros_like(p))
+
+
+class PluginGaze:
+    def __init__(self, context):
+        pass
+
+    def yaw_rate(self, view, trajectory):
+        return 0.3
+
+
+class NotAPlanner:
+    def __init__(self, context):
+        pass
+
+    def plan(self, view):
+        return None
+
+
+def test_registry_builtins_resolve():
+    assert registry.resolve_trajectory_planner("local_primitives", "planners[0].trajectory") is LocalPrimitives
+    assert registry.resolve_trajectory_planner("straight_line") is StraightLine
+    assert registry.resolve_gaze_planner("lookahead") is LookAhead
+    assert registry.resolve_gaze_planner("fullrange") is FullRange
+    ctx = _context()
+    lp = registry.build_planner(LocalPrimitives, ctx, {"n_candidates": 36, "margin": 0.3}, "planners[0].params")
+    assert lp.n_candidates == 36 and lp.margin == 0.3 and lp.directions.shape == (36, 2)
+
+
+def test_registry_plugins_resolve_and_build():
+    ctx = _context()
+    cls = registry.resolve_trajectory_planner(f"{__name__}:PluginPlanner", "planners[2].trajectory")
+    assert cls is PluginPlanner
+    planner = registry.build_planner(cls, ctx, {"hold_s": 0.3}, "planners[2].params")
+    tr = planner.plan(_view(ctx, [5, 5], [40, 5]))
+    assert tr.n_samples == 4
+    gaze_cls = registry.resolve_gaze_planner(f"{__name__}:PluginGaze", "planners[2].gaze")
+    assert registry.build_planner(gaze_cls, ctx, {}, "planners[2].params").yaw_rate(None, None) == 0.3
+
+
+@pytest.mark.parametrize("name,fragment", [
+    ("rrt_star", "unknown trajectory planner"),
+    ("no_such_pkg_xyz.module:Planner", "cannot import module"),
+    (f"{__name__}:Missing", "has no attribute"),
+    (f"{__name__}:NotAPlanner", "missing method(s) replan_check"),
+    (f"{__name__}:PluginGaze", "missing method(s) replan_check, plan"),
+    (":Planner", "package.module:Class"),
+    (3, "planner name"),
+])
+def test_registry_errors_name_the_field(name, fragment):
+    with pytest.raises(ConfigError) as err:
+        registry.resolve_trajectory_planner(name, "planners[1].trajectory")
+    msg = str(err.value)
+    assert msg.startswith("planners[1].trajectory: ") and fragment in msg and repr(name) in msg
+    assert "\n" not in msg
+
+
+def test_registry_gaze_errors_and_bad_params():
+    with pytest.raises(ConfigError, match=r"^planners\[0\]\.gaze: unknown gaze planner"):
+        registry.resolve_gaze_planner("owl_v2", "planners[0].gaze")
+    with pytest.raises(ConfigError, match=r"missing method\(s\) yaw_rate"):
+        registry.resolve_gaze_planner(f"{__name__}:PluginPlanner", "planners[0].gaze")
+    ctx = _context()
+    with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.n_candidate: unknown parameter"):
+        registry.build_planner(LocalPrimitives, ctx, {"n_candidate": 10}, "planners[0].params")
+    with pytest.raises(ConfigError, match=r"^planners\[0\]\.params: invalid parameters for LocalPrimitives"):
+        registry.build_planner(LocalPrimitives, ctx, {"n_candidates": 0}, "planners[0].params")
+    with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.gain: unknown parameter of FullRange"):
+        registry.build_planner(FullRange, ctx, {"gain": 1.0}, "planners[0].params")
