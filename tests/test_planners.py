@@ -170,7 +170,8 @@ def test_local_primitives_primitive_ends_at_candidate_with_end_velocity():
     # samples are the ruckig trajectory at k dt
     for k in (1, 4):
         p, v, a = planner._traj.at_time(k * DT)
-        np.testing.assert_allclose(tr.p[k], p), np.testing.assert_allclose(tr.v[k], v)
+        # planned in a frame whose first axis points at the candidate (+x here), origin at the MAV
+        np.testing.assert_allclose(tr.p[k], np.add(p, [10.0, 10.0])), np.testing.assert_allclose(tr.v[k], v)
 
 
 def test_local_primitives_goal_within_step_is_first_candidate_at_rest():
@@ -440,3 +441,18 @@ def test_registry_gaze_errors_and_bad_params():
         registry.build_planner(LocalPrimitives, ctx, {"n_candidates": 0}, "planners[0].params")
     with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.gain: unknown parameter of FullRange"):
         registry.build_planner(FullRange, ctx, {"gain": 1.0}, "planners[0].params")
+
+
+def test_local_primitives_are_invariant_to_the_arena_orientation():
+    """Planning in the candidate's own frame: a scene rotated by 90 deg gives the same plan, rotated."""
+    ctx = _context()
+    rot = np.array([[0.0, -1.0], [1.0, 0.0]])
+    centre = np.array([25.0, 25.0])
+    p, goal = np.array([20.0, 22.0]), np.array([33.0, 30.0])
+    v, a = np.array([1.5, -2.0]), np.array([0.5, 1.0])
+    plan_a = LocalPrimitives(ctx).plan(_view(ctx, p, goal, v=v, a=a))
+    plan_b = LocalPrimitives(ctx).plan(_view(ctx, centre + rot @ (p - centre), centre + rot @ (goal - centre),
+                                             v=rot @ v, a=rot @ a))
+    assert plan_a is not None and plan_b is not None and plan_a.n_samples == plan_b.n_samples
+    np.testing.assert_allclose(plan_b.p, centre + (plan_a.p - centre) @ rot.T, atol=1e-9)
+    np.testing.assert_allclose(plan_b.v, plan_a.v @ rot.T, atol=1e-9)

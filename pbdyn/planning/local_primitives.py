@@ -6,6 +6,8 @@ norm limits and clear (pbdyn.planning.checks). Trajectories are built lazily in 
 ruckig build per step is typical. The thesis program used minimum-jerk polynomials (Mueller et al.); ruckig gives
 jerk-limited, time-synchronised profiles with the same boundary conditions and the program's minimum duration.
 
+Each primitive is built in a frame whose first axis points at its end point (the planner is then invariant to the
+arena's orientation, and a straight primitive uses one axis, so the per-axis limits rarely exceed the norm limits).
 Norm limits from ruckig's per-axis limits: first build with per-axis (v_max, a_max, jerk_max); if a sample's
 |v| or |a| exceeds the norm limit, rebuild with the per-axis limits scaled by 0.95 * limit / observed peak (at most
 two rebuilds; the peak does not shrink in proportion to the limit, and the exact ratio tends to land just above it),
@@ -28,6 +30,18 @@ from pbdyn.planning.view import View
 _TOL = 1e-9
 _N_SCALED_REBUILDS = 2
 _SCALE_SAFETY = 0.95  # the peak does not scale linearly with the limits: aim slightly below
+
+
+def frame_basis(u: np.ndarray) -> np.ndarray:
+    """An orthonormal basis [d, d] (rows) whose first row is the unit vector u (2D or 3D), deterministic."""
+    u = np.asarray(u, dtype=float)
+    if u.shape[0] == 2:
+        return np.array([[u[0], u[1]], [-u[1], u[0]]])
+    e = np.zeros(3)
+    e[int(np.argmin(np.abs(u)))] = 1.0
+    w = np.cross(u, e)
+    w /= np.linalg.norm(w)
+    return np.stack([u, w, np.cross(u, w)])
 
 
 class LocalPrimitives:
@@ -66,6 +80,7 @@ class LocalPrimitives:
             min_duration = max(1.2 * self.step_m / self.limits.v_max, 0.5)
         self.min_duration = float(min_duration)
         self.directions = self._candidate_directions(d)
+        self._bases = np.stack([frame_basis(u) for u in self.directions])  # [n, d, d], rows: u first
         self._otg = ruckig.Ruckig(d)
         self._inp = ruckig.InputParameter(d)
         self._traj = ruckig.Trajectory(d)
@@ -127,16 +142,13 @@ class LocalPrimitives:
         targets = p0 + self.step_m * self.directions          # [n, d]
         end_vel = self.end_speed * self.directions             # [n, d]
         static_ok = None
-        inp = self._inp
-        inp.current_position = p0.tolist()
-        inp.current_velocity = view.velocity.tolist()
-        inp.current_acceleration = view.acceleration.tolist()
         rank = 0
         if math.sqrt(float(g @ g)) < self.step_m:
             rank = -1  # the goal itself, reached at rest, is tried first
         for r in range(rank, self.n_candidates):
             if r < 0:
                 target, vel = view.goal, np.zeros(self.dims)
+                basis = frame_basis(g / max(math.sqrt(float(g @ g)), 1e-12))
             else:
                 i = order[r]
                 if r > 0:
@@ -145,8 +157,9 @@ class LocalPrimitives:
                     if not static_ok[i]:
                         continue
                 target, vel = targets[i], end_vel[i]
+                basis = self._bases[i]
             self.last_candidates_tried += 1
-            samples = self._build(view, target, vel)
+            samples = self._build(view, target, vel, basis)
             if samples is None:
                 continue
             p, v, a = samples
@@ -158,13 +171,16 @@ class LocalPrimitives:
                                   np.ascontiguousarray(a))
         return None
 
-    def _build(self, view: View, target: np.ndarray, vel: np.ndarray):
+    def _build(self, view: View, target: np.ndarray, vel: np.ndarray, basis: np.ndarray):
         """Samples (p, v, a) [K, d] of the primitive to (target, vel, 0) within the norm limits (samples 1..K-1;
-        sample 0 is the given state), else None."""
+        sample 0 is the given state), else None. basis: [d, d] rows of the planning frame (world -> frame)."""
         d = self.dims
         inp = self._inp
-        inp.target_position = np.asarray(target, dtype=float).tolist()
-        inp.target_velocity = np.asarray(vel, dtype=float).tolist()
+        inp.current_position = [0.0] * d
+        inp.current_velocity = (basis @ view.velocity).tolist()
+        inp.current_acceleration = (basis @ view.acceleration).tolist()
+        inp.target_position = (basis @ (np.asarray(target, dtype=float) - view.position)).tolist()
+        inp.target_velocity = (basis @ np.asarray(vel, dtype=float)).tolist()
         v_max, a_max = self.limits.v_max, self.limits.a_max
         v_lim, a_lim = v_max, a_max
         stage = 0
@@ -180,7 +196,10 @@ class LocalPrimitives:
             vv_peak, aa_peak = np.einsum("kij,kij->ki", samples[1:, 1:], samples[1:, 1:]).max(axis=0).tolist()
             v_peak, a_peak = math.sqrt(vv_peak), math.sqrt(aa_peak)
             if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                return samples[:, 0], samples[:, 1], samples[:, 2]
+                world = samples @ basis                      # [K, 3, d]: frame -> world (rows of basis)
+                world[:, 0] += view.position
+                world[0] = view.position, view.velocity, view.acceleration
+                return world[:, 0], world[:, 1], world[:, 2]
             if v_peak > v_max:
                 v_lim *= _SCALE_SAFETY * v_max / v_peak
             if a_peak > a_max:
@@ -209,6 +228,4 @@ class LocalPrimitives:
             flat += p
             flat += v
             flat += a
-        s = np.array(flat).reshape(n, 3, d)
-        s[0] = view.position, view.velocity, view.acceleration
-        return s
+        return np.array(flat).reshape(n, 3, d)
