@@ -29,7 +29,7 @@ def _fly(sc, rollout, planner, start, goal, **kw):
     return run_trial(spec, rollout, **kw)
 
 
-def test_side_crossing_obstacle_straight_line_collides_lookahead_local_avoids():
+def test_side_crossing_obstacle_straight_line_collides_lookahead_local_avoids(tmp_path):
     sc = _scenario()
     start, goal = (4.0, 25.0), (46.0, 25.0)
     # An obstacle 20 m to the side, unseen at t = 0, timed to cross the straight path when the MAV gets there.
@@ -38,8 +38,11 @@ def test_side_crossing_obstacle_straight_line_collides_lookahead_local_avoids():
     assert sl.outcome == "dynamic_collision", sl
     empty = handmade_rollout(sc, np.zeros((0, 2)), np.zeros((0, 2)), [])
     sl_time = _fly(sc, empty, "lookahead+straight_line", start, goal).flight_time_s
-    res = _fly(sc, rollout, "lookahead+local_primitives", start, goal)
+    trace = tmp_path / "cross.npz"
+    res = _fly(sc, rollout, "lookahead+local_primitives", start, goal, trace_path=trace)
     assert res.outcome == "success", res
+    with np.load(trace) as z:
+        assert not z["seen"][0].any() and z["seen"].any()  # unseen at t = 0, seen later
     assert res.min_clearance_m >= 0.0
     assert res.flight_time_s <= 1.5 * sl_time
     assert res.obstacles_tracked == 1 and res.tracked_time_s > 0
