@@ -15,12 +15,13 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from pbdyn.errors import ConfigError
+from pbdyn.world.rvo import RVOParams
 
 PACKAGE_ROOT = Path(__file__).resolve().parent
 URDF_DIR = PACKAGE_ROOT.parent / "urdf"
 DEFAULT_MAV_URDF = "quadrotor.urdf"
 
-MOTIONS = ("cvm",)
+MOTIONS = ("cvm", "rvo")
 COLLISION_CHECKS = ("swept", "sampled")
 
 
@@ -145,6 +146,7 @@ class ObstacleConfig:
     maps_per_setup: int = 1
     root_seed: int = 0
     grid_order: tuple[str, ...] = ("count", "radius", "speed")
+    rvo: RVOParams = RVOParams()
 
 
 @dataclass(frozen=True)
@@ -336,7 +338,7 @@ def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: b
 
 def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
-    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed")
+    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo")
     _no_unknown(t, keys, "obstacles")
     count = _grid_values(t.get("count", 10), "obstacles.count", integer=True, lo=0)
     radius = _grid_values(t.get("radius", 1.0), "obstacles.radius")
@@ -351,7 +353,20 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     seed = _integer(t, "root_seed", "obstacles", 0, lo=0)
     order = tuple(k for k in t if k in ("count", "radius", "speed"))
     order += tuple(k for k in ("count", "radius", "speed") if k not in order)
-    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order)
+    rt = _table(t, "rvo", "obstacles")
+    if rt and motion != "rvo":
+        raise ConfigError("obstacles.rvo", 'is only used with motion = "rvo"', dict(rt), show_value=False)
+    _no_unknown(rt, ("time_horizon", "wall_time_horizon", "n_headings", "n_speeds", "contact_iterations"),
+                "obstacles.rvo")
+    rvo = RVOParams(
+        time_horizon=_number(rt, "time_horizon", "obstacles.rvo", 2.0, lo=0.0, lo_open=True),
+        wall_time_horizon=(_number(rt, "wall_time_horizon", "obstacles.rvo", 0.0, lo=0.0, lo_open=True)
+                           if "wall_time_horizon" in rt else None),
+        n_headings=_integer(rt, "n_headings", "obstacles.rvo", 0, lo=4) if "n_headings" in rt else None,
+        n_speeds=_integer(rt, "n_speeds", "obstacles.rvo", 6, lo=1),
+        contact_iterations=_integer(rt, "contact_iterations", "obstacles.rvo", 4, lo=0),
+    )
+    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo)
 
 
 def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfig, ...]:

@@ -54,8 +54,10 @@ class TrialSpec:
     def resolved(self) -> dict:
         """The canonical, path- and version-free description of the trial (what config_hash hashes)."""
         sc = self.scenario.to_dict()
-        obstacles = {k: v for k, v in sc["obstacles"].items() if k not in ("count", "radius", "speed", "maps_per_setup",
-                                                                             "grid_order")}
+        skip = {"count", "radius", "speed", "maps_per_setup", "grid_order"}
+        if sc["obstacles"]["motion"] != "rvo":
+            skip.add("rvo")
+        obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
         drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
         task = {k: v for k, v in sc["task"].items() if k != "candidates"}
         return {

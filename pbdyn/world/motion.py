@@ -28,7 +28,7 @@ def cvm_fold(p0: np.ndarray, v0: np.ndarray, radii: np.ndarray, size: np.ndarray
     period = 2.0 * width
     u = (p0 - lo)[None] + v0[None] * t                                 # [T, N, d]
     m = np.mod(u, period[None])
-    forward = m <= width[None]
+    forward = m < width[None]  # at a wall the velocity is the reflected one (pointing away from it)
     pos = lo[None] + np.where(forward, m, period[None] - m)
     vel = np.where(forward, v0[None], -v0[None])
     return pos, vel

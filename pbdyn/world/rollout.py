@@ -23,8 +23,9 @@ from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
 from pbdyn.world.motion import cvm_fold
+from pbdyn.world.rvo import rvo_rollout
 
-ROLLOUT_MODEL_VERSION = "rollout-1"
+ROLLOUT_MODEL_VERSION = "rollout-2"
 STATIC_KINDS = ("pillar", "box")
 
 
@@ -131,7 +132,8 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     payload = {
         "version": ROLLOUT_MODEL_VERSION, "map": spec.key, "root_seed": spec.root_seed,
         "world": {"dims": w.dims, "size": w.size, "dt": w.dt},
-        "obstacles": {"jitter": scenario.obstacles.radius_jitter, "motion": scenario.obstacles.motion},
+        "obstacles": {"jitter": scenario.obstacles.radius_jitter, "motion": scenario.obstacles.motion,
+                      "rvo": vars(scenario.obstacles.rvo) if scenario.obstacles.motion == "rvo" else None},
         "static": [vars(s) for s in scenario.static_obstacles],
         "spawn": {"candidates": scenario.task.candidates, "mav_radius": scenario.drone.radius,
                   "clearance": scenario.task.spawn_clearance},
@@ -157,6 +159,8 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     size = np.asarray(scenario.world.size, dtype=float)
     if scenario.obstacles.motion == "cvm":
         pos, vel = cvm_fold(p0, v0, radii, size, times)
+    elif scenario.obstacles.motion == "rvo":
+        pos, vel = rvo_rollout(p0, v0, radii, size, dt, n_t, scenario.obstacles.rvo)
     else:  # pragma: no cover - validation rejects other names
         raise ConfigError("obstacles.motion", "unsupported", scenario.obstacles.motion)
     meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": scenario.obstacles.motion,
