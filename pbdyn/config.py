@@ -173,12 +173,14 @@ class DroneConfig:
 
 @dataclass(frozen=True)
 class SensorConfig:
-    """Depth sensor: horizontal fov_deg, range (m), ray resolution_deg, Gaussian position noise_std (m)."""
+    """Depth sensor: horizontal fov_deg, vertical vfov_deg (3D only), range (m), ray resolution_deg (both axes),
+    Gaussian position noise_std (m)."""
 
     fov_deg: float = 90.0
     range: float = 8.0
     resolution_deg: float = 1.0
     noise_std: float = 0.0
+    vfov_deg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -418,16 +420,41 @@ def _parse_drone(doc: Mapping) -> DroneConfig:
     return DroneConfig(urdf, radius, a_max, tuple(float(v) for v in v_max), yaw)
 
 
-def _parse_sensor(doc: Mapping) -> SensorConfig:
+def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
     t = _table(doc, "sensor")
-    _no_unknown(t, ("fov_deg", "range", "resolution_deg", "noise_std"), "sensor")
+    _no_unknown(t, ("fov_deg", "vfov_deg", "range", "resolution_deg", "noise_std"), "sensor")
     fov = _number(t, "fov_deg", "sensor", 90.0, lo=0.0, lo_open=True, hi=360.0)
     rng = _number(t, "range", "sensor", 8.0, lo=0.0, lo_open=True)
-    res = _number(t, "resolution_deg", "sensor", 1.0, lo=0.0, lo_open=True)
+    res = _number(t, "resolution_deg", "sensor", 1.0 if world.dims == 2 else 2.0, lo=0.0, lo_open=True)
     if res > fov:
         raise ConfigError("sensor.resolution_deg", f"must be <= sensor.fov_deg ({fov:g})", res)
     noise = _number(t, "noise_std", "sensor", 0.0, lo=0.0)
-    return SensorConfig(fov, rng, res, noise)
+    vfov = None
+    if world.dims == 3:
+        vfov = _number(t, "vfov_deg", "sensor", 60.0, lo=0.0, lo_open=True, hi=180.0)
+        if res > vfov:
+            raise ConfigError("sensor.resolution_deg", f"must be <= sensor.vfov_deg ({vfov:g})", res)
+    elif "vfov_deg" in t:
+        raise ConfigError("sensor.vfov_deg", "is only used in 3D worlds (world.dims = 3)", t["vfov_deg"])
+    return SensorConfig(fov, rng, res, noise, vfov)
+
+
+def _check_resolution(sensor: SensorConfig, obstacles: ObstacleConfig,
+                      static: tuple[StaticObstacleConfig, ...]) -> None:
+    """Reject a ray spacing too coarse to hit the smallest obstacle at full range: adjacent rays at range R are
+    res apart in angle, and an obstacle of radius r there spans 2 asin(r / R)."""
+    radii = []
+    for r in obstacles.radius:
+        radii.append((r.min if isinstance(r, Range) else r) - obstacles.radius_jitter)
+    radii += [s.radius for s in static if s.kind == "pillar"]
+    if not radii or max(obstacles.count) == 0 and not static:
+        return
+    r_min = min(radii)
+    span = math.degrees(2.0 * math.asin(min(r_min / sensor.range, 1.0)))
+    if sensor.resolution_deg >= span:
+        raise ConfigError("sensor.resolution_deg",
+                          f"rays {sensor.resolution_deg:g} deg apart can miss an obstacle of radius {r_min:g} m at "
+                          f"the {sensor.range:g} m range (it spans {span:.2f} deg)", sensor.resolution_deg)
 
 
 def _parse_tracking(doc: Mapping) -> TrackingConfig:
@@ -522,7 +549,8 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     _check_fit(obstacles, world)
     static = _parse_static(doc, world)
     drone = _parse_drone(doc)
-    sensor = _parse_sensor(doc)
+    sensor = _parse_sensor(doc, world)
+    _check_resolution(sensor, obstacles, static)
     tracking = _parse_tracking(doc)
     task = _parse_task(doc, world, drone)
     planners = _parse_planners(doc)

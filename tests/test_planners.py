@@ -134,7 +134,7 @@ def test_local_primitives_reach_goals_in_empty_arena_within_limits(v_max):
 def test_local_primitives_reach_goal_in_3d():
     ctx = _context(dims=3)
     planner = LocalPrimitives(ctx)
-    assert planner.directions.shape == (72, 3)
+    assert planner.directions.shape == (412, 3)  # rings every 10 deg
     np.testing.assert_allclose(np.linalg.norm(planner.directions, axis=1), 1.0)
     reached, speeds, accs, _ = _fly(planner, ctx, (4, 4, 10), np.array([46.0, 25.0, 10.0]))
     assert reached

@@ -32,6 +32,23 @@ _N_SCALED_REBUILDS = 2
 _SCALE_SAFETY = 0.95  # the peak does not scale linearly with the limits: aim slightly below
 
 
+def sphere_directions(spacing_deg: float) -> np.ndarray:
+    """Evenly spread unit vectors [n, 3]: rings at elevations 0, +-spacing, ... (both poles included), each with
+    max(1, round(360 cos(el) / spacing)) azimuths k * 360 / n_ring; horizontal ring first."""
+    n_half = int(round(90.0 / spacing_deg))
+    elevations = [0.0]
+    for k in range(1, n_half + 1):
+        el = min(k * spacing_deg, 90.0)
+        elevations += [el, -el]
+    out = []
+    for el in elevations:
+        e = np.radians(el)
+        n_ring = max(1, int(round(360.0 * np.cos(e) / spacing_deg))) if abs(el) < 90.0 else 1
+        az = 2.0 * np.pi * np.arange(n_ring) / n_ring
+        out.append(np.stack([np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.full(n_ring, np.sin(e))], axis=1))
+    return np.concatenate(out)
+
+
 def frame_basis(u: np.ndarray) -> np.ndarray:
     """An orthonormal basis [d, d] (rows) whose first row is the unit vector u (2D or 3D), deterministic."""
     u = np.asarray(u, dtype=float)
@@ -49,7 +66,11 @@ class LocalPrimitives:
 
     Args:
         context: the trial's fixed facts (dims, dt, limits, arena box).
-        n_candidates: number of end points on the circle (2D: at angles 2 pi k / n) or sphere (3D).
+        n_candidates: number of end points on the circle (2D: at angles 2 pi k / n).
+        sphere_spacing_deg: 3D only — end points on the sphere in rings of constant elevation every spacing degrees
+            (including the horizontal ring and both poles), each ring holding round(360 cos(el) / spacing) evenly
+            spaced points, so neighbours are ~spacing apart everywhere (10 deg: 412 points, 36 in the horizontal
+            plane).
         step_m: distance (m) from the MAV to each end point.
         end_speed_frac: end speed as a fraction of v_max, along the candidate's direction; end acceleration 0.
         jerk_max: per-axis jerk limit (m/s^3).
@@ -60,7 +81,8 @@ class LocalPrimitives:
     last_rank (rank of the chosen candidate, 0 = best; None on failure), last_target (its end point [d]).
     """
 
-    def __init__(self, context: PlannerContext, *, n_candidates: int = 72, step_m: float = 3.0,
+    def __init__(self, context: PlannerContext, *, n_candidates: int = 72, sphere_spacing_deg: float = 10.0,
+                 step_m: float = 3.0,
                  end_speed_frac: float = 0.5, jerk_max: float = 20.0, margin: float = 0.5,
                  min_duration: float | None = None):
         if int(n_candidates) < 1 or step_m <= 0 or not 0 <= end_speed_frac <= 1 or jerk_max <= 0 or margin < 0:
@@ -71,6 +93,9 @@ class LocalPrimitives:
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
         self.limits = context.limits
+        if not 0 < sphere_spacing_deg <= 90:
+            raise ValueError(f"sphere_spacing_deg must be in (0, 90], got {sphere_spacing_deg}")
+        self.sphere_spacing_deg = float(sphere_spacing_deg)
         self.n_candidates = int(n_candidates)
         self.step_m = float(step_m)
         self.end_speed = float(end_speed_frac) * self.limits.v_max
@@ -93,21 +118,18 @@ class LocalPrimitives:
         self.last_target: np.ndarray | None = None
 
     def _candidate_directions(self, dims: int) -> np.ndarray:
-        """Unit directions [n, d] of the candidate end points (thesis eq. A-4).
+        """Unit directions [n, d] of the candidate end points (thesis eq. A-4; sets self.n_candidates in 3D).
 
-        2D: angles 2 pi k / n, k = 0..n-1. 3D: a Fibonacci lattice on the unit sphere (near-uniform; override this
-        method for another 3D fan).
+        2D: angles 2 pi k / n, k = 0..n-1. 3D: rings of constant elevation every sphere_spacing_deg (see the class
+        docstring), horizontal ring first, azimuths starting at 0.
         """
-        n = self.n_candidates
-        k = np.arange(n)
         if dims == 2:
-            ang = 2.0 * np.pi * k / n
+            ang = 2.0 * np.pi * np.arange(self.n_candidates) / self.n_candidates
             return np.stack([np.cos(ang), np.sin(ang)], axis=1)
         if dims == 3:
-            z = 1.0 - (2.0 * k + 1.0) / n
-            rho = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-            phi = k * np.pi * (3.0 - np.sqrt(5.0))
-            return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+            dirs = sphere_directions(self.sphere_spacing_deg)
+            self.n_candidates = dirs.shape[0]
+            return dirs
         raise ValueError(f"dims must be 2 or 3, got {dims}")
 
     def replan_check(self, view: View) -> bool:

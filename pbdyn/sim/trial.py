@@ -192,7 +192,8 @@ class TrialEnv:
         self.fov_deg = float(fov_deg) if fov_deg is not None else sc.sensor.fov_deg
         self.perception = Perception(self.world, self.grid, fov_deg=self.fov_deg, range_m=sc.sensor.range,
                                      resolution_deg=sc.sensor.resolution_deg, noise_std=sc.sensor.noise_std,
-                                     rng=np.random.default_rng(spec.seed))
+                                     rng=np.random.default_rng(spec.seed), vfov_deg=sc.sensor.vfov_deg,
+                                     vresolution_deg=sc.sensor.resolution_deg if self.dims == 3 else None)
         tr = sc.tracking
         self.tracker = KalmanTracks(rollout.n_obstacles, self.dims, self.dt, q=tr.q, r=tr.r, p0_pos=tr.p0_pos,
                                     p0_vel=tr.p0_vel, drop_pos_var=tr.drop_pos_var, bounds_lo=lo, bounds_hi=hi)
