@@ -131,3 +131,37 @@ def test_determinism_across_processes_and_hash_seeds(write_scenario, tmp_path):
     assert a == b
     assert len({r["outcome"] for r in a}) >= 2
     assert (tmp_path / "cache_a" / "rollouts").is_dir()
+
+
+RVO_3D = """
+[world]
+dims = 3
+time_limit = 15.0
+[obstacles]
+count = 20
+speed = 3.0
+motion = "rvo"
+[drone]
+v_max = 4.0
+"""
+
+
+@pytest.mark.parametrize("text", [RVO_3D, RVO_3D.replace("dims = 3", "dims = 2"),
+                                  RVO_3D.replace('motion = "rvo"', 'motion = "cvm"')])
+def test_run_and_rollout_work_in_3d_and_with_rvo_deterministically(write_scenario, tmp_path, text):
+    path = write_scenario(text)
+    dims = 3 if "dims = 3" in text else 2
+    out = tmp_path / "r.npz"
+    proc = _run(["rollout", path, "--out", out])
+    assert proc.returncode == 0, proc.stderr
+    with np.load(out) as z:
+        assert z["positions"].shape == (152, 20, dims)
+    docs = []
+    for seed in ("0", "99"):
+        proc = _run(["run", path, "--json", "--trace", tmp_path / f"t{seed}.npz"],
+                    env={"PYTHONHASHSEED": seed, "PBDYN_CACHE": str(tmp_path / f"c{seed}")})
+        assert proc.returncode == 0, proc.stderr
+        docs.append({k: v for k, v in json.loads(proc.stdout).items() if "wall" not in k})
+    assert docs[0] == docs[1] and len(docs[0]["start"]) == dims
+    with np.load(tmp_path / "t0.npz") as a, np.load(tmp_path / "t99.npz") as b:
+        assert a["p"].shape[1] == dims and np.array_equal(a["p"], b["p"])

@@ -406,9 +406,9 @@ def _save_trace(trace: _Trace, path, p, v, a, yaw, outcome: Outcome) -> None:
         "t": np.asarray(trace.t), "p": np.asarray(trace.p).reshape(-1, d), "v": np.asarray(trace.v).reshape(-1, d),
         "a": np.asarray(trace.a).reshape(-1, d), "yaw": np.asarray(trace.yaw), "yaw_rate": np.asarray(trace.yaw_rate),
         "plan_ok": np.asarray(trace.plan_ok, dtype=bool), "plan": plans,
-        "track_mean": np.asarray(trace.track_mean).reshape(-1, n, d),
-        "track_active": np.asarray(trace.track_active, dtype=bool).reshape(-1, n),
-        "seen": np.asarray(trace.seen, dtype=bool).reshape(-1, n),
+        "track_mean": np.asarray(trace.track_mean, dtype=float).reshape(len(trace.t), n, d),
+        "track_active": np.asarray(trace.track_active, dtype=bool).reshape(len(trace.t), n),
+        "seen": np.asarray(trace.seen, dtype=bool).reshape(len(trace.t), n),
         "final_p": p, "final_v": v, "final_a": a, "final_yaw": np.array(yaw), "outcome": np.array(outcome.value),
     }
     path = Path(path)
