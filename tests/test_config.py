@@ -85,3 +85,14 @@ def test_malformed_toml_and_missing_file(write_scenario, tmp_path):
 def test_bundled_scenarios_load():
     for path in sorted(SCENARIOS.glob("*.toml")):
         load_scenario(path)
+
+
+def test_sensor_resolution_must_resolve_the_smallest_obstacle():
+    # 0.3 m obstacles at 8 m span 4.3 deg: 5 deg rays could miss them
+    with pytest.raises(ConfigError, match=r"sensor.resolution_deg: rays 5 deg apart can miss .* radius 0.3"):
+        parse_scenario({"world": {"dims": 3}, "obstacles": {"radius": 0.5, "radius_jitter": 0.2},
+                        "sensor": {"resolution_deg": 5.0}})
+    sc = parse_scenario({"world": {"dims": 3}, "obstacles": {"radius": 0.5, "radius_jitter": 0.2}})
+    assert sc.sensor.resolution_deg == 2.0 and sc.sensor.vfov_deg == 60.0
+    with pytest.raises(ConfigError, match="sensor.vfov_deg: is only used in 3D"):
+        parse_scenario({"sensor": {"vfov_deg": 60.0}})

@@ -29,11 +29,11 @@ from pbdyn.world.rollout import build_rollout  # noqa: E402
 PAIRS = (("straight_line", "lookahead"), ("local_primitives", "lookahead"), ("local_primitives", "fullrange"))
 
 
-def bench_scenario(count: int, time_limit: float):
+def bench_scenario(count: int, time_limit: float, dims: int = 2):
     """A controlled-set style scenario with one setup of ``count`` obstacles (r 1 m, 4 m/s)."""
     return parse_scenario({
-        "name": f"bench_{count}",
-        "world": {"time_limit": time_limit},
+        "name": f"bench_{count}_{dims}d",
+        "world": {"time_limit": time_limit, "dims": dims},
         "obstacles": {"count": count, "radius": 1.0, "speed": 4.0, "radius_jitter": 0.2, "root_seed": 11},
         "drone": {"v_max": 4.0},
         "sensor": {"fov_deg": 90.0},
@@ -50,8 +50,8 @@ def main() -> int:
           f"python={platform.python_version()} numpy={np.__version__}")
     print(f"{'configuration':<40} {'obst':>4} {'trials':>6} {'steps':>6} {'ms/step':>8} {'ms/trial':>9} "
           + " ".join(f"{s[5:-2]:>9}" for s in SPLITS) + f" {'cands':>9}  config_hash")
-    for count in (10, 30):
-        sc = bench_scenario(count, args.time_limit)
+    for dims, count in ((2, 10), (2, 30), (3, 10), (3, 30)):
+        sc = bench_scenario(count, args.time_limit, dims)
         spec_map = enumerate_maps(sc)[0]
         rollout = build_rollout(sc, spec_map)
         cands = sc.task.candidates
@@ -78,11 +78,27 @@ def main() -> int:
             med = 1000 * np.median(per_step)
             split_txt = " ".join(f"{1000 * np.median(per_split[s]):9.4f}" for s in SPLITS)
             cand = f"{np.median(built):3.0f}/{np.mean(built):5.1f}" if built else f"{'-':>9}"
-            print(f"{entry.label:<40} {count:>4} {len(trial_times):>6} {len(per_step):>6} {med:8.4f} "
+            print(f"{entry.label + f' ({dims}D)':<40} {count:>4} {len(trial_times):>6} {len(per_step):>6} {med:8.4f} "
                   f"{1000 * np.median(trial_times):9.1f} {split_txt} {cand}  {hashes[0]}")
             print(f"{'':<40} outcomes: {', '.join(outcomes)}", file=sys.stderr)
     print("ms/step and splits are medians over all steps; cands = median/mean ruckig builds per planning step.")
+    bench_rvo()
     return 0
+
+
+def bench_rvo(repeats: int = 5) -> None:
+    """Median wall time of an RVO rollout: 30 obstacles of 1.5 m at 6 m/s over 80 s (801 steps), 2D and 3D."""
+    for dims in (2, 3):
+        sc = parse_scenario({"world": {"dims": dims, "time_limit": 80.0},
+                             "obstacles": {"count": 30, "radius": 1.5, "speed": 6.0, "motion": "rvo",
+                                           "root_seed": 1}})
+        spec_map = enumerate_maps(sc)[0]
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            build_rollout(sc, spec_map)
+            times.append(time.perf_counter() - t0)
+        print(f"RVO rollout {dims}D, 30 obstacles x 80 s: median {np.median(times):.3f} s (n={repeats})")
 
 
 if __name__ == "__main__":
