@@ -70,6 +70,14 @@ def build_parser() -> argparse.ArgumentParser:
     ro.add_argument("--horizon", type=_positive_float, help="seconds to cover (default: time limit + dt)")
     ro.add_argument("--json", action="store_true", help="print a JSON summary")
 
+    met = sub.add_parser("metrics", help="difficulty metrics of a map (values cached per rollout)")
+    met.add_argument("scenario", help="scenario TOML file")
+    met.add_argument("--map", type=_nonneg_int, default=0)
+    met.add_argument("--metric", action="append", help="metric name (repeatable; default: every sparse metric)")
+    met.add_argument("--dense", action="store_true", help="use the dense sample grids where a metric has one")
+    met.add_argument("--backend", default="analytic", help="survivability backend: analytic (default) or bullet")
+    met.add_argument("--json", action="store_true")
+
     demo = sub.add_parser("demo", help="fly every planner pair over a few maps and start/goal pairs; print a table")
     demo.add_argument("scenario")
     demo.add_argument("--maps", type=_nonneg_int, default=4, help="number of maps (default 4)")
@@ -129,6 +137,29 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_metrics(args: argparse.Namespace) -> int:
+    from pbdyn.metrics.cached import map_metrics, metric_names
+    from pbdyn.world.maps import get_map
+
+    scenario = _load(args.scenario)
+    names = metric_names(args.metric, args.dense)
+    if args.backend not in ("analytic", "bullet"):
+        raise ConfigError("--backend", "must be analytic or bullet", args.backend)
+    spec_map = get_map(scenario, args.map)
+    values = map_metrics(scenario, spec_map, names, backend=args.backend)
+    doc = {"scenario": scenario.name, "map_index": spec_map.index, "map_id": spec_map.map_id,
+           "setup": spec_map.setup, "replicate": spec_map.replicate, "backend": args.backend, "metrics": values}
+    if args.json:
+        sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(f"map {spec_map.index} ({spec_map.map_id}) {spec_map.setup} replicate {spec_map.replicate}\n")
+        for name, v in values.items():
+            err = f" +- {v['stderr']:.3f}" if v.get("stderr") is not None else ""
+            sys.stdout.write(f"{name:>24}: {v['value']:.4f}{err}  (n={v['n_samples']}, excluded {v['n_excluded']}, "
+                             f"{1000 * v['wall_time_s']:.1f} ms{', cached' if v['cached'] else ''})\n")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from pbdyn.sim.demo import run_demo
 
@@ -139,7 +170,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "demo": cmd_demo}
+COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo}
 
 
 def main(argv: list[str] | None = None) -> int:

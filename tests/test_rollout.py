@@ -119,20 +119,22 @@ def test_npz_roundtrip_documented_arrays(tmp_path):
 
 def test_horizon_error():
     sc = parse_scenario({"world": {"time_limit": 1.0}})
-    ro = build_rollout(sc, enumerate_maps(sc)[0])
+    ro = build_rollout(sc, enumerate_maps(sc)[0], horizon=1.1)
     assert ro.n_steps == 12
     ro.at(11)
     with pytest.raises(HorizonError):
         ro.at(12)
+    # by default a rollout covers the trial and the default metrics (global survivability: 20 s + 24 s)
+    assert build_rollout(sc, enumerate_maps(sc)[0]).horizon >= 44.0
 
 
 def test_cache_is_keyed_and_reused():
     sc = parse_scenario({"world": {"time_limit": 5.0}})
     spec = enumerate_maps(sc)[0]
     ro = get_rollout(sc, spec)
-    path = cache_dir() / "rollouts" / f"{rollout_key(sc, spec, 5.1)}.npz"
+    path = cache_dir() / "rollouts" / f"{rollout_key(sc, spec, 44.1)}.npz"
     assert path.is_file()
     again = get_rollout(sc, spec)
     assert np.array_equal(again.positions, ro.positions)
     other = parse_scenario({"world": {"time_limit": 5.0}, "obstacles": {"radius_jitter": 0.1}})
-    assert rollout_key(other, enumerate_maps(other)[0], 5.1) != rollout_key(sc, spec, 5.1)
+    assert rollout_key(other, enumerate_maps(other)[0], 44.1) != rollout_key(sc, spec, 44.1)

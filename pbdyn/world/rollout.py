@@ -142,9 +142,14 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
 
 
+METRICS_HORIZON = 44.0
+"""Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s)."""
+
+
 def default_horizon(scenario: Scenario) -> float:
-    """The trial time limit plus one step (the collision check at t_k+1 of the last step)."""
-    return scenario.world.time_limit + scenario.world.dt
+    """The longest default consumer plus one step: the trial time limit (the collision check at t_k+1 of the last
+    step needs one more sample) or the default metrics (global survivability: 20 s + 24 s)."""
+    return max(scenario.world.time_limit, METRICS_HORIZON) + scenario.world.dt
 
 
 def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None) -> Rollout:

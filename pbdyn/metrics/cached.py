@@ -1,0 +1,90 @@
+"""Metric values for a scenario's map, cached on disk per rollout hash (``pbdyn metrics``)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from pbdyn.config import Scenario, canonical_json
+from pbdyn.errors import ConfigError
+from pbdyn.world.maps import MapSpec
+from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
+
+METRICS_VERSION = "metrics-1"
+SPARSE = ("density", "traversability", "dynamic_traversability", "vo_feasibility", "survivability",
+          "global_survivability")
+DENSE = {"traversability": "traversability_dense", "vo_feasibility": "vo_feasibility_dense",
+         "survivability": "survivability_dense"}
+BACKEND_METRICS = ("survivability", "survivability_dense", "global_survivability")
+
+
+def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
+    """The metrics to compute: the requested names (default: every sparse metric), swapped for their dense variant
+    with ``dense``; unknown names raise ConfigError naming --metric."""
+    from pbdyn.metrics.registry import METRICS
+
+    names = list(requested) if requested else list(SPARSE)
+    out = []
+    for name in names:
+        if name not in METRICS:
+            raise ConfigError("--metric", f"unknown metric (known: {', '.join(sorted(METRICS))})", name)
+        name = DENSE.get(name, name) if dense else name
+        if name not in out:
+            out.append(name)
+    return out
+
+
+def _write_json_atomic(path: Path, doc: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".metric-", suffix=".json", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(doc, fh, sort_keys=True)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend: str = "analytic",
+                use_cache: bool = True) -> dict[str, dict]:
+    """Compute (or read from the cache) each named metric of one map; returns name -> MetricResult.to_dict()
+    (plus "cached": bool). Survivability-type metrics use ``backend``; the MAV radius is the scenario's."""
+    from pbdyn.metrics.registry import compute
+
+    if backend not in ("analytic", "bullet"):
+        raise ConfigError("--backend", "must be analytic or bullet", backend)
+    horizon = default_horizon(scenario)
+    rollout = get_rollout(scenario, spec, horizon)
+    key = rollout_key(scenario, spec, horizon)
+    out = {}
+    for name in names:
+        params = {"mav_radius": scenario.drone.radius}
+        if name in BACKEND_METRICS:
+            params["backend"] = backend
+        tag = hashlib.sha256(canonical_json({"v": METRICS_VERSION, "name": name, "params": params}).encode())
+        path = cache_dir() / "metrics" / key / f"{name}-{tag.hexdigest()[:16]}.json"
+        if use_cache and path.is_file():
+            try:
+                doc = json.loads(path.read_text())
+                doc["cached"] = True
+                out[name] = doc
+                continue
+            except (OSError, ValueError):
+                path.unlink(missing_ok=True)
+        t0 = time.perf_counter()
+        result = compute(rollout, name, **params)
+        doc = result.to_dict()
+        doc["wall_time_s"] = time.perf_counter() - t0
+        if use_cache:
+            try:
+                _write_json_atomic(path, doc)
+            except OSError:
+                pass
+        doc["cached"] = False
+        out[name] = doc
+    return out
