@@ -31,6 +31,8 @@ class OccupancyGrid:
         self.cells = np.full(self.shape, UNKNOWN, dtype=np.int8)
         self.origin = self.lo - self.res  # world coordinate of the corner of cell 0
         self.version = 0  # incremented whenever a cell becomes OCCUPIED
+        self._last = np.asarray(self.shape, dtype=np.int64) - 1
+        self._strides = np.cumprod((self.shape[1:] + (1,))[::-1])[::-1].astype(np.int64)  # C-order, in cells
         self._window_cache: dict[int, np.ndarray] = {}
 
     @property
@@ -41,7 +43,12 @@ class OccupancyGrid:
     def index(self, points: np.ndarray) -> np.ndarray:
         """Integer cell indices [..., d] of world points [..., d], clipped into the grid."""
         idx = np.floor((np.asarray(points, dtype=float) - self.origin) / self.res).astype(np.int64)
-        return np.clip(idx, 0, np.asarray(self.shape) - 1)
+        np.maximum(idx, 0, out=idx)
+        return np.minimum(idx, self._last, out=idx)
+
+    def flat_index(self, points: np.ndarray) -> np.ndarray:
+        """C-order flat indices [...] into ``cells`` of the cells holding world points [..., d] (clipped, as index)."""
+        return self.index(points) @ self._strides
 
     def cell_center(self, idx: np.ndarray) -> np.ndarray:
         """World centres [..., d] of cells with indices [..., d]."""
@@ -54,20 +61,26 @@ class OccupancyGrid:
 
     def mark_free(self, points: np.ndarray) -> None:
         """Mark the cells holding world points [..., d] FREE, except cells already OCCUPIED."""
-        idx = self.index(np.asarray(points).reshape(-1, self.dims))
-        flat = np.ravel_multi_index(tuple(idx.T), self.shape)
+        self.mark_free_cells(self.flat_index(np.asarray(points).reshape(-1, self.dims)))
+
+    def mark_free_cells(self, flat) -> None:
+        """Mark the cells with C-order flat indices ``flat`` [K] (0 <= flat < cells.size) FREE, except OCCUPIED ones."""
+        flat = np.asarray(flat).reshape(-1)
         view = self.cells.reshape(-1)
-        sel = flat[view[flat] != OCCUPIED]
-        view[sel] = FREE
+        view[flat] = np.maximum(view[flat], FREE)          # UNKNOWN (-1) -> FREE (0); OCCUPIED (1) stays
 
     def mark_occupied(self, points: np.ndarray) -> None:
         """Mark the cells holding world points [..., d] OCCUPIED."""
-        idx = self.index(np.asarray(points).reshape(-1, self.dims))
-        if idx.shape[0] == 0:
-            return
-        flat = np.ravel_multi_index(tuple(idx.T), self.shape)
+        self.mark_occupied_cells(self.flat_index(np.asarray(points).reshape(-1, self.dims)))
+
+    def mark_occupied_cells(self, flat) -> None:
+        """Mark the cells with C-order flat indices ``flat`` [K] (0 <= flat < cells.size) OCCUPIED.
+
+        ``version`` is incremented once if any of them was not OCCUPIED before.
+        """
+        flat = np.asarray(flat).reshape(-1)
         view = self.cells.reshape(-1)
-        if np.any(view[flat] != OCCUPIED):
+        if flat.shape[0] and np.any(view[flat] != OCCUPIED):
             view[flat] = OCCUPIED
             self.version += 1
 

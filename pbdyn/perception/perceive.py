@@ -82,9 +82,18 @@ class Perception:
         self._t = np.linspace(0.0, self.range_m, n_samples + 1)     # free-space sample distances along a ray (m)
         self._t_cells = self._t / grid.res
         self._rot = np.eye(self.dims)
-        self._starts = np.empty((self.n_rays, 3))
-        self._ends = np.empty((self.n_rays, 3))
+        # Scratch buffers of the free-space marking, reused by every scan: [d, S, R] so the long ray axis is the
+        # contiguous one (numpy's inner loops), cell indices as int32 (fast float casts), flat indices as intp.
+        shape_dsr = (self.dims, self._t.shape[0], self.n_rays)
+        self._t_full = np.ascontiguousarray(np.broadcast_to(self._t_cells[:, None], shape_dsr[1:]))
+        self._dist = np.empty(shape_dsr[1:])
+        self._samples = np.empty(shape_dsr)
+        self._cells_of = np.empty(shape_dsr, dtype=np.int32 if grid.cells.size < 2**31 else np.int64)
+        self._flat_small = np.empty(shape_dsr[1:], dtype=self._cells_of.dtype)
+        self._flat = np.empty(shape_dsr[1:], dtype=np.intp)
         self._cell_seen = np.zeros(grid.cells.size, dtype=bool)
+        self._slab = grid.cells.size // grid.shape[0]                 # cells per index along axis 0
+        self._grid_top = np.asarray(grid.shape, dtype=float)
         self._obstacle_seen = np.zeros(world.obstacle_ids.shape[0] + 1, dtype=bool)
 
     def _rotated(self, yaw: float) -> np.ndarray:
@@ -96,31 +105,57 @@ class Perception:
         rot[0, 1] = -s
         return rot @ self._base_t
 
-    def _mark_free(self, o: np.ndarray, dirs_t: np.ndarray, reach: np.ndarray) -> None:
-        """Mark FREE the cells of the samples along each ray r (dirs_t: [d, R]) up to just before reach[r] (m).
+    def free_cells(self, o: np.ndarray, dirs_t: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """Flat C-order indices (sorted, unique) of the grid cells the free-space samples of one scan fall in.
 
-        Samples lie every <= res/4 from the origin; those past a ray's hit collapse onto the point just before it.
-        Cells are computed on [d, R, S] arrays (numpy is slow on a tiny last axis) and de-duplicated through a
-        scratch mask, so grid.mark_free sees each cell once.
+        o: sensor position [d] (m); dirs_t: unit ray directions [d, R]; reach: per-ray hit distance (m; inf for
+        no hit). Sampling rule: ray r is sampled at the distances min(t_j, reach[r] - 1e-9 res) with
+        t_j = j * range / n, j = 0..n, n = ceil(range / (res / 4)) (spacing <= res / 4): every sample up to the
+        hit, and those past it collapse onto the point just before it. A sample's cell is, in cell units,
+        floor((o - grid.origin) / res + u_r * dist / res), clipped into the grid (the float operations in that order).
         """
         grid = self.grid
         inv = 1.0 / grid.res
-        dist = np.minimum(self._t_cells, (reach * inv - 1e-9)[:, None])          # [R, S], cell units
-        pts = dirs_t[:, :, None] * dist                                          # [d, R, S]
-        pts += ((o - grid.origin) * inv)[:, None, None]                           # from the grid's corner
-        idx = pts.astype(np.int64)        # truncation == floor for the non-negative in-grid values
+        oc = (o - grid.origin) * inv                                   # the sensor, cell units from cell 0's corner
+        lim = reach * inv - 1e-9
+        if np.any(lim < self._t_cells[-1]):
+            dist = np.minimum(self._t_cells[:, None], lim, out=self._dist)                # [S, R]
+        else:
+            dist = self._t_full
+        pts = np.multiply(dirs_t[:, None, :], dist, out=self._samples)                    # [d, S, R]
+        pts += oc[:, None, None]
+        idx = self._cells_of
+        np.copyto(idx, pts, casting="unsafe")   # truncation: == floor for the in-grid (non-negative) coordinates
+        # Per axis the samples of a ray are monotone, so a ray's first and last sample bound the others (rounding
+        # included): clip only if, on an axis the sensor's reach leaves the grid along, one of those is outside.
+        top = self._grid_top
+        span = self.range_m * inv
+        for k in np.flatnonzero((oc - span < 1e-6) | (oc + span > top - 1e-6)).tolist():
+            ends = pts[k, -1]
+            if not (0.0 <= oc[k] < top[k]) or ends.min() < 0.0 or ends.max() >= top[k]:
+                np.clip(idx, 0, (top.astype(idx.dtype) - 1)[:, None, None], out=idx)
+                break
         shape = grid.shape
-        if np.any(o - self.range_m < grid.origin) or np.any(o + self.range_m >= grid.origin + np.asarray(shape) *
-                                                             grid.res):
-            np.clip(idx, 0, np.reshape(shape, (-1, 1, 1)) - 1, out=idx)   # the scan may leave the grid
-        flat = idx[0]
-        for k in range(1, self.dims):
-            flat = flat * shape[k] + idx[k]
+        small = np.multiply(idx[0], shape[1], out=self._flat_small)
+        small += idx[1]
+        for k in range(2, self.dims):
+            small *= shape[k]
+            small += idx[k]
+        flat = self._flat
+        np.copyto(flat, small)                                         # numpy scatters fastest with intp indices
         seen = self._cell_seen
-        seen[flat.ravel()] = True
-        cells = np.flatnonzero(seen)
+        seen[flat.reshape(-1)] = True
+        # Only the slabs of axis-0 cells the sensor reaches can hold samples (clipped ones included).
+        first = min(max(math.floor(oc[0] - span) - 1, 0), shape[0] - 1) * self._slab
+        last = (max(min(math.floor(oc[0] + span) + 1, shape[0] - 1), 0) + 1) * self._slab
+        cells = np.flatnonzero(seen[first:last])
+        cells += first
         seen[cells] = False
-        grid.mark_free(grid.cell_center(np.stack(np.unravel_index(cells, shape), axis=-1)))
+        return cells
+
+    def _mark_free(self, o: np.ndarray, dirs_t: np.ndarray, reach: np.ndarray) -> None:
+        """Mark FREE (unless OCCUPIED) the cells of the free-space samples of a scan (see free_cells)."""
+        self.grid.mark_free_cells(self.free_cells(o, dirs_t, reach))
 
     def directions(self, yaw: float) -> np.ndarray:
         """Unit ray directions [R, d] for ``yaw`` (rad)."""
@@ -135,18 +170,13 @@ class Perception:
         world, grid = self.world, self.grid
         o = np.asarray(position, dtype=float).reshape(self.dims)
         dirs_t = self._rotated(yaw)                                       # [d, R]
-        origin3 = world.to_world3(o)
-        starts, ends = self._starts, self._ends
-        starts[:] = origin3
-        ends[:] = origin3
-        ends[:, : self.dims] += self.range_m * dirs_t.T
-        hits, frac = world.cast_rays(starts, ends)
+        hits, frac = world.cast_fan(o, dirs_t.T, self.range_m)
         ranges = frac * self.range_m
         self._mark_free(o, dirs_t, np.where(hits >= 0, ranges, np.inf))
 
-        static = world.is_static_body[hits]
-        if static.any():
-            grid.mark_occupied(o + dirs_t.T[static] * (ranges[static] + OCCUPIED_NUDGE)[:, None])
+        static = np.flatnonzero(world.is_static_body[hits])
+        if static.shape[0]:
+            grid.mark_occupied(o + dirs_t[:, static].T * (ranges[static] + OCCUPIED_NUDGE)[:, None])
 
         flags = self._obstacle_seen            # index -1 (no obstacle) lands on the spare last entry
         flags[world.dynamic_index_of[hits]] = True
