@@ -1,0 +1,45 @@
+"""Obstacle density (thesis eq. 3-1): the obstacles' share of the arena."""
+
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+
+from pbdyn.metrics.result import MetricResult
+from pbdyn.metrics.survivability import positive
+from pbdyn.world.geometry import StaticBody
+
+
+def static_measure(body: StaticBody, arena_size: np.ndarray) -> float:
+    """Footprint area (2D, m^2) or volume (3D, m^3) of a static body: pillars pi r^2 (3D: times the volume height,
+    which they span), boxes the product of their extents."""
+    d = arena_size.shape[0]
+    if body.kind == "pillar":
+        area = np.pi * body.radius ** 2
+        return float(area if d == 2 else area * arena_size[2])
+    return float(np.prod(np.asarray(body.size, dtype=float)[:d]))
+
+
+def density(rollout, *, time: float = 0.0, mav_radius: float = 1.0, include_static: bool = True) -> MetricResult:
+    """Obstacle density (thesis eq. 3-1, dimensionless): sum of the obstacles' disc areas pi r_i^2 / arena area
+    (3D: ball volumes 4/3 pi r_i^3 / box volume) at ``time`` (s), plus the static bodies' footprints (pillars
+    pi r^2, boxes sx sy; 3D volumes) with ``include_static``. Overlaps (obstacle-obstacle, obstacle-static) are not
+    deducted and nothing is clipped at the walls, so the value is a sum of shares. ``mav_radius`` is accepted like
+    every metric's but does not enter the value. per_sample: each body's area/volume [N (+ S)] (m^2 or m^3).
+    """
+    t0 = _time.perf_counter()
+    positive("mav_radius", mav_radius)
+    rollout.step_index(float(time))   # HorizonError past the horizon; radii do not change with time
+    d = rollout.dims
+    r = rollout.radii
+    measures = np.pi * r ** 2 if d == 2 else 4.0 / 3.0 * np.pi * r ** 3
+    if include_static and rollout.static:
+        measures = np.concatenate([measures, [static_measure(b, rollout.arena_size) for b in rollout.static]])
+    total = float(np.prod(rollout.arena_size))
+    value = float(np.sum(measures) / total)
+    params = {"time": float(time), "include_static": bool(include_static), "dims": d}
+    measures = np.asarray(measures, dtype=float)
+    measures.setflags(write=False)
+    return MetricResult("density", value, params, int(measures.size), 0, measures, float("nan"),
+                        {"arena_measure": total}, _time.perf_counter() - t0)
