@@ -165,3 +165,24 @@ def test_run_and_rollout_work_in_3d_and_with_rvo_deterministically(write_scenari
     assert docs[0] == docs[1] and len(docs[0]["start"]) == dims
     with np.load(tmp_path / "t0.npz") as a, np.load(tmp_path / "t99.npz") as b:
         assert a["p"].shape[1] == dims and np.array_equal(a["p"], b["p"])
+
+
+def test_metrics_command_json_cache_and_errors(tmp_path):
+    env = {"PBDYN_CACHE": str(tmp_path / "cache")}
+    args = ["metrics", SCENARIOS / "quickstart.toml", "--map", "1", "--json", "--metric", "density",
+            "--metric", "survivability", "--dense"]
+    first = _run(args, env=env)
+    assert first.returncode == 0, first.stderr
+    doc = json.loads(first.stdout)
+    surv = doc["metrics"]["survivability_dense"]
+    assert set(doc["metrics"]) == {"density", "survivability_dense"} and surv["n_samples"] == 256
+    assert 0.0 < surv["value"] <= 12.0 and surv["stderr"] > 0 and len(surv["extra"]["jitter"]["values"]) == 8
+    assert not surv["cached"]
+    again = json.loads(_run(args, env=env).stdout)
+    assert again["metrics"]["survivability_dense"]["cached"]
+    assert again["metrics"]["survivability_dense"]["value"] == surv["value"]
+    bullet = _run(args + ["--backend", "bullet"], env=env)
+    assert json.loads(bullet.stdout)["metrics"]["survivability_dense"]["value"] == surv["value"]
+    for bad, needle in ((["--metric", "nope"], "--metric"), (["--backend", "gpu"], "--backend")):
+        proc = _run(["metrics", SCENARIOS / "quickstart.toml", *bad], env=env)
+        assert proc.returncode == 2 and needle in proc.stderr and proc.stdout == ""
