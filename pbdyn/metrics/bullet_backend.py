@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn.errors import ConfigError, HorizonError
+from pbdyn.metrics.sampling import step_window
 from pbdyn.world.bullet import bullet_client, load_scaled_urdf, pybullet, stdout_to_stderr
 
 QUERY_GROUP = 0x200
@@ -159,17 +160,6 @@ def _check_positive(name: str, value: float) -> float:
     return v
 
 
-def _window(rollout, start_time: float, t_max: float) -> tuple[int, int]:
-    """(k0, K): the rollout step of start_time and floor(t_max / dt) (the analytic kernel's step rule)."""
-    t_max = _check_positive("t_max", t_max)
-    k0 = rollout.step_index(float(start_time))
-    n = int(np.floor(t_max / rollout.dt + 1e-9))
-    if k0 + n >= rollout.n_steps:
-        raise HorizonError(f"survivability needs the obstacles until t = {float(start_time) + t_max:.3f} s, past the "
-                           f"rollout's horizon {rollout.horizon:.3f} s")
-    return k0, n
-
-
 class _RolloutScene:
     """A DIRECT client with the rollout's obstacles (and extra bodies) as targets and a query sphere per point."""
 
@@ -258,7 +248,7 @@ def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: fl
     (the caller leaves out samples overlapping them). HorizonError if start_time + t_max is past the horizon.
     """
     mav_radius = _check_positive("mav_radius", mav_radius)
-    k0, n_steps = _window(rollout, start_time, t_max)
+    k0, n_steps = step_window(rollout, start_time, t_max)
     pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
     out = np.full(pts.shape[0], float(t_max))
     if pts.shape[0] == 0 or (rollout.n_obstacles == 0 and not extra_bodies):
@@ -284,7 +274,7 @@ def global_survival_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: f
     """
     mav_radius = _check_positive("mav_radius", mav_radius)
     starts = [float(s) for s in np.asarray(start_times, dtype=float).reshape(-1)]
-    windows = [_window(rollout, s, t_max) for s in starts]
+    windows = [step_window(rollout, s, t_max) for s in starts]
     pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
     out = np.full(len(starts), float(t_max))
     if pts.shape[0] == 0 or (rollout.n_obstacles == 0 and not extra_bodies):

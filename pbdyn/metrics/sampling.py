@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import itertools
 
+import math
+
 import numpy as np
 
+from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
 
 
@@ -33,3 +36,16 @@ def outside_static(points: np.ndarray, static: tuple[StaticBody, ...], radius: f
     for body in static:
         ok &= body.footprint_distance(points) >= radius
     return ok
+
+
+def step_window(rollout, start_time: float, t_max: float) -> tuple[int, int]:
+    """(k0, K): the rollout step of ``start_time`` and the number of steps floor(t_max / dt) after it (the rule of
+    every survivability backend); ConfigError for t_max <= 0, HorizonError past the rollout's horizon."""
+    if not math.isfinite(float(t_max)) or float(t_max) <= 0:
+        raise ConfigError("t_max", "must be a finite number > 0", t_max)
+    k0 = rollout.step_index(float(start_time))
+    n = int(np.floor(float(t_max) / rollout.dt + 1e-9))
+    if k0 + n >= rollout.n_steps:
+        raise HorizonError(f"survivability needs the obstacles until t = {float(start_time) + float(t_max):.3f} s, "
+                           f"past the rollout's horizon {rollout.horizon:.3f} s")
+    return k0, n

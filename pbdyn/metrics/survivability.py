@@ -20,9 +20,9 @@ import time as _time
 
 import numpy as np
 
-from pbdyn.errors import ConfigError, HorizonError
+from pbdyn.errors import ConfigError
 from pbdyn.metrics.result import MetricResult
-from pbdyn.metrics.sampling import grid_samples, outside_static
+from pbdyn.metrics.sampling import grid_samples, outside_static, step_window
 from pbdyn.world.maps import stable_hash64
 
 MODES = ("sampled", "exact")
@@ -105,18 +105,6 @@ def summary(values: np.ndarray) -> tuple[float, float]:
 # ----------------------------------------------------------------------------------------------------------------
 # kernel
 # ----------------------------------------------------------------------------------------------------------------
-def step_window(rollout, start_time: float, t_max: float) -> tuple[int, int]:
-    """(k0, K): the step of ``start_time`` and the number of steps floor(t_max / dt) after it; HorizonError if
-    start_time + t_max is past the rollout's horizon."""
-    t_max = positive("t_max", t_max)
-    k0 = rollout.step_index(float(start_time))
-    n = int(np.floor(t_max / rollout.dt + 1e-9))
-    if k0 + n >= rollout.n_steps:
-        raise HorizonError(f"survivability needs the obstacles until t = {float(start_time) + t_max:.3f} s, past the "
-                           f"rollout's horizon {rollout.horizon:.3f} s")
-    return k0, n
-
-
 def _sq_dist(pts: np.ndarray, obs: np.ndarray) -> np.ndarray:
     """Squared distances [c, m, N] between points [m, d] and obstacle centres [c, N, d] (loop over the d axes)."""
     out = None

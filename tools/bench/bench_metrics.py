@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,8 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
+from bench_common import machine  # noqa: E402
 
 from pbdyn.config import load_scenario  # noqa: E402
 from pbdyn.metrics.registry import compute  # noqa: E402
@@ -51,17 +51,6 @@ EIGHT = ("density", "traversability", "dynamic_traversability", "survivability",
 BACKEND_METRICS = ("survivability", "survivability_dense", "global_survivability")
 CONFIGS = (("2D n=10", "controlled_2d.toml", 10), ("2D n=30", "controlled_2d.toml", 30),
            ("3D n=30", "controlled_3d.toml", 30))
-
-
-def machine() -> str:
-    """One line naming the CPU, core count and the Python / numpy versions."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
-    return f"machine: {cpu}, cpus={os.cpu_count()}, python={platform.python_version()}, numpy={np.__version__}"
 
 
 def rollouts(scenario_file: str, count: int, n_maps: int) -> list:

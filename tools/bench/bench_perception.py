@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
+from bench_common import machine as base_machine  # noqa: E402
 
 from pbdyn.perception.grid import OccupancyGrid  # noqa: E402
 from pbdyn.perception.perceive import Perception  # noqa: E402
@@ -32,18 +32,6 @@ CONFIGS = (  # label, dims, fov_deg, resolution_deg, vfov_deg
     ("3D 90x60 deg, 2 deg", 3, 90.0, 2.0, 60.0),
     ("3D 360x60 deg, 2 deg", 3, 360.0, 2.0, 60.0),
 )
-
-
-def machine() -> str:
-    """One line naming the CPU, core count and the Python / numpy / PyBullet versions."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
-    return (f"machine: {cpu} ({platform.machine()}), cpus={os.cpu_count()}, python={platform.python_version()}, "
-            f"numpy={np.__version__}, pybullet API={pybullet.getAPIVersion()}")
 
 
 def scenes(rng: np.random.Generator, size: np.ndarray, n_obstacles: int, radius: float, mav_radius: float,
@@ -103,7 +91,7 @@ def main() -> int:
     ap.add_argument("--obstacles", type=int, default=30)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
-    print(machine())
+    print((base_machine() + f", pybullet API={pybullet.getAPIVersion()}"))
     print(f"{'configuration':<22} {'rays':>5} {'median ms':>9} {'p10 ms':>8} {'p90 ms':>8} "
           f"{'ray_test ms':>12} {'hit':>8}")
     for label, dims, fov, res, vfov in CONFIGS:

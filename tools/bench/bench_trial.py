@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import time
 
@@ -19,6 +18,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from bench_common import machine  # noqa: E402
 
 from pbdyn.config import parse_scenario  # noqa: E402
 from pbdyn.sim.demo import demo_pairs  # noqa: E402
@@ -46,8 +46,7 @@ def main() -> int:
     ap.add_argument("--pairs", type=int, default=6, help="start/goal pairs per configuration")
     ap.add_argument("--time-limit", type=float, default=80.0)
     args = ap.parse_args()
-    print(f"machine: {platform.machine()} {platform.processor() or ''} cpus={os.cpu_count()} "
-          f"python={platform.python_version()} numpy={np.__version__}")
+    print(machine())
     print(f"{'configuration':<40} {'obst':>4} {'trials':>6} {'steps':>6} {'ms/step':>8} {'ms/trial':>9} "
           + " ".join(f"{s[5:-2]:>9}" for s in SPLITS) + f" {'cands':>9}  config_hash")
     for dims, count in ((2, 10), (2, 30), (3, 10), (3, 30)):
