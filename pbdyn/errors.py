@@ -26,3 +26,14 @@ class ConfigError(PbdynError, ValueError):
 
 class HorizonError(PbdynError, IndexError):
     """A time was asked of a rollout past its horizon."""
+
+
+def check_positive(field: str, value: object) -> float:
+    """``value`` as a float; ConfigError naming ``field`` unless it is a finite number > 0."""
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ConfigError(field, "must be a number", value) from None
+    if not (v == v and abs(v) != float("inf")) or v <= 0:
+        raise ConfigError(field, "must be a finite number > 0", value)
+    return v

@@ -26,3 +26,26 @@ def handmade_rollout(scenario: Scenario, p0, v0, radii) -> Rollout:
 def first_map(scenario: Scenario):
     """The scenario's map 0."""
     return enumerate_maps(scenario)[0]
+
+
+PLANNERS = [{"trajectory": "local_primitives", "gaze": "lookahead"},
+            {"trajectory": "straight_line", "gaze": "lookahead"},
+            {"trajectory": "local_primitives", "gaze": "fullrange"}]
+
+
+def open_scenario(dims: int = 2, **extra) -> Scenario:
+    """An obstacle-free scenario (40 s, v_max 4 m/s, the three built-in planner pairs); ``extra`` replaces tables."""
+    from pbdyn.config import parse_scenario
+
+    doc = {"world": {"dims": dims, "time_limit": 40.0}, "obstacles": {"count": 0}, "drone": {"v_max": 4.0},
+           "planners": PLANNERS}
+    doc.update(extra)
+    return parse_scenario(doc)
+
+
+def fly(scenario: Scenario, rollout: Rollout, planner: str, start, goal, **kw):
+    """Run one trial of ``planner`` (an entry label) from start to goal on map 0's spec with the given rollout."""
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+
+    spec = make_trial_spec(scenario, first_map(scenario), planner=planner, start=start, goal=goal)
+    return run_trial(spec, rollout, **kw)

@@ -9,23 +9,16 @@ from pbdyn.sim.trial import make_trial_spec, run_trial
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout
 from tests.conftest import SCENARIOS
-from tests.helpers import first_map, handmade_rollout
-
-PLANNERS = [{"trajectory": "local_primitives", "gaze": "lookahead"},
-            {"trajectory": "straight_line", "gaze": "lookahead"},
-            {"trajectory": "local_primitives", "gaze": "fullrange"}]
+from tests.helpers import first_map, fly, handmade_rollout, open_scenario
 
 
 def _scenario(**extra):
-    doc = {"world": {"dims": 3, "time_limit": 40.0}, "obstacles": {"count": 0}, "drone": {"v_max": 4.0},
-           "planners": PLANNERS}
-    doc.update(extra)
-    return parse_scenario(doc)
+    if "world" in extra:
+        extra["world"] = {"dims": 3, "time_limit": 40.0, **extra["world"]}
+    return open_scenario(3, **extra)
 
 
-def _fly(sc, rollout, planner, start, goal, **kw):
-    spec = make_trial_spec(sc, first_map(sc), planner=planner, start=start, goal=goal)
-    return run_trial(spec, rollout, **kw)
+_fly = fly
 
 
 def test_3d_crossing_sphere_straight_line_collides_local_primitives_avoid(tmp_path):

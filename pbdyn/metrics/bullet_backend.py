@@ -22,14 +22,13 @@ cylinders spanning [0, 2 h] instead (GJK, slower and less exact).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pbdyn.errors import ConfigError, HorizonError
+from pbdyn.errors import ConfigError, check_positive, HorizonError
 from pbdyn.metrics.sampling import step_window
 from pbdyn.world.bullet import bullet_client, load_scaled_urdf, pybullet, stdout_to_stderr
 
@@ -153,13 +152,6 @@ def survival_steps_bodies(client_or_world, query_ids, target_ids, set_poses: Cal
 
 
 # ------------------------------------------------------------------------------------------------ rollout level
-def _check_positive(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v) or v <= 0:
-        raise ConfigError(name, "must be a finite number > 0", value)
-    return v
-
-
 class _RolloutScene:
     """A DIRECT client with the rollout's obstacles (and extra bodies) as targets and a query sphere per point."""
 
@@ -247,7 +239,7 @@ def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: fl
     ``exact_pillars`` for real cylinders; 3D: balls) gives k dt; never hit gives t_max. Static bodies are ignored
     (the caller leaves out samples overlapping them). HorizonError if start_time + t_max is past the horizon.
     """
-    mav_radius = _check_positive("mav_radius", mav_radius)
+    mav_radius = check_positive("mav_radius", mav_radius)
     k0, n_steps = step_window(rollout, start_time, t_max)
     pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
     out = np.full(pts.shape[0], float(t_max))
@@ -272,7 +264,7 @@ def global_survival_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: f
     One client for all start times; each start stops at its first hit. HorizonError if a start + t_max is past the
     rollout's horizon.
     """
-    mav_radius = _check_positive("mav_radius", mav_radius)
+    mav_radius = check_positive("mav_radius", mav_radius)
     starts = [float(s) for s in np.asarray(start_times, dtype=float).reshape(-1)]
     windows = [step_window(rollout, s, t_max) for s in starts]
     pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import itertools
 
-import math
-
 import numpy as np
 
-from pbdyn.errors import ConfigError, HorizonError
+from pbdyn.errors import HorizonError, check_positive
 from pbdyn.world.geometry import StaticBody
 
 
@@ -41,8 +39,7 @@ def outside_static(points: np.ndarray, static: tuple[StaticBody, ...], radius: f
 def step_window(rollout, start_time: float, t_max: float) -> tuple[int, int]:
     """(k0, K): the rollout step of ``start_time`` and the number of steps floor(t_max / dt) after it (the rule of
     every survivability backend); ConfigError for t_max <= 0, HorizonError past the rollout's horizon."""
-    if not math.isfinite(float(t_max)) or float(t_max) <= 0:
-        raise ConfigError("t_max", "must be a finite number > 0", t_max)
+    t_max = check_positive("t_max", t_max)
     k0 = rollout.step_index(float(start_time))
     n = int(np.floor(float(t_max) / rollout.dt + 1e-9))
     if k0 + n >= rollout.n_steps:

@@ -20,7 +20,7 @@ import time as _time
 
 import numpy as np
 
-from pbdyn.errors import ConfigError
+from pbdyn.errors import ConfigError, check_positive
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.sampling import grid_samples, outside_static, step_window
 from pbdyn.world.maps import stable_hash64
@@ -36,15 +36,7 @@ JITTER_SEED_TAG = 8
 # ----------------------------------------------------------------------------------------------------------------
 # shared sample handling (also used by vo.py)
 # ----------------------------------------------------------------------------------------------------------------
-def positive(name: str, value: float) -> float:
-    """``value`` as a float; ConfigError naming ``name`` unless finite and > 0."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(name, "must be a number", value) from None
-    if not np.isfinite(v) or v <= 0:
-        raise ConfigError(name, "must be a finite number > 0", value)
-    return v
+positive = check_positive  # kept as the name vo.py / traversability.py import
 
 
 def jsonable(value):

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pbdyn.errors import ConfigError
+from pbdyn.errors import ConfigError, check_positive
 from pbdyn.world.geometry import StaticBody
 
 
@@ -218,13 +218,6 @@ def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], posit
 
 
 # --------------------------------------------------------------------------------------------- the world
-def _check_positive(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v) or v <= 0:
-        raise ConfigError(name, "must be a finite number > 0", value)
-    return v
-
-
 class PyBulletWorld:
     """Collision geometry of one trial or metric run, in one PyBullet client (SI units, world frame, z-up).
 
@@ -251,13 +244,13 @@ class PyBulletWorld:
         if size.shape != (self.dims,) or np.any(~np.isfinite(size)) or np.any(size <= 0):
             raise ConfigError("arena_size", f"must be {self.dims} finite numbers > 0", tuple(np.ravel(arena_size)))
         self.arena_size = size
-        self.flight_height = _check_positive("flight_height", flight_height)
-        self.mav_radius = _check_positive("mav_radius", mav_radius)
+        self.flight_height = check_positive("flight_height", flight_height)
+        self.mav_radius = check_positive("mav_radius", mav_radius)
         radii = np.asarray(obstacle_radii, dtype=float).reshape(-1)
         if np.any(~np.isfinite(radii)) or np.any(radii <= 0):
             raise ConfigError("obstacle_radii", "must all be finite and > 0", radii.tolist())
         self.obstacle_radii = radii
-        self.wall_thickness = _check_positive("wall_thickness", wall_thickness)
+        self.wall_thickness = check_positive("wall_thickness", wall_thickness)
         if mav_urdf is not None and not Path(mav_urdf).is_file():
             raise ConfigError("mav_urdf", "file not found", str(mav_urdf))
         self._pid = os.getpid()
@@ -325,7 +318,7 @@ class PyBulletWorld:
         quat = yaw_quaternion(float(body.yaw))
         h, size = self.flight_height, self.arena_size
         if body.kind == "pillar":
-            r = _check_positive(f"{field}.radius", body.radius)
+            r = check_positive(f"{field}.radius", body.radius)
             if c.shape[0] < 2:
                 raise ConfigError(f"{field}.center", "needs x and y", tuple(c))
             if self.dims == 2:
