@@ -4,9 +4,10 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench sysdeps mesh clean
+.PHONY: demo test bench sysdeps clean
 
 $(STAMP): setup.cfg pyproject.toml
+	@bash tools/install_sysdeps.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
@@ -25,9 +26,6 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) tools/bench/bench_trial.py
 
-## The open3d mesh extra (needs libusb-1.0 on Debian/Ubuntu).
-mesh: $(STAMP) sysdeps
-	$(PY) -m pip install --quiet -e '.[test,mesh]'
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
