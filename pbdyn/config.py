@@ -22,6 +22,8 @@ URDF_DIR = PACKAGE_ROOT.parent / "urdf"
 DEFAULT_MAV_URDF = "quadrotor.urdf"
 
 MOTIONS = ("cvm", "rvo")
+BODY_MOTIONS = ("static", "constant_velocity", "waypoints")
+"""Built-in motions of an imported body; any other value must be "package.module:function"."""
 COLLISION_CHECKS = ("swept", "sampled")
 
 
@@ -161,6 +163,36 @@ class StaticObstacleConfig:
 
 
 @dataclass(frozen=True)
+class BodyConfig:
+    """One body of an imported world (``[[bodies]]``; README "Imported worlds").
+
+    name: label (default "body<i>"). urdf: the URDF file as written (relative: the world file's folder, then the
+    bundled urdf/). scale: (sx, sy, sz) applied to its geometry. position: the base's initial position (m; 3 values,
+    2D worlds default z to the flight height). rpy_deg: the base's fixed roll, pitch, yaw (deg). motion: "static",
+    "constant_velocity" (``velocity`` [d] m/s; the bounding sphere reflects at the walls), "waypoints" (the base
+    loops through ``waypoints`` [[d] m, ...] back to the first at ``speed`` m/s, one value or one per leg), or
+    "package.module:function" called as f(t, **params) -> position [3] or (position [3], quaternion xyzw [4]).
+    Joints stay at their zero position.
+    """
+
+    name: str
+    urdf: str
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    position: tuple[float, ...] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    motion: str = "static"
+    velocity: tuple[float, ...] = ()
+    waypoints: tuple[tuple[float, ...], ...] = ()
+    speed: tuple[float, ...] = ()
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def moving(self) -> bool:
+        """True unless the body is static."""
+        return self.motion != "static"
+
+
+@dataclass(frozen=True)
 class DroneConfig:
     """The MAV: urdf path, radius (m), a_max (m/s^2), v_max grid (m/s), yaw_rate_limit (rad/s)."""
 
@@ -241,11 +273,31 @@ class Scenario:
     planners: tuple[PlannerEntry, ...]
     collision_check: str = "swept"
     source: str = ""  # path of the file it was loaded from (not part of the resolved spec)
+    bodies: tuple[BodyConfig, ...] = ()
+
+    @property
+    def is_world(self) -> bool:
+        """True for an imported world (a scenario with [[bodies]] instead of generated obstacles)."""
+        return bool(self.bodies)
+
+    def resolve_path(self, name: str) -> Path:
+        """Absolute path of a file named in the scenario: absolute as is; relative: the scenario's folder if the
+        file is there, else the bundled urdf/ folder."""
+        p = Path(name)
+        if p.is_absolute():
+            return p
+        if self.source:
+            cand = Path(self.source).resolve().parent / p
+            if cand.exists():
+                return cand
+        return URDF_DIR / p
 
     def to_dict(self) -> dict:
-        """The resolved scenario as plain JSON-able data (no source path)."""
+        """The resolved scenario as plain JSON-able data (no source path; "bodies" only for imported worlds)."""
         d = asdict(self)
         d.pop("source", None)
+        if not self.bodies:
+            d.pop("bodies", None)
         return json.loads(json.dumps(d, default=_json_default))
 
     def setups(self) -> list[dict]:
@@ -258,14 +310,7 @@ class Scenario:
 
     def mav_urdf_path(self) -> Path:
         """Absolute path of the MAV URDF (relative paths: the scenario's folder, then the bundled urdf/)."""
-        p = Path(self.drone.urdf)
-        if p.is_absolute():
-            return p
-        if self.source:
-            cand = Path(self.source).resolve().parent / p
-            if cand.exists():
-                return cand
-        return URDF_DIR / p
+        return self.resolve_path(self.drone.urdf)
 
 
 def _json_default(o: Any) -> Any:
@@ -409,6 +454,98 @@ def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfi
     return tuple(out)
 
 
+def _parse_motion(t: Mapping, where: str, world: WorldConfig) -> tuple[str, tuple, tuple, tuple, dict]:
+    motion = t.get("motion", "static")
+    if not isinstance(motion, str) or not motion:
+        raise ConfigError(f"{where}.motion", f"must be one of {', '.join(BODY_MOTIONS)} or 'package.module:function'",
+                          motion)
+    if motion not in BODY_MOTIONS:
+        mod, _, fn = motion.partition(":")
+        if not mod or not fn:
+            raise ConfigError(f"{where}.motion",
+                              f"must be one of {', '.join(BODY_MOTIONS)} or 'package.module:function'", motion)
+    velocity, waypoints, speed = (), (), ()
+    allowed = {"constant_velocity": ("velocity",), "waypoints": ("waypoints", "speed")}.get(motion, ())
+    if motion not in BODY_MOTIONS:
+        allowed = ("params",)
+    for key in ("velocity", "waypoints", "speed", "params"):
+        if key in t and key not in allowed:
+            raise ConfigError(f"{where}.{key}", f'is not used with motion = "{motion}"', t[key])
+    if motion == "constant_velocity":
+        if "velocity" not in t:
+            raise ConfigError(f"{where}.velocity", "is required with motion = \"constant_velocity\"", None,
+                              show_value=False)
+        velocity = _vector(t["velocity"], f"{where}.velocity", world.dims)
+    elif motion == "waypoints":
+        raw = t.get("waypoints")
+        if not isinstance(raw, list) or len(raw) < 2:
+            raise ConfigError(f"{where}.waypoints", "must be a list of at least 2 points", raw)
+        waypoints = tuple(_vector(w, f"{where}.waypoints[{i}]", world.dims) for i, w in enumerate(raw))
+        for i, w in enumerate(waypoints):
+            if w == waypoints[(i + 1) % len(waypoints)]:
+                raise ConfigError(f"{where}.waypoints[{i}]", "repeats the next waypoint (a leg of length 0)", list(w))
+        if "speed" not in t:
+            raise ConfigError(f"{where}.speed", "is required with motion = \"waypoints\"", None, show_value=False)
+        raw_speed = t["speed"]
+        items = raw_speed if isinstance(raw_speed, list) else [raw_speed]
+        speed = tuple(_check_number(v, f"{where}.speed", lo=0.0, lo_open=True) for v in items)
+        if len(speed) not in (1, len(waypoints)):
+            raise ConfigError(f"{where}.speed", f"must be one speed or one per leg ({len(waypoints)})", raw_speed)
+    params = dict(_table(t, "params", where))
+    return motion, velocity, waypoints, speed, params
+
+
+def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
+    items = doc.get("bodies", [])
+    if not isinstance(items, list):
+        raise ConfigError("bodies", "must be an array of tables ([[bodies]])", items)
+    out = []
+    names = set()
+    for i, t in enumerate(items):
+        where = f"bodies[{i}]"
+        if not isinstance(t, Mapping):
+            raise ConfigError(where, "must be a table", t)
+        _no_unknown(t, ("name", "urdf", "scale", "position", "rpy_deg", "motion", "velocity", "waypoints", "speed",
+                        "params"), where)
+        name = _string(t, "name", where, f"body{i}")
+        if name in names:
+            raise ConfigError(f"{where}.name", "is used by another body", name)
+        names.add(name)
+        if "urdf" not in t:
+            raise ConfigError(f"{where}.urdf", "is required", None, show_value=False)
+        urdf = _string(t, "urdf", where, "")
+        if not urdf:
+            raise ConfigError(f"{where}.urdf", "must be a file path", t["urdf"])
+        raw_scale = t.get("scale", 1.0)
+        scale = (_vector(raw_scale, f"{where}.scale", 3) if isinstance(raw_scale, list)
+                 else (_check_number(raw_scale, f"{where}.scale"),) * 3)
+        for k, v in enumerate(scale):
+            if v <= 0:
+                raise ConfigError(f"{where}.scale", "must be > 0", raw_scale)
+        motion, velocity, waypoints, speed, params = _parse_motion(t, where, world)
+        if "position" in t:
+            if motion == "waypoints":
+                raise ConfigError(f"{where}.position", "is not used with waypoints (the base starts at waypoints[0])",
+                                  t["position"])
+            raw = t["position"]
+            n = len(raw) if isinstance(raw, list) else 0
+            if world.dims == 2 and n == 2:
+                position = _vector(raw, f"{where}.position", 2) + (world.flight_height,)
+            else:
+                position = _vector(raw, f"{where}.position", 3)
+        elif motion == "waypoints":
+            w0 = waypoints[0]
+            position = w0 + ((world.flight_height,) if world.dims == 2 else ())
+        elif motion in BODY_MOTIONS:
+            raise ConfigError(f"{where}.position", "is required", None, show_value=False)
+        else:
+            position = (0.0, 0.0, 0.0)   # a motion function gives every pose
+        rpy = _vector(t["rpy_deg"], f"{where}.rpy_deg", 3) if "rpy_deg" in t else (0.0, 0.0, 0.0)
+        out.append(BodyConfig(name, urdf, tuple(scale), tuple(position), tuple(rpy), motion, velocity, waypoints,
+                              speed, params))
+    return tuple(out)
+
+
 def _parse_drone(doc: Mapping) -> DroneConfig:
     t = _table(doc, "drone")
     _no_unknown(t, ("urdf", "radius", "a_max", "v_max", "yaw_rate_limit"), "drone")
@@ -542,10 +679,17 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     if not isinstance(doc, Mapping):
         raise ConfigError("scenario", "must be a table", doc)
     _no_unknown(doc, ("name", "world", "obstacles", "static_obstacles", "drone", "sensor", "tracking", "task",
-                      "planners", "collision_check"), "")
+                      "planners", "collision_check", "bodies"), "")
     name = _string(doc, "name", "", Path(source).stem if source else "scenario")
     world = _parse_world(doc)
-    obstacles = _parse_obstacles(doc)
+    bodies = _parse_bodies(doc, world)
+    if bodies:
+        if "obstacles" in doc:
+            raise ConfigError("obstacles", "a world file's obstacles are its [[bodies]]: remove the [obstacles] table",
+                              None, show_value=False)
+        obstacles = ObstacleConfig(count=(0,))
+    else:
+        obstacles = _parse_obstacles(doc)
     _check_fit(obstacles, world)
     static = _parse_static(doc, world)
     drone = _parse_drone(doc)
@@ -555,7 +699,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     task = _parse_task(doc, world, drone)
     planners = _parse_planners(doc)
     check = _string(doc, "collision_check", "", "swept", COLLISION_CHECKS)
-    return Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source)
+    return Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies)
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -152,8 +152,27 @@ def survival_steps_bodies(client_or_world, query_ids, target_ids, set_poses: Cal
 
 
 # ------------------------------------------------------------------------------------------------ rollout level
+def plane_height(rollout, flight_height: float | None = None) -> float:
+    """The 2D flight plane z (m): ``flight_height`` if given, else the rollout's (imported worlds), else 2 m."""
+    if flight_height is not None:
+        return check_positive("flight_height", flight_height)
+    meta = rollout.meta if isinstance(getattr(rollout, "meta", None), dict) else {}
+    return float(meta.get("flight_height", 2.0))
+
+
+def world_bodies(rollout) -> tuple[ExtraBody, ...]:
+    """The moving bodies of an imported world's rollout as ExtraBody targets (their real shapes and poses)."""
+    bodies = getattr(rollout, "bodies", None)
+    if bodies is None:
+        return ()
+    return tuple(ExtraBody(bodies.urdf[b], tuple(bodies.scale[b]), bodies.position[:, b], bodies.orientation[:, b])
+                 for b in bodies.moving_index.tolist())
+
+
 class _RolloutScene:
-    """A DIRECT client with the rollout's obstacles (and extra bodies) as targets and a query sphere per point."""
+    """A DIRECT client with the rollout's obstacles (and extra bodies) as targets and a query sphere per point.
+
+    For an imported world the targets are its moving bodies' real shapes, not their bounding spheres."""
 
     def __init__(self, rollout, points, mav_radius: float, flight_height: float, exact_pillars: bool,
                  extra_bodies: Sequence[ExtraBody]):
@@ -161,8 +180,9 @@ class _RolloutScene:
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != d:
             raise ValueError(f"points must have shape [n, {d}] (got {pts.shape})")
-        self.rollout, self.dims, self.h = rollout, d, float(flight_height)
-        self.extra = tuple(extra_bodies)
+        self.rollout, self.dims, self.h = rollout, d, plane_height(rollout, flight_height)
+        self.spheres = getattr(rollout, "bodies", None) is None
+        self.extra = world_bodies(rollout) + tuple(extra_bodies)
         with stdout_to_stderr():
             self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         try:
@@ -179,7 +199,7 @@ class _RolloutScene:
             pass
         shapes: dict[float, int] = {}
         ids = []
-        for r in ro.radii.tolist():
+        for r in (ro.radii.tolist() if self.spheres else []):
             if r not in shapes:
                 if self.dims == 2 and exact_pillars:
                     shapes[r] = c.createCollisionShape(pybullet.GEOM_CYLINDER, radius=r, height=2.0 * self.h)
@@ -192,8 +212,9 @@ class _RolloutScene:
             if body.pose is None or (not callable(body.pose) and np.ndim(body.pose) != 2):
                 raise ConfigError(f"extra_bodies[{i}].pose", "must be positions [T, 3] or a function of t", body.pose)
             ids.append(load_scaled_urdf(c, body.urdf, body.scale, PARK))
-        self.obstacle_ids = ids[: ro.n_obstacles]
-        self.extra_ids = ids[ro.n_obstacles:]
+        n_spheres = ro.n_obstacles if self.spheres else 0
+        self.obstacle_ids = ids[:n_spheres]
+        self.extra_ids = ids[n_spheres:]
         self.target_ids = np.asarray(ids, dtype=np.int64)
         self.query_ids = add_query_spheres(c, self.to3(pts), mav_radius)
         self.query_home = self.to3(pts).tolist()
@@ -229,7 +250,7 @@ class _RolloutScene:
 
 
 def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: float = 12.0, start_time: float = 0.0,
-                          flight_height: float = 2.0, exact_pillars: bool = False,
+                          flight_height: float | None = None, exact_pillars: bool = False,
                           extra_bodies: Sequence[ExtraBody] = ()) -> np.ndarray:
     """Survival time (s, relative to ``start_time``) of a static MAV sphere at each point [n, d] (m, world frame)
     among the rollout's obstacles (and ``extra_bodies``), by PyBullet collision queries (thesis eq. 3-6, "sampled").
@@ -256,7 +277,7 @@ def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: fl
 
 
 def global_survival_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: float = 24.0,
-                           start_times=(0.0, 4.0, 8.0, 12.0, 16.0, 20.0), flight_height: float = 2.0,
+                           start_times=(0.0, 4.0, 8.0, 12.0, 16.0, 20.0), flight_height: float | None = None,
                            exact_pillars: bool = False, extra_bodies: Sequence[ExtraBody] = ()) -> np.ndarray:
     """Per start time t_j (s), the time until ANY of the static MAV spheres at ``points`` [n, d] (m) is hit, capped
     at t_max (thesis eq. 3-7, "sampled" steps as in survival_times_bullet); float [len(start_times)] (s).

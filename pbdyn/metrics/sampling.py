@@ -36,6 +36,25 @@ def outside_static(points: np.ndarray, static: tuple[StaticBody, ...], radius: f
     return ok
 
 
+def plane_points(rollout, points: np.ndarray) -> np.ndarray:
+    """Points [n, d] as world points [n, 3]: 2D points go to the flight plane z = h (imported worlds' h, else 2 m)."""
+    pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
+    if rollout.dims == 3:
+        return pts
+    h = float(rollout.meta.get("flight_height", 2.0)) if isinstance(rollout.meta, dict) else 2.0
+    return np.concatenate([pts, np.full((pts.shape[0], 1), h)], axis=1)
+
+
+def outside_geometry(rollout, points: np.ndarray, radius: float) -> np.ndarray:
+    """outside_static for a rollout: also False where the MAV of ``radius`` (m) overlaps an imported world's static
+    body (its real shape at t = 0)."""
+    ok = outside_static(points, rollout.static, radius)
+    bodies = getattr(rollout, "bodies", None)
+    if bodies is not None and points.shape[0] and not bodies.moving.all():
+        ok &= bodies.field().distance(plane_points(rollout, points), 0, "static") >= radius
+    return ok
+
+
 def step_window(rollout, start_time: float, t_max: float) -> tuple[int, int]:
     """(k0, K): the rollout step of ``start_time`` and the number of steps floor(t_max / dt) after it (the rule of
     every survivability backend); ConfigError for t_max <= 0, HorizonError past the rollout's horizon."""

@@ -10,8 +10,10 @@ Modes of the analytic kernel:
     "exact": the obstacle moves linearly between steps; the first contact is the smaller root of
         |dp + s w|^2 = (r_i + r_mav)^2 per step, so it is never later than "sampled".
 
-Backends: "analytic" (this module, numpy over samples x obstacles x steps, chunked in time) and "bullet"
-(pbdyn.metrics.bullet_backend, collision queries against the world's bodies; "sampled" mode only), imported lazily.
+Backends: "analytic" (this module, numpy over samples x obstacles x steps, chunked in time; imported worlds: the
+moving bodies' bounding spheres), "bullet" (pbdyn.metrics.bullet_backend, collision queries against the world's
+bodies, real shapes) and "mesh" (pbdyn.metrics.mesh_backend, signed distances to the real shapes of an imported
+world); the last two "sampled" mode only, imported lazily.
 """
 
 from __future__ import annotations
@@ -22,11 +24,11 @@ import numpy as np
 
 from pbdyn.errors import ConfigError, check_positive
 from pbdyn.metrics.result import MetricResult
-from pbdyn.metrics.sampling import grid_samples, outside_static, step_window
+from pbdyn.metrics.sampling import grid_samples, outside_geometry, step_window
 from pbdyn.world.maps import stable_hash64
 
 MODES = ("sampled", "exact")
-BACKENDS = ("analytic", "bullet")
+BACKENDS = ("analytic", "bullet", "mesh")
 GLOBAL_START_TIMES = (0.0, 4.0, 8.0, 12.0, 16.0, 20.0)
 CHUNK_ELEMENTS = 4_000_000
 """Upper bound on the elements of one temporary array (samples x obstacles x steps of a time chunk)."""
@@ -63,7 +65,7 @@ def base_points(rollout, points, spacing: float, margin: float) -> np.ndarray:
 
 def split_static(rollout, pts: np.ndarray, mav_radius: float) -> tuple[np.ndarray, int]:
     """(points whose MAV disc/ball of ``mav_radius`` m overlaps no static body, number left out)."""
-    keep = outside_static(pts, rollout.static, mav_radius)
+    keep = outside_geometry(rollout, pts, mav_radius)
     return pts[keep], int(np.count_nonzero(~keep))
 
 
@@ -180,8 +182,12 @@ def _kernel(backend: str, mode: str):
     if backend == "analytic":
         return lambda ro, pts, **kw: survival_times(ro, pts, mode=mode, **kw)
     if mode != "sampled":
-        raise ConfigError("--backend", f'the bullet backend supports mode "sampled" only (got mode "{mode}")',
+        raise ConfigError("--backend", f'the {backend} backend supports mode "sampled" only (got mode "{mode}")',
                           backend)
+    if backend == "mesh":
+        from pbdyn.metrics import mesh_backend
+
+        return lambda ro, pts, **kw: mesh_backend.survival_times_mesh(ro, pts, **kw)
     from pbdyn.metrics import bullet_backend
 
     return lambda ro, pts, **kw: bullet_backend.survival_times_bullet(ro, pts, **kw)

@@ -5,7 +5,8 @@ Exact mode: d = the distance the MAV centre moves along a unit direction before 
 touches an obstacle (ray vs disc/ball of radius r_i + r_mav; 2D planar, 3D Euclidean), a static body (ray vs its
 footprint inflated by r_mav: pillars are discs / infinite vertical cylinders, boxes rounded rectangles / rounded
 cuboids, intersected exactly) or a wall (a coordinate reaching r_mav or L - r_mav). Obstacles are a snapshot at
-``time``.
+``time``. Imported worlds: the bodies' real shapes (static and moving) instead of discs/balls, the touching
+distance found by sphere tracing on their exact signed-distance field (pbdyn.world.shapes; tolerance 1e-4 m).
 
 Grid mode (the thesis' cell walk): cells of ``cell`` m; a cell is blocked if its centre lies inside an obstacle
 (distance < r_i, no MAV inflation) or a static body, or outside the arena; from the start's cell walk along one of
@@ -22,7 +23,7 @@ import numpy as np
 
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.result import MetricResult
-from pbdyn.metrics.sampling import grid_samples, outside_static
+from pbdyn.metrics.sampling import grid_samples, outside_geometry, plane_points
 from pbdyn.metrics.survivability import jsonable, positive, summary
 from pbdyn.world.geometry import StaticBody
 
@@ -171,12 +172,34 @@ def free_distances(rollout, k: int, starts: np.ndarray, dirs: np.ndarray, mav_ra
                    include_static: bool = True) -> np.ndarray:
     """Exact traversability distances [n, m] (m) at step k: min over obstacles, static bodies and walls."""
     pos, _ = rollout.at(k)
-    d = ray_spheres(starts, dirs, pos, rollout.radii + mav_radius)
-    d = np.minimum(d, ray_walls(starts, dirs, rollout.arena_size, mav_radius))
+    bodies = getattr(rollout, "bodies", None)
+    d = ray_walls(starts, dirs, rollout.arena_size, mav_radius)
+    if bodies is None:
+        d = np.minimum(d, ray_spheres(starts, dirs, pos, rollout.radii + mav_radius))
     if include_static:
         for body in rollout.static:
             d = np.minimum(d, ray_static(starts, dirs, body, mav_radius))
+    if bodies is not None and starts.shape[0] and dirs.shape[0]:
+        d = shape_distances(rollout, k, starts, dirs, mav_radius, d, "all" if include_static else "moving")
     return d
+
+
+def shape_distances(rollout, k: int, starts: np.ndarray, dirs: np.ndarray, inflate: float, cap: np.ndarray,
+                    which: str) -> np.ndarray:
+    """Distances [n, m] (m) along rays from starts [n, d] along unit dirs [m, d] until the MAV ball of radius
+    ``inflate`` touches an imported body's real shape (``which``: "all", "static", "moving") at step k, by sphere
+    tracing on the exact signed-distance field; at most ``cap`` [n, m] (e.g. the walls' distance)."""
+    n, m = starts.shape[0], dirs.shape[0]
+    o3 = np.repeat(plane_points(rollout, starts), m, axis=0)
+    u3 = np.zeros((n * m, 3))
+    u3[:, :rollout.dims] = np.tile(dirs, (n, 1))
+    cap = np.asarray(cap, dtype=float).reshape(-1)
+    finite = np.isfinite(cap)
+    out = cap.copy()
+    if np.any(finite):
+        idx = np.flatnonzero(finite)
+        out[idx] = rollout.bodies.field().march(o3[idx], u3[idx], inflate, cap[idx], k, which)
+    return out.reshape(n, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -191,7 +214,11 @@ def blocked_cells(rollout, k: int, cell: float, include_static: bool = True) -> 
     blocked = np.any(centres > rollout.arena_size[None, :], axis=1)
     pos, _ = rollout.at(k)
     step = max(1, CHUNK_ELEMENTS // max(1, centres.shape[0] * rollout.dims))
-    for s in range(0, rollout.n_obstacles, step):
+    bodies = getattr(rollout, "bodies", None)
+    if bodies is not None:
+        which = "all" if include_static else "moving"
+        blocked |= bodies.field().distance(plane_points(rollout, centres), k, which) < 0.0
+    for s in range(0, rollout.n_obstacles if bodies is None else 0, step):
         d2 = np.zeros((centres.shape[0], min(step, rollout.n_obstacles - s)))
         for a in range(rollout.dims):
             diff = centres[:, None, a] - pos[None, s:s + step, a]
@@ -229,7 +256,7 @@ def _starts(rollout, starts, spacing, margin, mav_radius) -> tuple[np.ndarray, i
         pts = default_starts(rollout.arena_size)
     else:
         pts = grid_samples(rollout.arena_size, positive("spacing", spacing), float(margin))
-    keep = outside_static(pts, rollout.static, mav_radius)
+    keep = outside_geometry(rollout, pts, mav_radius)
     return pts[keep], int(np.count_nonzero(~keep))
 
 

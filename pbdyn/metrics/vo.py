@@ -5,7 +5,8 @@ For the MAV A at a sample and an obstacle B (snapshot at ``time``), with p = p_B
 v_A is infeasible if u t enters the open disc/ball D(p, R) for some t > 0 (infinite-horizon cone, eq. 3-4): for A
 outside D, iff u . p > 0 and |p|^2 |u|^2 - (u . p)^2 < R^2 |u|^2 (the ray passes strictly closer than R to p).
 Static bodies (v_B = 0) block v_A when the ray from the sample along v_A enters their footprint inflated by r_A
-(exact, see traversability.ray_static). A sample whose MAV overlaps an obstacle scores 0.
+(exact, see traversability.ray_static). A sample whose MAV overlaps an obstacle scores 0. Imported worlds: moving
+bodies are their bounding spheres (VO cones need discs/balls); static bodies block by their real shapes.
 
 Velocity set: 2D 63 headings 2 pi j / 63 x 10 speeds linspace(2, 6, 10) m/s (630); 3D the same speeds along 126
 Fibonacci-sphere directions (z_i = 1 - (2 i + 1) / n, azimuth i x pi (3 - sqrt 5)) (1260).
@@ -20,7 +21,7 @@ import numpy as np
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.survivability import base_points, jsonable, positive, split_static, summary
-from pbdyn.metrics.traversability import ray_static
+from pbdyn.metrics.traversability import ray_static, ray_walls, shape_distances
 
 CHUNK_ELEMENTS = 4_000_000
 
@@ -101,11 +102,15 @@ def vo_feasibility(rollout, *, spacing: float = 6.0, margin: float = 2.0, mav_ra
     pts, n_excl = split_static(rollout, base_points(rollout, points, spacing, margin), mav_radius)
     pos, vel = rollout.at(k)
     bad, inside = infeasible_velocities(pts, pos, vel, rollout.radii + mav_radius, vels)
-    if include_static and rollout.static and pts.shape[0]:
+    if include_static and pts.shape[0]:
+        moving = np.linspace(float(v_min), float(v_max), int(n_speeds)) > 0.0
         blocked = np.zeros((pts.shape[0], dirs.shape[0]), dtype=bool)
         for body in rollout.static:
             blocked |= np.isfinite(ray_static(pts, dirs, body, mav_radius))
-        moving = np.linspace(float(v_min), float(v_max), int(n_speeds)) > 0.0
+        bodies = getattr(rollout, "bodies", None)
+        if bodies is not None and not bodies.moving.all():     # imported static shapes: any hit blocks a heading
+            walls = ray_walls(pts, dirs, rollout.arena_size, mav_radius)
+            blocked |= shape_distances(rollout, k, pts, dirs, mav_radius, walls, "static") < walls - 1e-9
         bad |= (blocked[:, :, None] & moving[None, None, :]).reshape(pts.shape[0], -1)
     per_sample = np.where(inside, 0.0, 1.0 - bad.mean(axis=1) if vels.shape[0] else 1.0)
     value, err = summary(per_sample)

@@ -1,4 +1,5 @@
-"""Gaze planners (thesis 4-1-2): LookAhead (eq. 4-1, 4-2) and FullRange. Yaw only; in 3D the x-y components count."""
+"""Gaze planners (thesis 4-1-2): LookAhead (eq. 4-1, 4-2), FullRange, LookGoal (eq. 4-3, 4-4) and its program
+variant, Rotating. Yaw only; in 3D the x-y components count. Finean et al. and Owl live in gaze_finean / gaze_owl."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import math
 
 import numpy as np
 
+from pbdyn.perception.grid import UNKNOWN
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
@@ -72,3 +74,74 @@ class FullRange:
     def yaw_rate(self, view: View, trajectory: Trajectory | None) -> float:
         """Always 0 rad/s."""
         return 0.0
+
+
+def rate_candidates(limit: float, n: int, include_zero: bool = True) -> np.ndarray:
+    """Candidate yaw rates (rad/s): n evenly spaced values in [-limit, +limit] (both limits included), plus 0 when
+    ``include_zero`` and n is even; sorted ascending. n >= 2."""
+    if int(n) != n or n < 2:
+        raise ValueError(f"the number of candidate rates must be an integer >= 2, got {n}")
+    rates = np.linspace(-float(limit), float(limit), int(n))
+    if include_zero and not np.any(rates == 0.0):
+        rates = np.sort(np.append(rates, 0.0))
+    return rates
+
+
+def tie_break_order(rates: np.ndarray) -> np.ndarray:
+    """Indices of ``rates`` by increasing |rate|, counter-clockwise (positive) first on equal |rate|: the order in
+    which sampled gaze planners break exact score ties."""
+    return np.lexsort((-rates, np.abs(rates)))
+
+
+class LookGoal(LookAhead):
+    """Yaw toward the goal (registry name "lookgoal"; thesis eq. 4-3, 4-4).
+
+    The rate minimising the angle between the next-step yaw direction and the MAV-to-goal direction (x-y part) under
+    |rate| <= limit: clip(wrap(heading - yaw) * gain, +-limit) with gain 1 / dt by default, so the MAV turns the
+    shortest way (counter-clockwise when the goal is exactly behind). Rate 0 when the goal is within 1e-6 m.
+    """
+
+    def target_heading(self, view: View, trajectory: Trajectory | None) -> float | None:
+        """The heading (rad) from the MAV to the goal, or None at the goal."""
+        return _heading(view.goal - view.position)
+
+
+class LookGoalUnexplored(LookAhead):
+    """The thesis program's LookGoal (registry name "lookgoal_unexplored"; implementation-facts.md "Gaze planners").
+
+    Yaw toward the first future sample of the plan in execution (times after view.t) whose grid cell is still
+    UNKNOWN; if every remaining sample is explored, toward the plan's last sample; without a plan (or when that
+    point is within 1e-6 m of the MAV), toward the goal. Same rate law as LookAhead / LookGoal.
+    This is the variant that produced the thesis' LookGoal results, so a reproduction of its figures uses it;
+    "lookgoal" follows the thesis text (eq. 4-3).
+    """
+
+    def target_heading(self, view: View, trajectory: Trajectory | None) -> float | None:
+        """The heading (rad) toward the first unexplored plan sample, else the plan's end, else the goal."""
+        h = None
+        if trajectory is not None:
+            k0 = min(max(trajectory.index_at(view.t) + 1, 0), trajectory.n_samples - 1)
+            future = trajectory.p[k0:]
+            unknown = np.flatnonzero(view.grid.value_at(future) == UNKNOWN)
+            target = future[unknown[0]] if unknown.shape[0] else trajectory.p[-1]
+            h = _heading(target - view.position)
+        if h is None:
+            h = _heading(view.goal - view.position)
+        return h
+
+
+class Rotating:
+    """Turn at a constant rate (registry name "rotating"; thesis 4-1-2): rate_fraction * yaw-rate limit.
+
+    The default rate_fraction = 1 turns counter-clockwise at the limit and sweeps 360 deg in 2 pi / limit seconds;
+    -1 turns clockwise; 0 keeps the start yaw (a fixed-yaw baseline). rate_fraction must lie in [-1, 1].
+    """
+
+    def __init__(self, context: PlannerContext, *, rate_fraction: float = 1.0):
+        if not (isinstance(rate_fraction, (int, float)) and -1.0 <= float(rate_fraction) <= 1.0):
+            raise ValueError(f"rate_fraction must be a number in [-1, 1], got {rate_fraction!r}")
+        self.rate = float(rate_fraction) * float(context.limits.yaw_rate)
+
+    def yaw_rate(self, view: View, trajectory: Trajectory | None) -> float:
+        """The constant rate (rad/s)."""
+        return self.rate

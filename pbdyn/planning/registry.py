@@ -6,13 +6,17 @@ import importlib
 import inspect
 
 from pbdyn.errors import ConfigError
-from pbdyn.planning.gaze import FullRange, LookAhead
+from pbdyn.planning.gaze import FullRange, LookAhead, LookGoal, LookGoalUnexplored, Rotating
+from pbdyn.planning.gaze_finean import Finean
+from pbdyn.planning.gaze_owl import Owl
 from pbdyn.planning.local_primitives import LocalPrimitives
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.straight_line import StraightLine
 
 TRAJECTORY_PLANNERS: dict[str, type] = {"local_primitives": LocalPrimitives, "straight_line": StraightLine}
-GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange}
+GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange, "lookgoal": LookGoal,
+                                  "lookgoal_unexplored": LookGoalUnexplored, "rotating": Rotating,
+                                  "finean": Finean, "owl": Owl}
 
 _TRAJECTORY_METHODS = ("replan_check", "plan")
 _GAZE_METHODS = ("yaw_rate",)

@@ -90,7 +90,8 @@ class View:
         grid: the MAV's occupancy grid (read it, never write it).
         tracks: active Kalman tracks.
         trajectory: the plan currently being executed, or None.
-        fov_deg: the sensor's horizontal field of view (deg); range_m: its range (m).
+        fov_deg: the sensor's horizontal field of view (deg); range_m: its range (m); vfov_deg: its vertical field
+            of view (deg; 3D only, None in 2D).
     """
 
     t: float
@@ -109,6 +110,7 @@ class View:
     trajectory: Trajectory | None = None
     fov_deg: float = 90.0
     range_m: float = 8.0
+    vfov_deg: float | None = None
     extras: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:

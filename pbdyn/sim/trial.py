@@ -285,7 +285,7 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
             tracks = env.tracker.tracks(env.radii)
             c3 = time.perf_counter()
             view = View(t, dt, p, v, a, yaw, goal, sc.task.goal_radius, limits, env.bounds[0], env.bounds[1],
-                        env.grid, tracks, traj, env.fov_deg, sc.sensor.range)
+                        env.grid, tracks, traj, env.fov_deg, sc.sensor.range, sc.sensor.vfov_deg)
             plan_ok = True
             if planner.replan_check(view):                                # (4)
                 state = "PLANNING"

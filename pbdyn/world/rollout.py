@@ -4,7 +4,8 @@ The .npz file holds these arrays (SI units, world frame):
     times [T] (s), positions [T, N, d] (m), velocities [T, N, d] (m/s), radii [N] (m), arena_size [d] (m),
     dt [] (s), static_kind [S] (0 = pillar, 1 = box), static_center [S, d] (m), static_radius [S] (m),
     static_size [S, d] (m, box full extents), static_yaw [S] (rad), meta [] (JSON string: map key, seed, motion,
-    model version, scenario name).
+    model version, scenario name). Imported worlds add the body_* arrays of pbdyn.world.imported.WorldBodies
+    (base poses of every body at every step); their dynamic obstacles are the moving bodies' bounding spheres.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
 from pbdyn.world.motion import cvm_fold
 from pbdyn.world.rvo import rvo_rollout
@@ -41,6 +43,7 @@ class Rollout:
     dt: float
     static: tuple[StaticBody, ...] = ()
     meta: dict = field(default_factory=dict)
+    bodies: WorldBodies | None = None
 
     def __post_init__(self) -> None:
         for name in ("times", "positions", "velocities", "radii", "arena_size"):
@@ -97,6 +100,7 @@ class Rollout:
             "static_radius": np.array([b.radius for b in self.static], dtype=float),
             "static_size": size, "static_yaw": np.array([b.yaw for b in self.static], dtype=float),
             "meta": np.array(json.dumps(self.meta, sort_keys=True)),
+            **(self.bodies.to_arrays() if self.bodies is not None else {}),
         }
 
     def save(self, path: str | Path) -> None:
@@ -123,7 +127,7 @@ class Rollout:
             for k, c, r, s, y in zip(a["static_kind"], a["static_center"], a["static_radius"], a["static_size"],
                                      a["static_yaw"]))
         return cls(a["times"], a["positions"], a["velocities"], a["radii"], a["arena_size"], float(a["dt"]),
-                   static, json.loads(str(a["meta"])))
+                   static, json.loads(str(a["meta"])), WorldBodies.from_arrays(a))
 
 
 def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
@@ -139,6 +143,8 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
                   "clearance": scenario.task.spawn_clearance},
         "horizon": round(horizon, 9),
     }
+    if scenario.is_world:
+        payload["bodies"] = bodies_fingerprint(scenario)
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
 
 
@@ -160,8 +166,10 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     dt = scenario.world.dt
     n_t = int(round(horizon / dt)) + 1
     times = np.arange(n_t) * dt
-    p0, v0, radii = spawn_obstacles(scenario, spec)
     size = np.asarray(scenario.world.size, dtype=float)
+    if scenario.is_world:
+        return _world_rollout(scenario, spec, times, size)
+    p0, v0, radii = spawn_obstacles(scenario, spec)
     if scenario.obstacles.motion == "cvm":
         pos, vel = cvm_fold(p0, v0, radii, size, times)
     elif scenario.obstacles.motion == "rvo":
@@ -171,6 +179,19 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": scenario.obstacles.motion,
             "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name}
     return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario), meta)
+
+
+def _world_rollout(scenario: Scenario, spec: MapSpec, times: np.ndarray, size: np.ndarray) -> Rollout:
+    """The rollout of an imported world: body poses, and the moving bodies' bounding spheres as obstacles."""
+    dt = scenario.world.dt
+    bodies = build_world_bodies(scenario, times)
+    check_candidates(scenario, bodies)
+    pos, vel = sphere_tracks(bodies, scenario.world.dims, dt, scenario)
+    radii = bodies.sphere_radius[bodies.moving_index]
+    meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": "imported",
+            "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name, "bodies": list(bodies.names),
+            "flight_height": scenario.world.flight_height}
+    return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario), meta, bodies)
 
 
 def cache_dir() -> Path:

@@ -1,0 +1,287 @@
+"""Imported worlds: URDF bodies with scripted motion become a rollout of poses (README "Imported worlds").
+
+A world file is a scenario whose generated obstacles are replaced by ``[[bodies]]``. Every body's base pose is
+computed at every rollout step from its motion (static; constant velocity whose bounding sphere reflects at the
+arena walls like the generated obstacles' CVM; a closed waypoint loop at given speeds; or a user function of t).
+Trackers, planners, VO and the ``analytic`` survivability backend see each moving body as its *bounding sphere*
+(centre [T, M, d] and radius as the rollout's dynamic obstacles); density, traversability and the ``bullet`` and
+``mesh`` backends use the real shapes (pbdyn.world.shapes, PyBullet); trials collide with static bodies' real
+shapes and with moving bodies' bounding spheres.
+
+Bounding sphere of a body: centre = the centre of its collision geometry's box in the base frame; radius = the
+box's half-diagonal (3D), or in 2D worlds the half-diagonal of its x-y extent when the body only ever turns about
+z (else the 3D value) -- the disc that covers the body's cut by the flight plane.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pbdyn.config import BodyConfig, Scenario
+from pbdyn.errors import ConfigError
+from pbdyn.world.shapes import ShapeField, body_primitives, bounds_of, quat_from_rpy, rotation_from_quat
+
+YAW_ONLY_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class WorldBodies:
+    """Poses of an imported world's bodies at every rollout step (SI, world frame).
+
+    names, urdf (absolute paths), scale [B, 3], moving [B] (bool), position [T, B, 3] (base, m), orientation
+    [T, B, 4] (xyzw), sphere_centre [B, 3] (bounding-sphere centre in the base frame, m), sphere_radius [B] (m).
+    The rollout's dynamic obstacle i is moving body ``moving_index[i]``.
+    """
+
+    names: tuple[str, ...]
+    urdf: tuple[str, ...]
+    scale: np.ndarray
+    moving: np.ndarray
+    position: np.ndarray
+    orientation: np.ndarray
+    sphere_centre: np.ndarray
+    sphere_radius: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("scale", "position", "orientation", "sphere_centre", "sphere_radius"):
+            arr = np.ascontiguousarray(getattr(self, name), dtype=float)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        mv = np.asarray(self.moving, dtype=bool)
+        mv.setflags(write=False)
+        object.__setattr__(self, "moving", mv)
+
+    @property
+    def moving_index(self) -> np.ndarray:
+        """Body index of each dynamic obstacle (the moving bodies, in file order)."""
+        return np.flatnonzero(self.moving)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The .npz arrays (prefix "body_")."""
+        return {"body_names": np.array(self.names, dtype=str), "body_urdf": np.array(self.urdf, dtype=str),
+                "body_scale": self.scale, "body_moving": self.moving, "body_position": self.position,
+                "body_orientation": self.orientation, "body_sphere_centre": self.sphere_centre,
+                "body_sphere_radius": self.sphere_radius}
+
+    @classmethod
+    def from_arrays(cls, a: dict) -> "WorldBodies | None":
+        """Inverse of to_arrays (None when the file has no bodies)."""
+        if "body_urdf" not in a:
+            return None
+        return cls(tuple(str(x) for x in a["body_names"]), tuple(str(x) for x in a["body_urdf"]), a["body_scale"],
+                   a["body_moving"], a["body_position"], a["body_orientation"], a["body_sphere_centre"],
+                   a["body_sphere_radius"])
+
+    def field(self) -> ShapeField:
+        """The signed-distance field of the real shapes (cached on this object)."""
+        cached = self.__dict__.get("_field")
+        if cached is None:
+            cached = ShapeField(self)
+            object.__setattr__(self, "_field", cached)
+        return cached
+
+
+# ------------------------------------------------------------------------------------------------ motions
+def waypoint_loop(waypoints: np.ndarray, speeds: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions [T, d] (m) and velocities [T, d] (m/s) of a point looping through ``waypoints`` [W, d] (back to the
+    first) with speed ``speeds[i]`` (m/s) on leg i, starting at waypoints[0] at t = 0."""
+    w = np.asarray(waypoints, dtype=float)
+    legs = np.roll(w, -1, axis=0) - w
+    lengths = np.linalg.norm(legs, axis=1)
+    durations = lengths / np.asarray(speeds, dtype=float)
+    ends = np.cumsum(durations)
+    period = float(ends[-1])
+    tau = np.mod(np.asarray(times, dtype=float), period)
+    leg = np.minimum(np.searchsorted(ends, tau, side="right"), w.shape[0] - 1)
+    start = ends[leg] - durations[leg]
+    vel = legs[leg] / durations[leg, None]
+    return w[leg] + (tau - start)[:, None] * vel, vel
+
+
+def _load_function(body: BodyConfig, where: str):
+    module_name, _, attr = body.motion.partition(":")
+    try:
+        obj = importlib.import_module(module_name)
+    except Exception as exc:  # user code: any import failure is a configuration problem
+        raise ConfigError(f"{where}.motion", f"cannot import module {module_name!r} "
+                          f"({type(exc).__name__}: {' '.join(str(exc).split())})", body.motion) from None
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ConfigError(f"{where}.motion", f"module {module_name!r} has no attribute {attr!r}", body.motion)
+        obj = getattr(obj, part)
+    if not callable(obj):
+        raise ConfigError(f"{where}.motion", f"{attr!r} is not callable", body.motion)
+    return obj
+
+
+def _function_poses(body: BodyConfig, where: str, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    fn = _load_function(body, where)
+    pos = np.empty((times.shape[0], 3))
+    quat = np.empty((times.shape[0], 4))
+    for k, t in enumerate(times.tolist()):
+        try:
+            out = fn(t, **dict(body.params))
+        except Exception as exc:
+            raise ConfigError(f"{where}.motion", f"the motion function raised at t = {t:g} s "
+                              f"({type(exc).__name__}: {' '.join(str(exc).split())})", body.motion) from None
+        q = (0.0, 0.0, 0.0, 1.0)
+        if isinstance(out, tuple) and len(out) == 2:
+            out, q = out
+        p = np.asarray(out, dtype=float).reshape(-1)
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if p.shape != (3,) or q.shape != (4,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+            raise ConfigError(f"{where}.motion", "the motion function must return a finite position [3] or "
+                              f"(position [3], quaternion xyzw [4]); at t = {t:g} s it did not", body.motion)
+        norm = float(np.linalg.norm(q))
+        if norm < 1e-9:
+            raise ConfigError(f"{where}.motion", f"the motion function returned a zero quaternion at t = {t:g} s",
+                              body.motion)
+        pos[k], quat[k] = p, q / norm
+    return pos, quat
+
+
+def _sphere(prims, dims: int, yaw_only: bool) -> tuple[np.ndarray, float]:
+    lo, hi = bounds_of(prims)
+    centre = 0.5 * (lo + hi)
+    half = 0.5 * (hi - lo)
+    radius = float(np.linalg.norm(half[:2] if dims == 2 and yaw_only else half))
+    return centre, max(radius, 1e-6)
+
+
+def build_world_bodies(scenario: Scenario, times: np.ndarray) -> WorldBodies:
+    """Every body's pose at ``times`` [T] (s), with its bounding sphere; ConfigError naming the body's field for
+    missing files, bodies without collision geometry, bad motion functions or a constant-velocity body whose
+    bounding sphere starts outside the arena."""
+    dims = scenario.world.dims
+    size = np.asarray(scenario.world.size, dtype=float)
+    n_t = times.shape[0]
+    names, paths, scales, moving, positions, quats, centres, radii = [], [], [], [], [], [], [], []
+    for i, body in enumerate(scenario.bodies):
+        where = f"bodies[{i}]"
+        path = scenario.resolve_path(body.urdf)
+        if not path.is_file():
+            raise ConfigError(f"{where}.urdf", "file not found", body.urdf)
+        prims = body_primitives(path, body.scale, f"{where}.urdf")
+        q0 = quat_from_rpy(np.radians(body.rpy_deg))
+        pos = np.tile(np.asarray(body.position, dtype=float), (n_t, 1))
+        quat = np.tile(q0, (n_t, 1))
+        if body.motion == "waypoints":
+            path_d, _ = waypoint_loop(np.asarray(body.waypoints), np.resize(np.asarray(body.speed), len(body.waypoints)),
+                                      times)
+            pos[:, :dims] = path_d
+        elif body.motion not in ("static", "constant_velocity"):
+            pos, quat = _function_poses(body, where, times)
+        yaw_only = bool(np.all(np.abs(quat[:, :2]) <= YAW_ONLY_TOL))
+        c_local, r = _sphere(prims, dims, yaw_only)
+        if body.motion == "constant_velocity":
+            from pbdyn.world.motion import cvm_fold
+
+            c0 = pos[0] + rotation_from_quat(q0) @ c_local
+            if np.any(c0[:dims] - r < 0) or np.any(c0[:dims] + r > size):
+                raise ConfigError(f"{where}.position", f"the body's bounding sphere (radius {r:.3g} m) must start "
+                                  "inside the arena to move with constant velocity", list(body.position))
+            cen, _ = cvm_fold(c0[None, :dims], np.asarray(body.velocity, float)[None, :], np.array([r]), size, times)
+            pos[:, :dims] = cen[:, 0, :] - (rotation_from_quat(q0) @ c_local)[:dims]
+        names.append(body.name)
+        paths.append(str(path.resolve()))
+        scales.append(body.scale)
+        moving.append(body.moving)
+        positions.append(pos)
+        quats.append(quat)
+        centres.append(c_local)
+        radii.append(r)
+    return WorldBodies(tuple(names), tuple(paths), np.array(scales, float).reshape(-1, 3), np.array(moving, bool),
+                       np.stack(positions, axis=1), np.stack(quats, axis=1), np.array(centres).reshape(-1, 3),
+                       np.array(radii))
+
+
+def sphere_tracks(bodies: WorldBodies, dims: int, dt: float, scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding-sphere centres [T, M, d] (m) and velocities [T, M, d] (m/s) of the moving bodies.
+
+    Velocities: exact for constant-velocity and waypoint bodies (their base translates), central differences of
+    the centres (one-sided at the ends) for motion functions."""
+    idx = bodies.moving_index
+    rot = rotation_from_quat(bodies.orientation[:, idx])                       # [T, M, 3, 3]
+    cen = bodies.position[:, idx] + np.einsum("tmij,mj->tmi", rot, bodies.sphere_centre[idx])
+    cen = cen[:, :, :dims]
+    vel = np.zeros_like(cen)
+    size = np.asarray(scenario.world.size, float)
+    for j, b in enumerate(idx.tolist()):
+        cfg = scenario.bodies[b]
+        if cfg.motion == "constant_velocity":
+            from pbdyn.world.motion import cvm_fold
+
+            _, v = cvm_fold(cen[:1, j], np.asarray(cfg.velocity, float)[None, :],
+                            bodies.sphere_radius[b:b + 1], size, np.arange(cen.shape[0]) * dt)
+            vel[:, j] = v[:, 0]
+        elif cfg.motion == "waypoints":
+            _, v = waypoint_loop(np.asarray(cfg.waypoints), np.resize(np.asarray(cfg.speed), len(cfg.waypoints)),
+                                 np.arange(cen.shape[0]) * dt)
+            vel[:, j] = v
+        elif cen.shape[0] > 1:
+            vel[:, j] = np.gradient(cen[:, j], dt, axis=0)
+    return cen, vel
+
+
+def check_candidates(scenario: Scenario, bodies: WorldBodies) -> None:
+    """ConfigError if a start/goal candidate's MAV overlaps a static body (no trial could start or end there)."""
+    field = bodies.field()
+    if not field.indices("static"):
+        return
+    dims = scenario.world.dims
+    cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
+    pts = cands if dims == 3 else np.concatenate([cands, np.full((cands.shape[0], 1), scenario.world.flight_height)],
+                                                 axis=1)
+    for b in field.indices("static"):
+        d = field.body_distance(b, pts, 0)
+        bad = np.flatnonzero(d < scenario.drone.radius)
+        if bad.size:
+            i = int(bad[0])
+            raise ConfigError(f"task.candidates[{i}]", f"the MAV there overlaps body {bodies.names[b]!r}",
+                              list(scenario.task.candidates[i]))
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def bodies_fingerprint(scenario: Scenario) -> list[dict]:
+    """Path-free description of the bodies for cache keys and config hashes: each body's settings with its URDF
+    replaced by the sha256 of the URDF file and of every mesh it names, and a motion function by its module's
+    source digest."""
+    out = []
+    for i, body in enumerate(scenario.bodies):
+        d = {"name": body.name, "scale": list(body.scale), "position": list(body.position),
+             "rpy_deg": list(body.rpy_deg), "motion": body.motion, "velocity": list(body.velocity),
+             "waypoints": [list(w) for w in body.waypoints], "speed": list(body.speed), "params": dict(body.params)}
+        path = scenario.resolve_path(body.urdf)
+        if path.is_file():
+            digests = [_file_digest(path)]
+            try:
+                digests += [_file_digest(Path(p.mesh)) for p in body_primitives(path, body.scale) if p.kind == "mesh"]
+            except ConfigError:
+                pass
+            d["urdf_sha256"] = digests
+        else:
+            d["urdf_sha256"] = None
+        if body.motion not in ("static", "constant_velocity", "waypoints"):
+            try:
+                src = inspect.getsourcefile(importlib.import_module(body.motion.partition(":")[0]))
+                d["function_sha256"] = _file_digest(Path(src)) if src else None
+            except Exception:  # reported properly when the rollout is built
+                d["function_sha256"] = None
+        out.append(d)
+    return out
+
+
+def describe(bodies: WorldBodies) -> list[dict]:
+    """One line of facts per body (name, moving, bounding radius m) for logs and metric parameters."""
+    return [{"name": n, "moving": bool(m), "bounding_radius": float(r)}
+            for n, m, r in zip(bodies.names, bodies.moving.tolist(), bodies.sphere_radius.tolist())]
+
