@@ -75,7 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     met.add_argument("--map", type=_nonneg_int, default=0)
     met.add_argument("--metric", action="append", help="metric name (repeatable; default: every sparse metric)")
     met.add_argument("--dense", action="store_true", help="use the dense sample grids where a metric has one")
-    met.add_argument("--backend", default="analytic", help="survivability backend: analytic (default) or bullet")
+    met.add_argument("--backend", default="auto",
+                     help="survivability backend: analytic, bullet or mesh; auto (default): bullet for imported "
+                          "worlds with moving bodies (real shapes), else analytic")
     met.add_argument("--json", action="store_true")
 
     demo = sub.add_parser("demo", help="fly every planner pair over a few maps and start/goal pairs; print a table")
@@ -138,17 +140,16 @@ def cmd_rollout(args: argparse.Namespace) -> int:
 
 
 def cmd_metrics(args: argparse.Namespace) -> int:
-    from pbdyn.metrics.cached import map_metrics, metric_names
+    from pbdyn.metrics.cached import map_metrics, metric_names, resolve_backend
     from pbdyn.world.maps import get_map
 
     scenario = _load(args.scenario)
     names = metric_names(args.metric, args.dense)
-    if args.backend not in ("analytic", "bullet"):
-        raise ConfigError("--backend", "must be analytic or bullet", args.backend)
+    backend = resolve_backend(scenario, args.backend)
     spec_map = get_map(scenario, args.map)
-    values = map_metrics(scenario, spec_map, names, backend=args.backend)
+    values = map_metrics(scenario, spec_map, names, backend=backend)
     doc = {"scenario": scenario.name, "map_index": spec_map.index, "map_id": spec_map.map_id,
-           "setup": spec_map.setup, "replicate": spec_map.replicate, "backend": args.backend, "metrics": values}
+           "setup": spec_map.setup, "replicate": spec_map.replicate, "backend": backend, "metrics": values}
     if args.json:
         sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
     else:

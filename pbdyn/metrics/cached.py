@@ -50,14 +50,29 @@ def _write_json_atomic(path: Path, doc: dict) -> None:
         raise
 
 
+BACKENDS = ("analytic", "bullet", "mesh")
+
+
+def resolve_backend(scenario: Scenario, backend: str) -> str:
+    """The survivability backend for ``backend`` ("auto": bullet for an imported world with moving bodies, whose
+    real shapes it queries, else analytic); ConfigError naming --backend for an unknown name."""
+    if backend == "auto":
+        return "bullet" if any(b.moving for b in scenario.bodies) else "analytic"
+    if backend not in BACKENDS:
+        raise ConfigError("--backend", f"unknown backend (known: auto, {', '.join(BACKENDS)})", backend)
+    if backend == "mesh" and not scenario.is_world:
+        raise ConfigError("--backend", "the mesh backend works on imported worlds ([[bodies]]); generated "
+                          "obstacles are discs/balls: use analytic or bullet", backend)
+    return backend
+
+
 def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend: str = "analytic",
                 use_cache: bool = True) -> dict[str, dict]:
     """Compute (or read from the cache) each named metric of one map; returns name -> MetricResult.to_dict()
     (plus "cached": bool). Survivability-type metrics use ``backend``; the MAV radius is the scenario's."""
     from pbdyn.metrics.registry import compute
 
-    if backend not in ("analytic", "bullet"):
-        raise ConfigError("--backend", "must be analytic or bullet", backend)
+    backend = resolve_backend(scenario, backend)
     horizon = default_horizon(scenario)
     rollout = get_rollout(scenario, spec, horizon)
     key = rollout_key(scenario, spec, horizon)

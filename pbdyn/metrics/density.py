@@ -22,11 +22,14 @@ def static_measure(body: StaticBody, arena_size: np.ndarray) -> float:
 
 
 def shape_measure(rollout, b: int, k: int, cell: float) -> float:
-    """Cross-section area in the flight plane (2D, m^2) or volume (3D, m^3) of imported body b at step k: the
-    cells of ``cell`` m (midpoint rule over the body's bounding box) whose centre is inside its real shape."""
+    """Cross-section area in the flight plane (2D, m^2) or volume (3D, m^3) of imported body b at step k: exact for
+    a single-primitive body in 3D, else the cells of ``cell`` m (midpoint rule over the body's bounding box) whose
+    centre is inside its real shape."""
     field = rollout.bodies.field()
-    lo, hi = field.world_bounds(b, k)
     d = rollout.dims
+    if d == 3 and len(field.prims[b]) == 1 and np.isfinite(field.prims[b][0].volume()):
+        return field.prims[b][0].volume()
+    lo, hi = field.world_bounds(b, k)
     axes = [np.arange(lo[a] + 0.5 * cell, hi[a], cell) for a in range(d)]
     if d == 2:
         h = float(rollout.meta.get("flight_height", 2.0))
@@ -50,8 +53,9 @@ def density(rollout, *, time: float = 0.0, mav_radius: float = 1.0, include_stat
     pi r^2, boxes sx sy; 3D volumes) with ``include_static``. Overlaps (obstacle-obstacle, obstacle-static) are not
     deducted and nothing is clipped at the walls, so the value is a sum of shares. ``mav_radius`` is accepted like
     every metric's but does not enter the value. per_sample: each body's area/volume [N (+ S)] (m^2 or m^3).
-    Imported worlds: each body's real shape (cross-section in the flight plane in 2D, volume in 3D) measured on
-    cells of ``cell`` m (default 0.02 m in 2D, 0.05 m in 3D), static bodies with ``include_static``.
+    Imported worlds: each body's real shape, static bodies with ``include_static``: in 3D its exact volume when it
+    is a single primitive or closed mesh, else (and in 2D, the cross-section in the flight plane) the cells of
+    ``cell`` m (default 0.02 m in 2D, 0.05 m in 3D) whose centre is inside it.
     """
     t0 = _time.perf_counter()
     positive("mav_radius", mav_radius)

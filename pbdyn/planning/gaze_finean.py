@@ -75,23 +75,38 @@ class Finean:
         self._grid = grid
         self._shape = np.asarray(grid.shape, dtype=np.int64)
         self._strides = np.cumprod((grid.shape[1:] + (1,))[::-1])[::-1].astype(np.int64)
+        # A cell centre within distance D of a point in cell `base` has an offset from base of norm <= D/res + sqrt(d)/2.
         reach = (float(view.range_m) + self._step_margin) / res + math.sqrt(d) / 2.0
         self._reach = int(math.ceil(reach))
         self._window = _offsets(self._reach, d, reach)
+        self._window_flat = self._window @ self._strides
+        self._window_pos = self._window * res
         fp = (self.radius + res / 2.0) / res
         self._fp_reach = float(self.radius + res / 2.0 + float(view.range_m) + self._step_margin + res)
-        self._stencil = _offsets(int(math.ceil(fp)) + 1, d, fp + math.sqrt(d))
+        self._stencil_reach = int(math.ceil(fp + math.sqrt(d) / 2.0))
+        self._stencil = _offsets(self._stencil_reach, d, fp + math.sqrt(d) / 2.0)
+        self._stencil_flat = self._stencil @ self._strides
+        self._stencil_pos = self._stencil * res
         self._scratch = np.zeros(grid.cells.size)
         self.last_seen = np.full(grid.cells.size, float(view.t) - self.initial_age)
 
+    def _in_grid(self, base: np.ndarray, offsets: np.ndarray, reach: int) -> np.ndarray | None:
+        """Mask [S, T] of base [S, d] + offsets [T, d] inside the grid, or None when all are (base >= reach inside)."""
+        if np.all(base >= reach) and np.all(base + reach < self._shape):
+            return None
+        idx = base[:, None, :] + offsets[None]
+        return np.all((idx >= 0) & (idx < self._shape), axis=-1)
+
     def _cells_near(self, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(flat indices [W], centres [W, d]) of the window's grid cells around ``position`` (m)."""
+        """(flat indices [W], centres relative to ``position`` [W, d] in m) of the window's cells around it."""
         grid = self._grid
         base = grid.index(position)
-        idx = base + self._window
-        if np.any(base - self._reach < 0) or np.any(base + self._reach >= self._shape):
-            idx = idx[np.all((idx >= 0) & (idx < self._shape), axis=1)]
-        return idx @ self._strides, grid.origin + (idx + 0.5) * grid.res
+        rel0 = grid.origin + (base + 0.5) * grid.res - position
+        flat, rel = int(base @ self._strides) + self._window_flat, rel0 + self._window_pos
+        inside = self._in_grid(base[None], self._window, self._reach)
+        if inside is not None:
+            flat, rel = flat[inside[0]], rel[inside[0]]
+        return flat, rel
 
     def future_cells(self, view: View, trajectory: Trajectory | None,
                      near: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -115,12 +130,14 @@ class Finean:
             pts, tau = pts[close], tau[close]
         if pts.shape[0] == 0:
             return empty
-        cand = grid.index(pts)[:, None, :] + self._stencil[None]                    # [S, T, d]
-        centres = grid.origin + (cand + 0.5) * grid.res
+        base = grid.index(pts)                                                      # [S, d]
+        rel = (grid.origin + (base + 0.5) * grid.res - pts)[:, None, :] + self._stencil_pos[None]  # [S, T, d]
         r = self.radius + grid.res / 2.0
-        ok = np.sum((centres - pts[:, None, :]) ** 2, axis=-1) <= r * r
-        ok &= np.all((cand >= 0) & (cand < self._shape), axis=-1)
-        flat = (cand @ self._strides)[ok]                                           # sample-major: tau ascending
+        ok = np.einsum("stk,stk->st", rel, rel) <= r * r
+        inside = self._in_grid(base, self._stencil, self._stencil_reach)
+        if inside is not None:
+            ok &= inside
+        flat = ((base @ self._strides)[:, None] + self._stencil_flat[None])[ok]    # sample-major: tau ascending
         taus = np.broadcast_to(tau[:, None], ok.shape)[ok]
         cells, first = np.unique(flat, return_index=True)                           # first = earliest sample
         return cells, taus[first]
@@ -145,17 +162,20 @@ class Finean:
             self._setup(view)
         t = float(view.t)
         p = view.position
-        flat, centres = self._cells_near(p)
-        seen = in_fov(view.yaw, centres - p, view.fov_deg, view.range_m, view.vfov_deg)
+        flat, rel_p = self._cells_near(p)
+        rel = rel_p
+        near = np.flatnonzero(np.einsum("ij,ij->i", rel, rel) <= float(view.range_m) ** 2)  # cheap range cut
+        seen = near[in_fov(view.yaw, rel[near], view.fov_deg, view.range_m, view.vfov_deg)]
         self.last_seen[flat[seen]] = t
 
         p_next = p
         if trajectory is not None and trajectory.covers(t + self.dt) and trajectory.index_at(t + self.dt) >= 1:
             p_next = trajectory.state_at(t + self.dt)[0]
-        rel = centres - p_next
+        rel = rel_p - (p_next - p)
+        near = np.flatnonzero(np.einsum("ij,ij->i", rel, rel) <= float(view.range_m) ** 2)
         # Only cells some candidate can see are scored: those in the union of the candidates' sectors.
         union_deg = min(360.0, float(view.fov_deg) + 2.0 * math.degrees(self.limit * self.dt) + 1e-6)
-        sub = np.flatnonzero(in_fov(view.yaw, rel, union_deg, view.range_m, view.vfov_deg))
+        sub = near[in_fov(view.yaw, rel[near], union_deg, view.range_m, view.vfov_deg)]
         rel = rel[sub]
 
         cells, taus = self.future_cells(view, trajectory, near=p)

@@ -33,6 +33,7 @@ from pbdyn.sim.collision import sampled_dynamic, sampled_static, swept_dynamic, 
 from pbdyn.sim.outcome import Outcome
 from pbdyn.sim.result import TrialResult
 from pbdyn.world.bullet import PyBulletWorld
+from pbdyn.world.imported import bodies_fingerprint
 from pbdyn.world.maps import MapSpec, stable_hash64
 from pbdyn.world.rollout import Rollout
 
@@ -71,6 +72,7 @@ class TrialSpec:
                         "trajectory_params": dict(self.planner.trajectory_params),
                         "gaze_params": dict(self.planner.gaze_params)},
             "collision_check": self.scenario.collision_check,
+            **({"bodies": bodies_fingerprint(self.scenario)} if self.scenario.is_world else {}),
         }
 
     @property
@@ -185,6 +187,15 @@ class TrialEnv:
         self.world = PyBulletWorld(dims=self.dims, arena_size=sc.world.size, flight_height=sc.world.flight_height,
                                    mav_radius=sc.drone.radius, obstacle_radii=rollout.radii,
                                    static_bodies=rollout.static, mav_urdf=str(sc.mav_urdf_path()), gui=gui)
+        bodies = rollout.bodies
+        if bodies is not None:   # imported world: static bodies by their real shapes, moving ones as spheres
+            try:
+                for b in np.flatnonzero(~bodies.moving).tolist():
+                    self.world.add_static_urdf(bodies.urdf[b], bodies.position[0, b], bodies.orientation[0, b],
+                                               bodies.scale[b])
+            except BaseException:
+                self.world.close()
+                raise
         lo = np.zeros(self.dims)
         hi = np.asarray(sc.world.size, dtype=float)
         self.bounds = (lo, hi)
@@ -355,10 +366,17 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
     wall = time.perf_counter() - wall0
     timings["wall_step_mean_s"] = float(np.mean(step_walls)) if step_walls else 0.0
     timings["wall_step_median_s"] = float(np.median(step_walls)) if step_walls else 0.0
+    if sc.is_world:   # imported world: the moving bodies, their mean bounding radius and mean speed
+        count, speeds = rollout.n_obstacles, np.linalg.norm(rollout.velocities, axis=-1)
+        motion, radius = "imported", float(np.mean(rollout.radii)) if count else 0.0
+        speed = float(np.mean(speeds)) if count else 0.0
+    else:
+        count, motion = int(ms.setup["count"]), sc.obstacles.motion
+        radius, speed = ms.setup["radius"], ms.setup["speed"]
     return TrialResult(
-        gaze=spec.planner.gaze, planner=spec.planner.trajectory, motion_profile=sc.obstacles.motion,
-        map_index=ms.index, map_id=ms.map_id, map_seed=ms.seed, obstacle_count=int(ms.setup["count"]),
-        obstacle_radius=ms.setup["radius"], obstacle_speed=ms.setup["speed"], mav_speed=float(spec.v_max),
+        gaze=spec.planner.gaze, planner=spec.planner.trajectory, motion_profile=motion,
+        map_index=ms.index, map_id=ms.map_id, map_seed=ms.seed, obstacle_count=count,
+        obstacle_radius=radius, obstacle_speed=speed, mav_speed=float(spec.v_max),
         start=tuple(spec.start), goal=tuple(spec.goal), flight_time_s=round(steps * dt, 10),
         grid_discovered=grid_discovered, obstacles_tracked=tracked, tracked_time_s=round(tracked_time, 10),
         outcome=outcome.value, final_state=state, reason=outcome.reason, min_clearance_m=float(min_clearance),

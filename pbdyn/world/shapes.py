@@ -111,10 +111,16 @@ class Primitive:
             return v.min(axis=0), v.max(axis=0)
         return t - half, t + half
 
-    def measure_hint(self) -> float:
-        """A length scale (m) of the primitive (its bounding half-diagonal)."""
-        lo, hi = self.local_bounds()
-        return float(0.5 * np.linalg.norm(hi - lo))
+    def volume(self) -> float:
+        """Exact volume (m^3): box product of extents, sphere 4/3 pi r^3, cylinder pi r^2 L, mesh open3d's volume of
+        the closed mesh."""
+        if self.kind == "sphere":
+            return 4.0 / 3.0 * math.pi * self.radius ** 3
+        if self.kind == "box":
+            return float(np.prod(self.size))
+        if self.kind == "cylinder":
+            return math.pi * self.radius ** 2 * self.length
+        return _mesh_scene(self.mesh, self.mesh_scale).volume
 
 
 class _MeshScene:
@@ -129,6 +135,7 @@ class _MeshScene:
         v = np.asarray(mesh.vertices, dtype=float) * np.asarray(scale, dtype=float)
         mesh.vertices = o3d.utility.Vector3dVector(v)
         self.vertices = v
+        self.volume = float(abs(mesh.get_volume())) if mesh.is_watertight() else float("nan")
         self._o3d = o3d
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
