@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     met = sub.add_parser("metrics", help="difficulty metrics of a map (values cached per rollout)")
     met.add_argument("scenario", help="scenario TOML file")
     met.add_argument("--map", type=_nonneg_int, default=0)
-    met.add_argument("--metric", action="append", help="metric name (repeatable; default: every sparse metric)")
+    met.add_argument("--metric", action="extend", nargs="+", help="metric name (repeatable; default: every sparse metric)")
     met.add_argument("--dense", action="store_true", help="use the dense sample grids where a metric has one")
     met.add_argument("--backend", default="auto",
                      help="survivability backend: analytic, bullet or mesh; auto (default): bullet for imported "
