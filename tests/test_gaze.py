@@ -53,9 +53,9 @@ def _tracks(pos, vel, radius=1.0):
                   np.full(m, radius))
 
 
-def _line(p0, direction, speed, t0, seconds):
-    """A constant-velocity Trajectory from p0 along ``direction`` (unit) at ``speed`` m/s for ``seconds``."""
-    k = np.arange(int(round(seconds / DT)) + 1)[:, None]
+def _line(p0, direction, speed, t0, seconds, hold=0):
+    """A Trajectory from p0 along ``direction`` (unit) at ``speed`` m/s for ``seconds``, after ``hold`` samples at p0."""
+    k = np.maximum(np.arange(int(round(seconds / DT)) + 1) - hold, 0)[:, None]
     v = np.asarray(direction, float) * speed
     p = np.asarray(p0, float) + k * DT * v
     return Trajectory(t0, DT, p, np.broadcast_to(v, p.shape), np.zeros_like(p))
@@ -252,6 +252,13 @@ def test_finean_age_map_and_future_occupancy_match_brute_force(dims):
     assert taus.min() == pytest.approx(DT) and taus.max() > 3.0   # both the c1 and the c2 bands exist
 
 
+def test_finean_reward_follows_eq_4_6_with_the_programs_otherwise_rule():
+    gaze = Finean(_context())
+    age = np.array([1.0, 1.0, 0.2, 0.2, 3.0, 0.3, 0.5])
+    future = np.array([1.0, 4.0, 1.0, 4.0, 0.0, 0.0, 3.0])
+    np.testing.assert_allclose(gaze.rewards(age, future), [1e6, 1e3, 0.2, 0.2, 1.0, 0.3, 1e6])
+
+
 def _finean_after_looking(ctx, grid, looks, t_now):
     """A Finean instance that looked along yaw ``looks[k]`` at t = k * 0.1 s from (25, 25), then the time t_now."""
     gaze = Finean(ctx)
@@ -270,17 +277,17 @@ def test_finean_turns_toward_the_stale_region_the_plan_enters_soon():
         looks = [0.0] * 5 if fresh_side is None else [fresh_side] * 5 + [0.0] * 5
         gaze, p = _finean_after_looking(ctx, grid, looks, len(looks) * DT)
         t = len(looks) * DT
-        plan = _line(p, [math.cos(path_side), math.sin(path_side)], 2.0, t, 2.0)   # enters it within 2 s
+        # the plan enters that side within 2 s; it hovers for its first step, so both next views share one origin
+        plan = _line(p, [math.cos(path_side), math.sin(path_side)], 2.0, t, 2.0, hold=1)
         rate = gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=0.0, t=t, grid=grid), plan)
         assert np.sign(rate) == expect_sign and abs(rate) == LIMIT, (path_side, fresh_side)
     # the plan enters a region seen 0.2 s ago (age < tau_c): the stale side without the plan wins
     looks = [0.0] * 5 + [right] * 8
     t = len(looks) * DT
     gaze, p = _finean_after_looking(ctx, grid, looks, t)
-    plan = _line(p, [math.cos(right), math.sin(right)], 2.0, t, 2.0)
+    plan = _line(p, [math.cos(right), math.sin(right)], 2.0, t, 2.0, hold=1)
     assert gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=0.0, t=t, grid=grid), plan) == LIMIT
-    # without the plan the same stale regions on both sides tie, and the smallest |rate| (0) wins... unless one
-    # side is staler: here the right was seen at 0.5-1.2 s, so the left (never seen) wins
+    # without a plan, too, the never-seen left beats the right seen at 0.5-1.2 s
     assert gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=0.0, t=t + DT, grid=grid), None) == LIMIT
 
 
@@ -314,8 +321,9 @@ def test_owl_pairs_each_track_with_its_own_state_and_holds_its_decision():
     ctx = _context()
     p = np.array([25.0, 25.0])
     pos = [[25.0, 31.0], [25.0, 19.0]]                            # left and right, both outside the FOV
-    closing_left = _tracks(pos, [[0.0, -6.0], [0.0, -1.0]])      # left closes fast, right recedes
-    closing_right = _tracks(pos, [[0.0, 1.0], [0.0, 6.0]])       # left recedes, right closes fast
+    # one track closes fast, the other moves sideways (no threat); swapped states would threaten nothing
+    closing_left = _tracks(pos, [[0.0, -6.0], [-6.0, 0.0]])
+    closing_right = _tracks(pos, [[6.0, 0.0], [0.0, 6.0]])
     assert Owl(ctx).yaw_rate(_view(ctx, p, [45.0, 25.0], tracks=closing_left), None) > 0.5
     assert Owl(ctx).yaw_rate(_view(ctx, p, [45.0, 25.0], tracks=closing_right), None) < -0.5
     gaze = Owl(ctx)
@@ -350,13 +358,19 @@ def _crossing(sc, side, speed, x_cross, radius):
     return handmade_rollout(sc, [np.array([x_cross, 25.0]) - v * t_arrive], [v], [radius])
 
 
-def test_fullrange_avoids_a_side_crossing_that_a_fixed_gaze_never_sees():
+def test_fullrange_avoids_a_side_crossing_that_a_fixed_gaze_sees_too_late(tmp_path):
     sc = open_scenario(2, planners=FOV_PLANNERS)
-    rollout = _crossing(sc, 1, 6.0, 25.0, 0.5)                   # closes from 56 deg off the path: outside 45
-    full = fly(sc, rollout, "fullrange+local_primitives", (4.0, 25.0), (46.0, 25.0))
-    fixed = fly(sc, rollout, "fixed", (4.0, 25.0), (46.0, 25.0))
-    assert full.outcome == "success" and full.obstacles_tracked == 1
-    assert fixed.outcome == "dynamic_collision" and fixed.obstacles_tracked == 0
+    rollout = _crossing(sc, 1, 6.0, 25.0, 0.5)                   # closes from ~56 deg off the path: outside 45
+    first_seen = {}
+    for label in ("fullrange+local_primitives", "fixed"):
+        res = fly(sc, rollout, label, (4.0, 25.0), (46.0, 25.0), trace_path=tmp_path / f"{label}.npz")
+        with np.load(tmp_path / f"{label}.npz") as z:
+            first_seen[label] = (res, int(np.argmax(z["seen"][:, 0])), bool(z["seen"][:, 0].any()))
+    full, full_seen, full_any = first_seen["fullrange+local_primitives"]
+    fixed, fixed_seen, fixed_any = first_seen["fixed"]
+    assert full.outcome == "success" and full_any
+    assert fixed.outcome == "dynamic_collision"
+    assert not fixed_any or (fixed_seen > full_seen and fixed.steps - fixed_seen <= 5)  # within 0.5 s of impact
 
 
 def test_lookahead_does_at_least_as_well_as_rotating_on_side_crossings():

@@ -349,7 +349,10 @@ def test_bullet_backend_is_dispatched_lazily(map30, monkeypatch):
         calls.append((len(points), mav_radius, t_max, start_time))
         return np.full(len(points), 1.5)
 
-    fake_mod = types.SimpleNamespace(survival_times_bullet=fake)
+    def fake_table(rollout, points, starts, *, mav_radius, t_max):
+        return np.stack([fake(rollout, points, mav_radius=mav_radius, t_max=t_max, start_time=s) for s in starts])
+
+    fake_mod = types.SimpleNamespace(survival_times_bullet=fake, survival_table_bullet=fake_table)
     monkeypatch.setitem(sys.modules, "pbdyn.metrics.bullet_backend", fake_mod)
     monkeypatch.setattr(pbdyn.metrics, "bullet_backend", fake_mod, raising=False)
 

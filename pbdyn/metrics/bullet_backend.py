@@ -249,6 +249,46 @@ class _RolloutScene:
             self.client.disconnect()
 
 
+MAX_QUERIES = 128
+"""Query spheres per client: Bullet needs ~0.2 ms to create a body, so bigger sample sets are run in passes of at
+most this many spheres, moved between passes (and between start times) instead of re-created."""
+
+
+def survival_table_bullet(rollout, points, start_times, *, mav_radius: float = 1.0, t_max: float = 12.0,
+                          flight_height: float | None = None, exact_pillars: bool = False,
+                          extra_bodies: Sequence[ExtraBody] = (), max_queries: int = MAX_QUERIES) -> np.ndarray:
+    """Survival times [S, n] (s, relative to each start) of static MAV spheres at ``points`` [n, d] (m) for each of
+    ``start_times`` [S] (s), by PyBullet collision queries (thesis eq. 3-6, "sampled"); see survival_times_bullet.
+
+    One client holds the targets and at most ``max_queries`` query spheres; samples are run in passes (chunks in
+    the given order), and for every pass each start time reuses the same spheres. HorizonError past the horizon.
+    """
+    mav_radius = check_positive("mav_radius", mav_radius)
+    starts = [float(s) for s in np.asarray(start_times, dtype=float).reshape(-1)]
+    windows = [step_window(rollout, s, t_max) for s in starts]
+    pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
+    out = np.full((len(starts), pts.shape[0]), float(t_max))
+    if pts.shape[0] == 0 or not starts or (rollout.n_obstacles == 0 and not extra_bodies):
+        return out
+    q = max(1, int(max_queries))
+    scene = _RolloutScene(rollout, pts[:q], mav_radius, flight_height, exact_pillars, extra_bodies)
+    try:
+        reset, cid = pybullet.resetBasePositionAndOrientation, scene._cid
+        all3 = scene.to3(pts).tolist()
+        for lo in range(0, pts.shape[0], q):
+            hi = min(pts.shape[0], lo + q)
+            ids = scene.query_ids[: hi - lo]
+            for j, (k0, n_steps) in enumerate(windows):
+                for b, p in zip(scene.query_ids.tolist(), all3[lo:hi] + [list(PARK)] * (q - (hi - lo))):
+                    reset(b, p, _IDENTITY, physicsClientId=cid)
+                first = survival_steps_bodies(scene.client, ids, scene.target_ids, scene.poser(k0), n_steps)
+                hit = first >= 0
+                out[j, lo:hi][hit] = np.minimum(first[hit] * rollout.dt, float(t_max))
+    finally:
+        scene.close()
+    return out
+
+
 def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: float = 12.0, start_time: float = 0.0,
                           flight_height: float | None = None, exact_pillars: bool = False,
                           extra_bodies: Sequence[ExtraBody] = ()) -> np.ndarray:
@@ -257,23 +297,13 @@ def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: fl
 
     The first step t_k = start_time + k dt, k = 0..floor(t_max / dt), at which the MAV sphere of ``mav_radius`` (m)
     penetrates an obstacle body (distance < 0; 2D: obstacles are the pillar spheres in the plane z = flight_height,
-    ``exact_pillars`` for real cylinders; 3D: balls) gives k dt; never hit gives t_max. Static bodies are ignored
-    (the caller leaves out samples overlapping them). HorizonError if start_time + t_max is past the horizon.
+    ``exact_pillars`` for real cylinders; 3D: balls; imported worlds: the moving bodies' real shapes) gives k dt;
+    never hit gives t_max. Static bodies are ignored (the caller leaves out samples overlapping them). HorizonError
+    if start_time + t_max is past the horizon.
     """
-    mav_radius = check_positive("mav_radius", mav_radius)
-    k0, n_steps = step_window(rollout, start_time, t_max)
-    pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
-    out = np.full(pts.shape[0], float(t_max))
-    if pts.shape[0] == 0 or (rollout.n_obstacles == 0 and not extra_bodies):
-        return out
-    scene = _RolloutScene(rollout, pts, mav_radius, flight_height, exact_pillars, extra_bodies)
-    try:
-        first = survival_steps_bodies(scene.client, scene.query_ids, scene.target_ids, scene.poser(k0), n_steps)
-    finally:
-        scene.close()
-    hit = first >= 0
-    out[hit] = np.minimum(first[hit] * rollout.dt, float(t_max))
-    return out
+    return survival_table_bullet(rollout, points, [start_time], mav_radius=mav_radius, t_max=t_max,
+                                 flight_height=flight_height, exact_pillars=exact_pillars,
+                                 extra_bodies=extra_bodies)[0]
 
 
 def global_survival_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: float = 24.0,

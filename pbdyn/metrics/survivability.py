@@ -193,6 +193,18 @@ def _kernel(backend: str, mode: str):
     return lambda ro, pts, **kw: bullet_backend.survival_times_bullet(ro, pts, **kw)
 
 
+def _table_kernel(backend: str, mode: str):
+    """kernel(rollout, points, start_times, **kw) -> survival times [S, n] (s) for several start times; the bullet
+    backend keeps one client for all of them."""
+    single = _kernel(backend, mode)
+    if backend == "bullet":
+        from pbdyn.metrics import bullet_backend
+
+        return lambda ro, pts, starts, **kw: bullet_backend.survival_table_bullet(ro, pts, starts, **kw)
+    return lambda ro, pts, starts, **kw: np.stack([np.asarray(single(ro, pts, start_time=s, **kw), dtype=float)
+                                                   for s in starts]).reshape(len(starts), -1)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # metrics
 # ----------------------------------------------------------------------------------------------------------------
@@ -248,7 +260,7 @@ def global_survivability(rollout, *, spacing: float = 12.0, margin: float = 2.0,
     jittered grid); extra["first_hit_point"]: per start time the index of the point hit first (-1 if none).
     """
     t0 = _time.perf_counter()
-    kernel = _kernel(backend, mode)
+    kernel = _table_kernel(backend, mode)
     mav_radius = positive("mav_radius", mav_radius)
     spacing = positive("spacing", spacing)
     starts = [float(s) for s in np.atleast_1d(np.asarray(start_times, dtype=float))]
@@ -261,9 +273,8 @@ def global_survivability(rollout, *, spacing: float = 12.0, margin: float = 2.0,
     bounds = np.cumsum([g.shape[0] for g in grids])[:-1]
     per_grid = np.full((len(grids), len(starts)), float(t_max))
     first_hit = []
-    for j, s in enumerate(starts):
-        times = np.asarray(kernel(rollout, np.concatenate(grids), mav_radius=mav_radius, t_max=t_max,
-                                  start_time=s), dtype=float)
+    table = np.asarray(kernel(rollout, np.concatenate(grids), starts, mav_radius=mav_radius, t_max=t_max), dtype=float)
+    for j, times in enumerate(table):
         for g, part in enumerate(np.split(times, bounds)):
             if part.size:
                 per_grid[g, j] = min(float(part.min()), float(t_max))

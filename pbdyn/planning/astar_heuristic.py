@@ -42,9 +42,13 @@ def min_time_bound(dist: np.ndarray, speed: np.ndarray, v_max: float, a_max: flo
 
 
 def lqmt_lower_bound(delta: np.ndarray, vel: np.ndarray, goal_radius: float, rho: float, v_max: float,
-                     a_max: float, n_intervals: int = 48) -> np.ndarray:
+                     a_max: float, velocity_set: np.ndarray | None = None, n_intervals: int = 24) -> np.ndarray:
     """The heuristic h [N] (cost units (m/s^2)^2 s) for offsets delta = p_goal - p [N, d] (m) and velocities
-    vel [N, d] (m/s); see the module docstring. 0 for states inside the goal ball."""
+    vel [N, d] (m/s); see the module docstring. 0 for states inside the goal ball.
+
+    velocity_set [V, d] (m/s), optional: velocities whose convex hull (with the state's own velocity) contains
+    every velocity the trajectory can take (a lattice's velocities); tau_lb is then also at least
+    (|delta| - r_goal) / max over the hull of v . delta / |delta| (the progress toward the ball per second)."""
     delta = np.atleast_2d(np.asarray(delta, dtype=float))
     vel = np.atleast_2d(np.asarray(vel, dtype=float))
     n = delta.shape[0]
@@ -56,6 +60,11 @@ def lqmt_lower_bound(delta: np.ndarray, vel: np.ndarray, goal_radius: float, rho
     delta, vel = delta[outside], vel[outside]
     vv = np.einsum("nd,nd->n", vel, vel)
     t_lb = min_time_bound(dist[outside] - goal_radius, np.sqrt(vv), v_max, a_max)
+    if velocity_set is not None and len(velocity_set):
+        u = delta / dist[outside][:, None]
+        support = np.maximum((u @ np.asarray(velocity_set, dtype=float).T).max(axis=1),
+                             np.einsum("nd,nd->n", u, vel))
+        t_lb = np.maximum(t_lb, (dist[outside] - goal_radius) / np.maximum(support, 1e-9))
     t_lb = np.maximum(t_lb, 1e-9)
 
     def f(tau: np.ndarray) -> np.ndarray:  # tau [m, k] -> f [m, k]

@@ -6,13 +6,13 @@ yaw it reaches when held for the period, psi_w = yaw + w * period_s (azimuths on
 - f1 goal: angle (rad) between psi_w and the MAV-to-goal direction; lambda_1 = w_goal (0.2).
 - f2 velocity: angle between psi_w and the horizontal velocity; lambda_2 = w_velocity * (|v_xy| / 1 m/s)^2 (0.9).
 - f3 obstacles: sum over the active tracks (each track's own mean position and velocity) of threat_j times the
-  angle by which track j's bearing lies outside psi_w's horizontal FOV; the term is zero once the track is inside
-  that FOV (the shared in_fov predicate, range unlimited). threat_j = max(closing speed, 0) / distance (1/s), the
+  angle between psi_w and track j's bearing; the term is zero once the track is inside psi_w's FOV (the shared
+  in_fov predicate, range unlimited), so bringing a threatening track into view pays off at once. threat_j = max(closing speed, 0) / distance (1/s), the
   closing speed being -d|p_j - p|/dt from the relative velocity; lambda_3 = w_obstacle (1.0).
 - f4 unseen directions: 10-degree azimuth bins remember when their centre direction was last inside the FOV
   (in_fov at each call's yaw; initially stale); f4 = -(sum over the bins psi_w's FOV covers of
   min(age / stale_s, 1)) / (bins per FOV), in [-1, 0]; lambda_4 = w_unseen (0.1).
-- f5 yaw rate: (w / limit)^2; lambda_5 = w_rate (0.1).
+- f5 yaw rate: (w / limit)^2; lambda_5 = w_rate (0.05: a regulariser, half the smallest program weight).
 Weights 0.2 / 0.9 (|v|/1 m/s)^2 / 1.0 / 0.1 are the thesis program's; w_rate, stale_s and the cost shapes are
 pbdyn's (the thesis gives none). The program paired obstacle directions with the wrong trackers (a defect); here the
 rows of view.tracks are used together. With an even n_rates, 0 is not a candidate (as in the program).
@@ -49,12 +49,12 @@ class Owl:
     """Multi-objective gaze planner re-deciding every period_s (registry name "owl"; see the module docstring).
 
     Args: period_s (0.8 s), n_rates (20), w_goal (0.2), w_velocity (0.9, times (|v|/1 m/s)^2), w_obstacle (1.0),
-    w_unseen (0.1), w_rate (0.1), bin_deg (10 deg; must divide 360), stale_s (2 s: the age at which a direction
+    w_unseen (0.1), w_rate (0.05), bin_deg (10 deg; must divide 360), stale_s (2 s: the age at which a direction
     bin counts as fully stale). One instance per trial (it keeps the held rate and the bins' last-seen times).
     """
 
     def __init__(self, context: PlannerContext, *, period_s: float = 0.8, n_rates: int = 20, w_goal: float = 0.2,
-                 w_velocity: float = 0.9, w_obstacle: float = 1.0, w_unseen: float = 0.1, w_rate: float = 0.1,
+                 w_velocity: float = 0.9, w_obstacle: float = 1.0, w_unseen: float = 0.1, w_rate: float = 0.05,
                  bin_deg: float = 10.0, stale_s: float = 2.0):
         self.period_s = _check("period_s", period_s, positive=True)
         self.w_goal = _check("w_goal", w_goal, positive=False)
@@ -94,7 +94,6 @@ class Owl:
         c = self.rates.shape[0]
         yaws = view.yaw + self.rates * self.period_s
         fov = float(view.fov_deg)
-        half = math.radians(fov) / 2.0
         cost = self.w_rate * (self.rates / self.limit) ** 2
         h = _heading(view.goal - view.position)
         if h is not None and self.w_goal > 0:
@@ -113,8 +112,8 @@ class Owl:
             bearing = np.arctan2(rel[:, 1], rel[:, 0])
             inside = in_fov(yaws[:, None], np.broadcast_to(rel, (c,) + rel.shape), fov, math.inf,
                             view.vfov_deg)                                       # [C, M]
-            outside = np.maximum(_angle_between(yaws[:, None], bearing[None, :]) - half, 0.0)
-            cost = cost + self.w_obstacle * np.sum(np.where(inside, 0.0, threat * outside), axis=1)
+            angle = _angle_between(yaws[:, None], bearing[None, :])                # [C, M]
+            cost = cost + self.w_obstacle * np.sum(np.where(inside, 0.0, threat * angle), axis=1)
         if self.w_unseen > 0:
             stale = np.minimum((t - self.bin_last_seen) / self.stale_s, 1.0)
             pts = self._bin_dirs * (0.5 * float(view.range_m))

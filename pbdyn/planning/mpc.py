@@ -1,0 +1,343 @@
+"""Model predictive control planner (thesis 4-1-1 "Model Predictive Control", appendix A-3; Zhu & Alonso-Mora 2019).
+
+Every step the planner solves one convex problem (pbdyn.planning.mpc_problem) over N steps of the world dt: a double
+integrator (eq. A-5), a quadratic cost toward the goal plus control effort (A-6, A-11), Euclidean norm limits on v
+and a as second-order cones (A-8), and collision constraints (A-10) made convex by linearisation:
+
+* Tracks (thesis A-10, constant-velocity predictions): the M tracks nearest to the reference path give one
+  half-plane (3D: half-space) per step, tangent to the predicted disc/ball inflated by the MAV radius + margin, with
+  its normal pointing from the predicted centre to the reference path's point at that step. The reference path is
+  the previous plan (view.trajectory, read at the same absolute times, extrapolated at constant velocity past its
+  end); without one, a constant-velocity guess from the current state. If the normal is degenerate (the reference
+  point is at the centre) the current obstacle-to-MAV direction is used.
+* Occupied grid cells near the MAV: per step, the n_cells cells nearest to the reference point, each as the
+  half-plane through the point of the cell's square (3D: cube) nearest to it. UNKNOWN cells count as free, as in
+  pbdyn.planning.checks; the grid's 1-cell border is left to the walls.
+* Walls (3D: also floor and ceiling) as a box on the MAV centre, shrunk by the MAV radius + wall_margin.
+
+The right-hand side of every linearised row is the support function of the inflated obstacle in the row's normal,
+so any unit normal gives a constraint that excludes the whole obstacle. Symmetric deadlock (an obstacle straight
+ahead on the goal line gives a normal exactly against the goal direction, and the plan then stops in front of it):
+a normal within ``bias_deg`` of the reverse goal direction is turned to exactly bias_deg away from it, toward the
+side the MAV already is on (left of the goal direction when it is exactly on the line).
+
+All collision rows share one slack per step (L1 penalty w_slack): the problem is always feasible, and a plan fails
+(the MAV brakes) when the solve is not optimal or a slack exceeds max_slack within the first slack_window_s.
+Unused rows are padding (zero normal), so the problem's structure never changes and the solver is built once.
+
+Limits: the solver gets v_max (1 - limit_eps) and a_max (1 - limit_eps). The returned trajectory is rebuilt from the
+solver's accelerations, each first projected onto the a_max ball, by exact integration of A-5 from the current
+state, so it satisfies the dynamics to round-off; a velocity above v_max (possible only beyond the solver's
+tolerance) is projected onto the v_max ball.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from pbdyn.perception.grid import OCCUPIED
+from pbdyn.planning.checks import WALL_MARGIN_CAP
+from pbdyn.planning.mpc_problem import (INACTIVE_RHS, ClarabelMPC, CvxpyMPC, MPCData, MPCShape, MPCSolution,
+                                        MPCWeights)
+from pbdyn.planning.protocols import PlannerContext
+from pbdyn.planning.trajectory import Trajectory
+from pbdyn.planning.view import View
+
+_DEGENERATE = 1e-9  # m; a normal shorter than this is degenerate
+_MAX_CELLS = 64     # occupied cells kept around the MAV before the per-step choice (nearest to the MAV)
+
+
+def _unit(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x / |x| along the last axis (0 where |x| is degenerate), |x|)."""
+    n = np.sqrt(np.einsum("...d,...d->...", x, x))
+    safe = np.where(n > _DEGENERATE, n, 1.0)
+    return np.where((n > _DEGENERATE)[..., None], x / safe[..., None], 0.0), n
+
+
+def _nonzero(normals: np.ndarray, gdir: np.ndarray) -> np.ndarray:
+    """Unit normals [..., d] with zero rows replaced by the default side lateral_axis(gdir)."""
+    zero = ~np.any(normals != 0.0, axis=-1)
+    return np.where(zero[..., None], lateral_axis(gdir), normals) if zero.any() else normals
+
+
+def lateral_axis(gdir: np.ndarray) -> np.ndarray:
+    """The default side of the unit goal direction: 2D its left normal; 3D the horizontal left z x gdir (x x gdir
+    when gdir is vertical)."""
+    if gdir.shape[0] == 2:
+        return np.array([-gdir[1], gdir[0]])
+    w = np.cross([0.0, 0.0, 1.0], gdir)
+    if np.linalg.norm(w) < 1e-6:
+        w = np.cross([1.0, 0.0, 0.0], gdir)
+    return w / np.linalg.norm(w)
+
+
+def bias_normals(normals: np.ndarray, side: np.ndarray, gdir: np.ndarray, bias_deg: float) -> np.ndarray:
+    """Turn unit normals [..., d] that lie within bias_deg of -gdir to exactly bias_deg from it (see module doc).
+
+    side [..., d]: a preferred lateral direction per normal (any length; used when the normal has no lateral part);
+    zero normals (padding) stay zero.
+    """
+    if bias_deg <= 0:
+        return normals
+    cos_b = math.cos(math.radians(bias_deg))
+    c = -normals @ gdir                                            # cos of the angle to -gdir
+    hit = c > cos_b
+    if not hit.any():
+        return normals
+    lat = normals + c[..., None] * gdir                            # part perpendicular to gdir
+    lat_u, lat_n = _unit(lat)
+    side = side - (side @ gdir)[..., None] * gdir
+    side_u, side_n = _unit(side)
+    default = lateral_axis(gdir)
+    side_u = np.where((side_n > 1e-6)[..., None], side_u, default)
+    lat_u = np.where((lat_n > 1e-6)[..., None], lat_u, side_u)
+    turned = -cos_b * gdir + math.sin(math.radians(bias_deg)) * lat_u
+    return np.where(hit[..., None], turned, normals)
+
+
+class MPC:
+    """MPC trajectory planner (registry name "mpc"; thesis A-3, eqs. A-5..A-11; Zhu & Alonso-Mora 2019).
+
+    Args:
+        context: the trial's fixed facts (dims, dt, limits, arena box).
+        horizon: N, the number of steps of the world dt (default 25: 2.5 s at 0.1 s, as the thesis program).
+        n_tracks: M, the number of tracks constrained (the nearest to the reference path over the horizon,
+            by surface distance); default 5, as the thesis program.
+        n_cells: occupied grid cells constrained per step (the nearest to that step's reference point).
+        margin: safety margin (m) added to the MAV radius against tracks and cells (as pbdyn.planning.checks).
+        wall_margin: margin (m) added to the MAV radius against the arena walls (default checks.WALL_MARGIN_CAP).
+        w_goal: weight of |p_k - ref|^2 (cost per m^2, every step k = 1..N; Q in A-11).
+        w_acc: weight of |u_k|^2 (cost per (m/s^2)^2; R in A-11).
+        w_slack: cost per metre of collision slack per step (L1 exact penalty).
+        ref_dist: the goal reference is the goal, or the point ref_dist (m) from the MAV toward it when the goal is
+            further; default 2 v_max N dt. Keeps the cost's scale independent of the arena size.
+        bias_deg: symmetric-deadlock breaking angle (deg, see the module doc); 0 disables it.
+        max_slack: largest slack (m) accepted within the first slack_window_s (s) of the plan.
+        limit_eps: relative tightening of v_max and a_max given to the solver.
+        backend: "clarabel" (the problem written directly in Clarabel's form, a persistent solver whose data is
+            updated each step) or "cvxpy" (the same problem built once in cvxpy with Parameters and re-solved with
+            Clarabel); a test checks that they agree.
+
+    Diagnostics of the last plan() call: last_data (MPCData), last_solution (MPCSolution), last_max_slack (m, over
+    the slack window), last_fail_reason (None on success), last_solve_wall_s.
+    """
+
+    def __init__(self, context: PlannerContext, *, horizon: int = 25, n_tracks: int = 5, n_cells: int = 6,
+                 margin: float = 0.5, wall_margin: float = WALL_MARGIN_CAP, w_goal: float = 1.0,
+                 w_acc: float = 0.1, w_slack: float = 1.0e4, ref_dist: float | None = None, bias_deg: float = 15.0,
+                 max_slack: float = 0.05, slack_window_s: float = 1.0, limit_eps: float = 1.0e-6,
+                 backend: str = "clarabel"):
+        if int(horizon) != horizon or horizon < 2:
+            raise ValueError(f"horizon must be an integer >= 2, got {horizon}")
+        if int(n_tracks) != n_tracks or n_tracks < 0 or int(n_cells) != n_cells or n_cells < 0:
+            raise ValueError(f"n_tracks and n_cells must be integers >= 0, got {n_tracks}, {n_cells}")
+        if margin < 0 or wall_margin < 0 or max_slack < 0 or slack_window_s < 0:
+            raise ValueError("margin, wall_margin, max_slack and slack_window_s must be >= 0")
+        if w_goal <= 0 or w_acc <= 0 or w_slack <= 0:
+            raise ValueError(f"w_goal, w_acc, w_slack must be > 0, got {w_goal}, {w_acc}, {w_slack}")
+        if ref_dist is not None and ref_dist <= 0:
+            raise ValueError(f"ref_dist must be > 0, got {ref_dist}")
+        if not 0 <= bias_deg < 90:
+            raise ValueError(f"bias_deg must be in [0, 90), got {bias_deg}")
+        if not 0 <= limit_eps < 0.1:
+            raise ValueError(f"limit_eps must be in [0, 0.1), got {limit_eps}")
+        if backend not in ("clarabel", "cvxpy"):
+            raise ValueError(f"backend must be 'clarabel' or 'cvxpy', got {backend!r}")
+        self.dims = d = int(context.dims)
+        if d not in (2, 3):
+            raise ValueError(f"dims must be 2 or 3, got {d}")
+        self.dt = float(context.dt)
+        self.limits = lim = context.limits
+        self.horizon = int(horizon)
+        self.n_tracks = int(n_tracks)
+        self.n_cells = int(n_cells)
+        self.margin = float(margin)
+        self.wall_margin = float(wall_margin)
+        self.ref_dist = float(ref_dist) if ref_dist is not None else 2.0 * lim.v_max * self.horizon * self.dt
+        self.bias_deg = float(bias_deg)
+        self.max_slack = float(max_slack)
+        self.slack_steps = int(math.floor(slack_window_s / self.dt + 1e-9))
+        self.limit_eps = float(limit_eps)
+        self.backend = backend
+        self.weights = MPCWeights(float(w_goal), float(w_acc), float(w_slack))
+        self.shape = MPCShape(d, self.horizon, self.dt, self.n_tracks + self.n_cells)
+        self._solver = (ClarabelMPC if backend == "clarabel" else CvxpyMPC)(self.shape, self.weights)
+        self._k = np.arange(1, self.horizon + 1)
+        self.last_data: MPCData | None = None
+        self.last_solution: MPCSolution | None = None
+        self.last_max_slack = math.nan
+        self.last_fail_reason: str | None = None
+        self.last_solve_wall_s = 0.0
+
+    def replan_check(self, view: View) -> bool:
+        """Always True: receding horizon, a new plan every step."""
+        return True
+
+    # ------------------------------------------------------------------ linearisation
+
+    def reference_path(self, view: View) -> np.ndarray:
+        """Linearisation points [N, d] (m) at view.t + k dt, k = 1..N: the plan in execution read at those times
+        (constant velocity past its end), or the constant-velocity guess p + k dt v without one."""
+        tau = self._k * self.dt
+        tr = view.trajectory
+        if tr is None or not tr.covers(view.t):
+            return view.position + tau[:, None] * view.velocity
+        idx = np.rint((view.t + tau - tr.t0) / tr.dt).astype(np.int64)      # as Trajectory.index_at
+        inside = idx < tr.n_samples
+        last = tr.n_samples - 1
+        extra = (idx - last) * tr.dt
+        return np.where(inside[:, None], tr.p[np.minimum(idx, last)], tr.p[last] + extra[:, None] * tr.v[last])
+
+    def goal_direction(self, view: View) -> np.ndarray:
+        """Unit direction from the MAV to the goal (to its velocity, else +x, when at the goal)."""
+        g, n = _unit(view.goal - view.position)
+        if n > 1e-6:
+            return g
+        v, nv = _unit(np.asarray(view.velocity, float))
+        if nv > 1e-6:
+            return v
+        e = np.zeros(self.dims)
+        e[0] = 1.0
+        return e
+
+    def track_rows(self, view: View, ref: np.ndarray, gdir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normals [n_tracks, N, d] and right-hand sides [n_tracks, N] of the track rows (padding rows: 0, -1e3)."""
+        n, d, m = self.horizon, self.dims, self.n_tracks
+        normals = np.zeros((m, n, d))
+        rhs = np.full((m, n), INACTIVE_RHS)
+        tracks = view.tracks
+        if m == 0 or len(tracks) == 0:
+            return normals, rhs
+        centres = tracks.predict(self._k * self.dt)                           # [N, T, d]
+        diff = ref[:, None, :] - centres
+        nrm, dist = _unit(diff)
+        score = (dist - tracks.radius[None, :]).min(axis=0)                  # surface distance over the horizon
+        sel = np.argsort(score, kind="stable")[:m]
+        nrm, dist, centres = nrm[:, sel], dist[:, sel], centres[:, sel]
+        now, now_n = _unit(view.position - tracks.position[sel])             # obstacle -> MAV, now
+        side = _nonzero(np.broadcast_to(now[None], nrm.shape), gdir)
+        nrm = np.where((dist > _DEGENERATE)[..., None], nrm, side)
+        nrm = bias_normals(nrm, side, gdir, self.bias_deg)
+        reach = tracks.radius[sel] + self.limits.radius + self.margin        # [S]
+        k = sel.shape[0]
+        normals[:k] = np.swapaxes(nrm, 0, 1)
+        rhs[:k] = (np.einsum("nsd,nsd->ns", nrm, centres) + reach[None, :]).T
+        return normals, rhs
+
+    def cell_rows(self, view: View, ref: np.ndarray, gdir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normals [n_cells, N, d] and right-hand sides [n_cells, N] of the occupied-cell rows (padding: 0, -1e3)."""
+        n, d, m = self.horizon, self.dims, self.n_cells
+        normals = np.zeros((m, n, d))
+        rhs = np.full((m, n), INACTIVE_RHS)
+        if m == 0:
+            return normals, rhs
+        lo_cells = self.nearby_cells(view)                                     # [C, d] lower corners
+        if lo_cells.shape[0] == 0:
+            return normals, rhs
+        res = view.grid.res
+        hi_cells = lo_cells + res
+        q = np.clip(ref[:, None, :], lo_cells[None], hi_cells[None])          # [N, C, d] nearest box points
+        nrm, dist = _unit(ref[:, None, :] - q)
+        k = min(m, lo_cells.shape[0])
+        sel = np.argsort(dist, axis=1, kind="stable")[:, :k]                  # [N, k]
+        take = np.take_along_axis
+        nrm = take(nrm, sel[..., None], axis=1)
+        dist = take(dist, sel, axis=1)
+        centre = lo_cells[sel] + 0.5 * res                                     # [N, k, d]
+        q0 = np.clip(view.position, lo_cells[sel], hi_cells[sel])
+        now, _ = _unit(view.position - q0)
+        now_c, _ = _unit(view.position - centre)
+        now = _nonzero(np.where((np.abs(now).sum(-1) > 0)[..., None], now, now_c), gdir)
+        nrm = np.where((dist > _DEGENERATE)[..., None], nrm, now)
+        nrm = bias_normals(nrm, now, gdir, self.bias_deg)
+        support = np.einsum("nkd,nkd->nk", nrm, centre) + 0.5 * res * np.abs(nrm).sum(-1)
+        normals[:k] = np.swapaxes(nrm, 0, 1)
+        rhs[:k] = (support + self.limits.radius + self.margin).T
+        return normals, rhs
+
+    def nearby_cells(self, view: View) -> np.ndarray:
+        """Lower corners [C, d] (m) of the OCCUPIED cells (not the wall border) within reach of this plan, at most
+        64, nearest to the MAV first (ties by flat index)."""
+        grid = view.grid
+        reach = self.limits.v_max * self.horizon * self.dt + self.limits.radius + self.margin + 2.0 * grid.res
+        lo_i = grid.index(view.position - reach)
+        hi_i = grid.index(view.position + reach)
+        lo_i = np.maximum(lo_i, 1)
+        hi_i = np.minimum(hi_i, np.asarray(grid.shape) - 2)
+        if np.any(hi_i < lo_i):
+            return np.zeros((0, self.dims))
+        window = grid.cells[tuple(slice(a, b + 1) for a, b in zip(lo_i, hi_i))]
+        idx = np.argwhere(window == OCCUPIED)
+        if idx.shape[0] == 0:
+            return np.zeros((0, self.dims))
+        lo = grid.origin + (idx + lo_i) * grid.res
+        q = np.clip(view.position, lo, lo + grid.res)
+        dist = np.linalg.norm(view.position - q, axis=1)
+        keep = np.argsort(dist, kind="stable")[:_MAX_CELLS]
+        return lo[keep[dist[keep] <= reach]]
+
+    def problem_data(self, view: View) -> MPCData:
+        """The parameter values of this step's problem (see pbdyn.planning.mpc_problem)."""
+        p0 = np.asarray(view.position, float)
+        ref_path = self.reference_path(view)
+        gdir = self.goal_direction(view)
+        tn, tr = self.track_rows(view, ref_path, gdir)
+        cn, cr = self.cell_rows(view, ref_path, gdir)
+        to_goal = view.goal - p0
+        dist = float(np.linalg.norm(to_goal))
+        goal_ref = view.goal if dist <= self.ref_dist else p0 + to_goal * (self.ref_dist / dist)
+        wall = self.limits.radius + self.wall_margin
+        scale = 1.0 - self.limit_eps
+        return MPCData(p0.copy(), np.asarray(view.velocity, float).copy(), np.tile(goal_ref, (self.horizon, 1)),
+                       np.concatenate([tn, cn]), np.concatenate([tr, cr]), view.bounds_lo + wall,
+                       view.bounds_hi - wall, self.limits.v_max * scale, self.limits.a_max * scale)
+
+    # ------------------------------------------------------------------ plan
+
+    def solve(self, data: MPCData) -> MPCSolution:
+        """Solve one problem with the configured backend."""
+        return self._solver.solve(data)
+
+    def plan(self, view: View) -> Trajectory | None:
+        """The MPC trajectory (N + 1 samples, sample 0 = the current state; a[k] is the acceleration from sample k
+        to k + 1, a[N] = 0), or None if the solve is not optimal or a slack within the slack window exceeds
+        max_slack."""
+        if abs(view.dt - self.dt) > 1e-12:
+            raise ValueError(f"view.dt {view.dt} differs from the planner's dt {self.dt}")
+        data = self.problem_data(view)
+        t0 = time.perf_counter()
+        sol = self.solve(data)
+        self.last_solve_wall_s = time.perf_counter() - t0
+        self.last_data, self.last_solution = data, sol
+        window = sol.s[:self.slack_steps]
+        self.last_max_slack = float(np.max(window)) if window.size else 0.0
+        self.last_fail_reason = None
+        if not sol.optimal:
+            self.last_fail_reason = f"solver status {sol.status}"
+            return None
+        if not np.all(np.isfinite(sol.u)) or self.last_max_slack > self.max_slack:
+            self.last_fail_reason = f"slack {self.last_max_slack:.3g} m within the first {self.slack_steps} steps"
+            return None
+        return self._trajectory(view, sol.u)
+
+    def _trajectory(self, view: View, u: np.ndarray) -> Trajectory:
+        """Samples of A-5 integrated exactly from the current state with u projected onto the a_max ball."""
+        a_max, v_max, dt = self.limits.a_max, self.limits.v_max, self.dt
+        un = np.linalg.norm(u, axis=1)
+        u = np.where((un > a_max)[:, None], u * (a_max / np.maximum(un, 1e-300))[:, None], u)
+        n, d = self.horizon, self.dims
+        p = np.empty((n + 1, d))
+        v = np.empty((n + 1, d))
+        p[0], v[0] = view.position, view.velocity
+        v[1:] = v[0] + dt * np.cumsum(u, axis=0)
+        p[1:] = p[0] + dt * np.cumsum(v[:-1], axis=0) + (0.5 * dt * dt) * np.cumsum(u, axis=0)
+        vn = np.linalg.norm(v[1:], axis=1)
+        over = vn > v_max
+        if over.any():
+            v[1:][over] *= (v_max / vn[over])[:, None]
+        a = np.zeros((n + 1, d))
+        a[:n] = u
+        return Trajectory(view.t, dt, p, v, a)
