@@ -259,10 +259,10 @@ def test_finean_reward_follows_eq_4_6_with_the_programs_otherwise_rule():
     np.testing.assert_allclose(gaze.rewards(age, future), [1e6, 1e3, 0.2, 0.2, 1.0, 0.3, 1e6])
 
 
-def _finean_after_looking(ctx, grid, looks, t_now):
-    """A Finean instance that looked along yaw ``looks[k]`` at t = k * 0.1 s from (25, 25), then the time t_now."""
+def _finean_after_looking(ctx, grid, looks):
+    """A Finean instance that looked along yaw ``looks[k]`` at t = k * 0.1 s from (25.5, 25.5)."""
     gaze = Finean(ctx)
-    p = np.array([25.0, 25.0])
+    p = np.array([25.5, 25.5])                                    # a cell centre: the grid is symmetric about y
     for k, yaw in enumerate(looks):
         gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=yaw, t=k * DT, grid=grid), None)
     return gaze, p
@@ -271,21 +271,21 @@ def _finean_after_looking(ctx, grid, looks, t_now):
 def test_finean_turns_toward_the_stale_region_the_plan_enters_soon():
     ctx = _context()
     grid = OccupancyGrid(ctx.bounds_lo, ctx.bounds_hi, 1.0)
-    left, right = math.radians(60), math.radians(-60)
+    left, right = math.radians(49), math.radians(-49)   # just outside the 45 deg half-FOV
     for path_side, fresh_side, expect_sign in ((left, None, 1), (right, None, -1), (left, right, 1),
                                                (right, left, -1)):
         looks = [0.0] * 5 if fresh_side is None else [fresh_side] * 5 + [0.0] * 5
-        gaze, p = _finean_after_looking(ctx, grid, looks, len(looks) * DT)
+        gaze, p = _finean_after_looking(ctx, grid, looks)
         t = len(looks) * DT
-        # the plan enters that side within 2 s; it hovers for its first step, so both next views share one origin
-        plan = _line(p, [math.cos(path_side), math.sin(path_side)], 2.0, t, 2.0, hold=1)
+        # the plan enters that side within 2.5 s; it hovers for its first step, so both next views share one origin
+        plan = _line(p, [math.cos(path_side), math.sin(path_side)], 3.0, t, 2.5, hold=1)
         rate = gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=0.0, t=t, grid=grid), plan)
         assert np.sign(rate) == expect_sign and abs(rate) == LIMIT, (path_side, fresh_side)
-    # the plan enters a region seen 0.2 s ago (age < tau_c): the stale side without the plan wins
+    # the plan enters a region seen 0.1 s ago (age < tau_c): the stale side without the plan wins
     looks = [0.0] * 5 + [right] * 8
     t = len(looks) * DT
-    gaze, p = _finean_after_looking(ctx, grid, looks, t)
-    plan = _line(p, [math.cos(right), math.sin(right)], 2.0, t, 2.0, hold=1)
+    gaze, p = _finean_after_looking(ctx, grid, looks)
+    plan = _line(p, [math.cos(right), math.sin(right)], 3.0, t, 2.5, hold=1)
     assert gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=0.0, t=t, grid=grid), plan) == LIMIT
     # without a plan, too, the never-seen left beats the right seen at 0.5-1.2 s
     assert gaze.yaw_rate(_view(ctx, p, [45.0, 25.0], yaw=0.0, t=t + DT, grid=grid), None) == LIMIT

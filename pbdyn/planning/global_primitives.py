@@ -91,7 +91,7 @@ class GlobalPrimitives:
 
     def __init__(self, context: PlannerContext, *, duration_s: float = 1.0, n_accel: int | None = None,
                  rho: float = 10.0, max_expansions: int = 20000, horizon_s: float = 5.0, margin: float = 0.5,
-                 lattice_time_bound: bool = True):
+                 lattice_time_bound: bool = True, epsilon: float = 1.0):
         d = int(context.dims)
         if d not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {d}")
@@ -134,6 +134,7 @@ class GlobalPrimitives:
         vel_int = np.array(list(itertools.product(range(-jm, jm + 1), repeat=d)), dtype=np.int64)
         self.lattice_velocities = self.w * vel_int[np.einsum("vd,vd->v", vel_int, vel_int) <= self._vj_max2]
         self.lattice_time_bound = bool(lattice_time_bound)
+        self.epsilon = float(epsilon)
         self._mask_grid = None
         self._mask_version = -1
         self._mask: np.ndarray | None = None
@@ -378,7 +379,7 @@ class GlobalPrimitives:
                 node_cut.append(cut)
                 node_h.append(hh)
                 node_key.append(key)
-                heapq.heappush(open_heap, (g + hh, hh, next(tie), cid))
+                heapq.heappush(open_heap, (g + self.epsilon * hh, hh, next(tie), cid))
         self.last_status = status
         self.last_expansions = expansions
         if status == "budget":

@@ -48,6 +48,7 @@ from pbdyn.planning.view import View
 
 _DEGENERATE = 1e-9  # m; a normal shorter than this is degenerate
 _MAX_CELLS = 64     # occupied cells kept around the MAV before the per-step choice (nearest to the MAV)
+SIDE_SPEED = 0.1    # m/s; a lateral speed above this fixes the side normals are turned to (bias_side)
 
 
 def _unit(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -55,12 +56,6 @@ def _unit(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = np.sqrt(np.einsum("...d,...d->...", x, x))
     safe = np.where(n > _DEGENERATE, n, 1.0)
     return np.where((n > _DEGENERATE)[..., None], x / safe[..., None], 0.0), n
-
-
-def _nonzero(normals: np.ndarray, gdir: np.ndarray) -> np.ndarray:
-    """Unit normals [..., d] with zero rows replaced by the default side lateral_axis(gdir)."""
-    zero = ~np.any(normals != 0.0, axis=-1)
-    return np.where(zero[..., None], lateral_axis(gdir), normals) if zero.any() else normals
 
 
 def lateral_axis(gdir: np.ndarray) -> np.ndarray:
@@ -75,26 +70,15 @@ def lateral_axis(gdir: np.ndarray) -> np.ndarray:
 
 
 def bias_normals(normals: np.ndarray, side: np.ndarray, gdir: np.ndarray, bias_deg: float) -> np.ndarray:
-    """Turn unit normals [..., d] that lie within bias_deg of -gdir to exactly bias_deg from it (see module doc).
-
-    side [..., d]: a preferred lateral direction per normal (any length; used when the normal has no lateral part);
-    zero normals (padding) stay zero.
-    """
+    """Normals [..., d] with every unit normal that lies within bias_deg of -gdir turned to exactly bias_deg from it,
+    toward the unit lateral direction side [d] (perpendicular to gdir); other normals are returned unchanged."""
     if bias_deg <= 0:
         return normals
     cos_b = math.cos(math.radians(bias_deg))
-    c = -normals @ gdir                                            # cos of the angle to -gdir
-    hit = c > cos_b
+    hit = -normals @ gdir > cos_b                                  # the angle to -gdir is below bias_deg
     if not hit.any():
         return normals
-    lat = normals + c[..., None] * gdir                            # part perpendicular to gdir
-    lat_u, lat_n = _unit(lat)
-    side = side - (side @ gdir)[..., None] * gdir
-    side_u, side_n = _unit(side)
-    default = lateral_axis(gdir)
-    side_u = np.where((side_n > 1e-6)[..., None], side_u, default)
-    lat_u = np.where((lat_n > 1e-6)[..., None], lat_u, side_u)
-    turned = -cos_b * gdir + math.sin(math.radians(bias_deg)) * lat_u
+    turned = -cos_b * gdir + math.sin(math.radians(bias_deg)) * side
     return np.where(hit[..., None], turned, normals)
 
 
@@ -203,60 +187,57 @@ class MPC:
         e[0] = 1.0
         return e
 
-    def track_rows(self, view: View, ref: np.ndarray, gdir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Normals [n_tracks, N, d] and right-hand sides [n_tracks, N] of the track rows (padding rows: 0, -1e3)."""
+    def track_rows(self, view: View, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows of the M nearest tracks: unit normals [M, N, d] (0 for padding), predicted centres [M, N, d] (m) and
+        inflated radii [M] (track radius + MAV radius + margin, m). Nearest = smallest surface distance to the
+        reference path over the horizon (ties by track order)."""
         n, d, m = self.horizon, self.dims, self.n_tracks
         normals = np.zeros((m, n, d))
-        rhs = np.full((m, n), INACTIVE_RHS)
+        centres = np.zeros((m, n, d))
+        reach = np.zeros(m)
         tracks = view.tracks
         if m == 0 or len(tracks) == 0:
-            return normals, rhs
-        centres = tracks.predict(self._k * self.dt)                           # [N, T, d]
-        diff = ref[:, None, :] - centres
-        nrm, dist = _unit(diff)
-        score = (dist - tracks.radius[None, :]).min(axis=0)                  # surface distance over the horizon
+            return normals, centres, reach
+        pred = tracks.predict(self._k * self.dt)                              # [N, T, d]
+        nrm, dist = _unit(ref[:, None, :] - pred)
+        score = (dist - tracks.radius[None, :]).min(axis=0)
         sel = np.argsort(score, kind="stable")[:m]
-        nrm, dist, centres = nrm[:, sel], dist[:, sel], centres[:, sel]
-        now, now_n = _unit(view.position - tracks.position[sel])             # obstacle -> MAV, now
-        side = _nonzero(np.broadcast_to(now[None], nrm.shape), gdir)
-        nrm = np.where((dist > _DEGENERATE)[..., None], nrm, side)
-        nrm = bias_normals(nrm, side, gdir, self.bias_deg)
-        reach = tracks.radius[sel] + self.limits.radius + self.margin        # [S]
+        now, _ = _unit(view.position - tracks.position[sel])                  # obstacle -> MAV, now [S, d]
+        nrm = np.where((dist[:, sel] > _DEGENERATE)[..., None], nrm[:, sel], now[None])
         k = sel.shape[0]
         normals[:k] = np.swapaxes(nrm, 0, 1)
-        rhs[:k] = (np.einsum("nsd,nsd->ns", nrm, centres) + reach[None, :]).T
-        return normals, rhs
+        centres[:k] = np.swapaxes(pred[:, sel], 0, 1)
+        reach[:k] = tracks.radius[sel] + self.limits.radius + self.margin
+        return normals, centres, reach
 
-    def cell_rows(self, view: View, ref: np.ndarray, gdir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Normals [n_cells, N, d] and right-hand sides [n_cells, N] of the occupied-cell rows (padding: 0, -1e3)."""
+    def cell_rows(self, view: View, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of occupied cells: per step the n_cells cells nearest to the reference point; unit normals
+        [n_cells, N, d] from the cell's nearest point to the reference point (0 for padding) and cell centres
+        [n_cells, N, d] (m)."""
         n, d, m = self.horizon, self.dims, self.n_cells
         normals = np.zeros((m, n, d))
-        rhs = np.full((m, n), INACTIVE_RHS)
+        centres = np.zeros((m, n, d))
         if m == 0:
-            return normals, rhs
+            return normals, centres
         lo_cells = self.nearby_cells(view)                                     # [C, d] lower corners
         if lo_cells.shape[0] == 0:
-            return normals, rhs
+            return normals, centres
         res = view.grid.res
         hi_cells = lo_cells + res
         q = np.clip(ref[:, None, :], lo_cells[None], hi_cells[None])          # [N, C, d] nearest box points
         nrm, dist = _unit(ref[:, None, :] - q)
         k = min(m, lo_cells.shape[0])
         sel = np.argsort(dist, axis=1, kind="stable")[:, :k]                  # [N, k]
-        take = np.take_along_axis
-        nrm = take(nrm, sel[..., None], axis=1)
-        dist = take(dist, sel, axis=1)
-        centre = lo_cells[sel] + 0.5 * res                                     # [N, k, d]
-        q0 = np.clip(view.position, lo_cells[sel], hi_cells[sel])
-        now, _ = _unit(view.position - q0)
-        now_c, _ = _unit(view.position - centre)
-        now = _nonzero(np.where((np.abs(now).sum(-1) > 0)[..., None], now, now_c), gdir)
+        nrm = np.take_along_axis(nrm, sel[..., None], axis=1)
+        dist = np.take_along_axis(dist, sel, axis=1)
+        lo_sel = lo_cells[sel]                                                 # [N, k, d]
+        now, now_n = _unit(view.position - np.clip(view.position, lo_sel, lo_sel + res))
+        now_c, _ = _unit(view.position - (lo_sel + 0.5 * res))
+        now = np.where((now_n > _DEGENERATE)[..., None], now, now_c)
         nrm = np.where((dist > _DEGENERATE)[..., None], nrm, now)
-        nrm = bias_normals(nrm, now, gdir, self.bias_deg)
-        support = np.einsum("nkd,nkd->nk", nrm, centre) + 0.5 * res * np.abs(nrm).sum(-1)
         normals[:k] = np.swapaxes(nrm, 0, 1)
-        rhs[:k] = (support + self.limits.radius + self.margin).T
-        return normals, rhs
+        centres[:k] = np.swapaxes(lo_sel + 0.5 * res, 0, 1)
+        return normals, centres
 
     def nearby_cells(self, view: View) -> np.ndarray:
         """Lower corners [C, d] (m) of the OCCUPIED cells (not the wall border) within reach of this plan, at most
@@ -279,21 +260,49 @@ class MPC:
         keep = np.argsort(dist, kind="stable")[:_MAX_CELLS]
         return lo[keep[dist[keep] <= reach]]
 
+    def bias_side(self, view: View, normals: np.ndarray, gdir: np.ndarray) -> np.ndarray:
+        """The one lateral side (unit [d], perpendicular to gdir) toward which this plan turns normals that lie within
+        bias_deg of -gdir: the MAV's lateral velocity if above SIDE_SPEED, else the sum of those normals' lateral
+        parts (the side the MAV is on relative to what blocks it), else lateral_axis(gdir)."""
+        v = np.asarray(view.velocity, float)
+        lat_v = v - (v @ gdir) * gdir
+        if float(np.linalg.norm(lat_v)) > SIDE_SPEED:
+            return lat_v / np.linalg.norm(lat_v)
+        c = -normals @ gdir
+        blocking = normals[c > math.cos(math.radians(self.bias_deg))]
+        if blocking.shape[0]:
+            lat = blocking.sum(axis=0)
+            lat -= (lat @ gdir) * gdir
+            if float(np.linalg.norm(lat)) > 1e-6:
+                return lat / np.linalg.norm(lat)
+        return lateral_axis(gdir)
+
     def problem_data(self, view: View) -> MPCData:
-        """The parameter values of this step's problem (see pbdyn.planning.mpc_problem)."""
+        """The parameter values of this step's problem (see pbdyn.planning.mpc_problem and the module doc)."""
         p0 = np.asarray(view.position, float)
         ref_path = self.reference_path(view)
         gdir = self.goal_direction(view)
-        tn, tr = self.track_rows(view, ref_path, gdir)
-        cn, cr = self.cell_rows(view, ref_path, gdir)
+        tn, tc, reach = self.track_rows(view, ref_path)
+        cn, cc = self.cell_rows(view, ref_path)
+        normals = np.concatenate([tn, cn])                                    # [R, N, d]
+        zero = ~np.any(normals != 0.0, axis=-1)                               # padding rows
+        real = normals[~zero]
+        if self.bias_deg > 0 and real.shape[0]:
+            side = self.bias_side(view, real, gdir)
+            normals = np.where(zero[..., None], 0.0, bias_normals(normals, side, gdir, self.bias_deg))
+        inflate = self.limits.radius + self.margin
+        rhs_t = np.einsum("mnd,mnd->mn", normals[:self.n_tracks], tc) + reach[:, None]
+        cn = normals[self.n_tracks:]
+        rhs_c = np.einsum("mnd,mnd->mn", cn, cc) + 0.5 * view.grid.res * np.abs(cn).sum(-1) + inflate
+        rhs = np.where(zero, INACTIVE_RHS, np.concatenate([rhs_t, rhs_c]))
         to_goal = view.goal - p0
         dist = float(np.linalg.norm(to_goal))
         goal_ref = view.goal if dist <= self.ref_dist else p0 + to_goal * (self.ref_dist / dist)
         wall = self.limits.radius + self.wall_margin
         scale = 1.0 - self.limit_eps
         return MPCData(p0.copy(), np.asarray(view.velocity, float).copy(), np.tile(goal_ref, (self.horizon, 1)),
-                       np.concatenate([tn, cn]), np.concatenate([tr, cr]), view.bounds_lo + wall,
-                       view.bounds_hi - wall, self.limits.v_max * scale, self.limits.a_max * scale)
+                       normals, rhs, view.bounds_lo + wall, view.bounds_hi - wall, self.limits.v_max * scale,
+                       self.limits.a_max * scale)
 
     # ------------------------------------------------------------------ plan
 

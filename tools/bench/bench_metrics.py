@@ -8,7 +8,10 @@ over table 4-5. The last row times all eight 2D metrics of table 4-5 computed on
 Survivability-type metrics are timed with every available backend (``bullet`` when pbdyn.metrics.bullet_backend
 imports). Rollouts are built before timing (they are cached and shared with the trials).
 
-    .venv/bin/python tools/bench/bench_metrics.py [--maps 3] [--repeat 5] [--no-bullet]
+A second table times every metric on the example imported worlds (scenarios/worlds/) with the analytic, bullet
+and mesh backends.
+
+    .venv/bin/python tools/bench/bench_metrics.py [--maps 3] [--repeat 5] [--no-bullet] [--no-worlds]
 """
 
 from __future__ import annotations
@@ -49,6 +52,7 @@ THESIS = {
 EIGHT = ("density", "traversability", "dynamic_traversability", "survivability", "survivability_dense",
          "global_survivability", "vo_feasibility", "vo_feasibility_dense")
 BACKEND_METRICS = ("survivability", "survivability_dense", "global_survivability")
+WORLDS = (("warehouse_2d", "warehouse_2d"), ("mixed_3d", "mixed_3d"))
 CONFIGS = (("2D n=10", "controlled_2d.toml", 10), ("2D n=30", "controlled_2d.toml", 30),
            ("3D n=30", "controlled_3d.toml", 30))
 
@@ -84,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--maps", type=int, default=3, help="maps per configuration (default 3)")
     ap.add_argument("--repeat", type=int, default=5, help="timed runs per metric and map (default 5, >= 5)")
     ap.add_argument("--no-bullet", action="store_true", help="time the analytic backend only")
+    ap.add_argument("--no-worlds", action="store_true", help="skip the imported-world table")
     args = ap.parse_args(argv)
     if args.repeat < 5:
         ap.error("--repeat must be >= 5")
@@ -133,7 +138,28 @@ def main(argv: list[str] | None = None) -> int:
         print(line + speed)
     print("speed-up: table 4-5 time / median of the 2D n=30 column; 'program': the thesis' public program per map "
           "on this machine (implementation-facts.md)")
+    if not args.no_worlds:
+        world_table(args.repeat, backends)
     return 0
+
+
+def world_table(repeat: int, backends: list[str]) -> None:
+    """Median ms per metric on the example imported worlds (real shapes), every survivability backend."""
+    from pbdyn.world.rollout import build_rollout as build
+
+    worlds = {}
+    for label, name in WORLDS:
+        sc = load_scenario(SCENARIOS / "worlds" / f"{name}.toml")
+        worlds[label] = build(sc, enumerate_maps(sc)[0])
+    print(f"\nimported worlds: median wall time in ms ({repeat} runs after a warm-up)")
+    print(f"{'metric':34s}" + "".join(f"{label:>14s}" for label, _ in WORLDS))
+    for name in THESIS:
+        for backend in (backends + ["mesh"]) if name in BACKEND_METRICS else ["analytic"]:
+            params = {"backend": backend} if name in BACKEND_METRICS else {}
+            cells = [timed(lambda ro=ro: compute(ro, name, **params), repeat) for ro in worlds.values()]
+            tag = "" if name not in BACKEND_METRICS else f" [{backend}]"
+            print(f"{name + tag:34s}" + "".join("     " + fmt_ms(c) for c in cells))
+    print("analytic survivability on a world uses the moving bodies' bounding spheres; bullet and mesh their shapes")
 
 
 if __name__ == "__main__":
