@@ -54,7 +54,7 @@ def _tracks(pos, vel, radius=1.0):
 
 
 def _line(p0, direction, speed, t0, seconds, hold=0):
-    """A Trajectory from p0 along ``direction`` (unit) at ``speed`` m/s for ``seconds``, after ``hold`` samples at p0."""
+    """A Trajectory from p0 along unit ``direction`` at ``speed`` m/s for ``seconds``, after ``hold`` samples at p0."""
     k = np.maximum(np.arange(int(round(seconds / DT)) + 1) - hold, 0)[:, None]
     v = np.asarray(direction, float) * speed
     p = np.asarray(p0, float) + k * DT * v

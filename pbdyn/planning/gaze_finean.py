@@ -75,7 +75,7 @@ class Finean:
         self._grid = grid
         self._shape = np.asarray(grid.shape, dtype=np.int64)
         self._strides = np.cumprod((grid.shape[1:] + (1,))[::-1])[::-1].astype(np.int64)
-        # A cell centre within distance D of a point in cell `base` has an offset from base of norm <= D/res + sqrt(d)/2.
+        # A cell centre within D of a point in cell `base` has an offset from base of norm <= D / res + sqrt(d) / 2.
         reach = (float(view.range_m) + self._step_margin) / res + math.sqrt(d) / 2.0
         self._reach = int(math.ceil(reach))
         self._window = _offsets(self._reach, d, reach)

@@ -7,15 +7,16 @@ yaw it reaches when held for the period, psi_w = yaw + w * period_s (azimuths on
 - f2 velocity: angle between psi_w and the horizontal velocity; lambda_2 = w_velocity * (|v_xy| / 1 m/s)^2 (0.9).
 - f3 obstacles: sum over the active tracks (each track's own mean position and velocity) of threat_j times the
   angle between psi_w and track j's bearing; the term is zero once the track is inside psi_w's FOV (the shared
-  in_fov predicate, range unlimited), so bringing a threatening track into view pays off at once. threat_j = max(closing speed, 0) / distance (1/s), the
-  closing speed being -d|p_j - p|/dt from the relative velocity; lambda_3 = w_obstacle (1.0).
+  in_fov predicate, range unlimited), so bringing a threatening track into view pays off at once.
+  threat_j = max(closing speed, 0) / distance (1/s), the closing speed being -d|p_j - p|/dt from the relative
+  velocity; lambda_3 = w_obstacle (1.0).
 - f4 unseen directions: 10-degree azimuth bins remember when their centre direction was last inside the FOV
   (in_fov at each call's yaw; initially stale); f4 = -(sum over the bins psi_w's FOV covers of
   min(age / stale_s, 1)) / (bins per FOV), in [-1, 0]; lambda_4 = w_unseen (0.1).
 - f5 yaw rate: (w / limit)^2; lambda_5 = w_rate (0.05: a regulariser, half the smallest program weight).
 Weights 0.2 / 0.9 (|v|/1 m/s)^2 / 1.0 / 0.1 are the thesis program's; w_rate, stale_s and the cost shapes are
 pbdyn's (the thesis gives none). The program paired obstacle directions with the wrong trackers (a defect); here the
-rows of view.tracks are used together. With an even n_rates, 0 is not a candidate (as in the program).
+rows of view.tracks are used together. With an even n_rates (the program's 20), 0 is not a candidate.
 Exact ties go to the smallest |rate|, then the counter-clockwise one.
 """
 

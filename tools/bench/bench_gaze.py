@@ -74,7 +74,8 @@ def main() -> int:
             print(f"{entry.gaze:<22} {dims:>4} {len(pairs):>6} {ms.shape[0]:>6} {med:10.4f} "
                   f"{np.percentile(ms, 90):8.4f} {ms.max():8.4f}  {summary}")
     verdict = "met" if worst_2d <= TARGET_2D_MS else "MISSED"
-    print(f"n = gaze calls (one per trial step). Worst 2D median {worst_2d:.4f} ms: target <= {TARGET_2D_MS} ms {verdict}.")
+    print(f"n = gaze calls (one per trial step). Worst 2D median {worst_2d:.4f} ms: "
+          f"target <= {TARGET_2D_MS} ms {verdict}.")
     return 0
 
 
