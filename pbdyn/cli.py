@@ -80,6 +80,24 @@ def build_parser() -> argparse.ArgumentParser:
                           "worlds with moving bodies (real shapes), else analytic")
     met.add_argument("--json", action="store_true")
 
+    bat = sub.add_parser("batch", help="run (or resume) every trial and map metric of a scenario into a results store")
+    bat.add_argument("scenario", help="scenario TOML file")
+    bat.add_argument("--out", required=True, help="results store (SQLite; keep it on a local disk)")
+    grp = bat.add_mutually_exclusive_group()
+    grp.add_argument("--workers", type=_nonneg_int, help="local worker processes (default: CPU count)")
+    grp.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786")
+    bat.add_argument("--limit", type=_nonneg_int, help="run only the first N trials of the experiment")
+    bat.add_argument("--extend", action="store_true",
+                     help="accept a scenario that adds grid values, planners, MAV speeds or maps to the store's")
+    bat.add_argument("--no-metrics", action="store_true", help="skip the maps' difficulty metrics")
+    bat.add_argument("--json", action="store_true", help="print a JSON summary")
+
+    exp = sub.add_parser("export", help="export a results store's trials")
+    exp.add_argument("results", help="results store")
+    fmt = exp.add_mutually_exclusive_group(required=True)
+    fmt.add_argument("--csv", help="CSV file to write")
+    fmt.add_argument("--parquet", help="Parquet file to write")
+
     demo = sub.add_parser("demo", help="fly every planner pair over a few maps and start/goal pairs; print a table")
     demo.add_argument("scenario")
     demo.add_argument("--maps", type=_nonneg_int, default=4, help="number of maps (default 4)")
@@ -171,7 +189,42 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo}
+def cmd_batch(args: argparse.Namespace) -> int:
+    from pbdyn.experiments.runner import BatchOptions, run_batch
+
+    scenario = _load(args.scenario)
+    if args.workers == 0:
+        raise ConfigError("--workers", "must be >= 1", 0)
+    if args.limit == 0:
+        raise ConfigError("--limit", "must be >= 1", 0)
+    opts = BatchOptions(workers=args.workers, scheduler=args.scheduler, limit=args.limit, extend=args.extend,
+                        metrics=not args.no_metrics)
+    s = run_batch(scenario, args.out, opts, command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
+    doc = {"results": str(args.out), "trials": s.total, "already_stored": s.skipped, "ran": s.ran,
+           "errors": s.errors, "maps_computed": s.maps_computed, "wall_time_s": s.wall_time_s}
+    if args.json:
+        sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(f"{args.out}: {s.total} trials ({s.skipped} already stored, {s.ran} run now, {s.errors} "
+                         f"errors), {s.maps_computed} maps' metrics, {s.wall_time_s:.1f} s\n")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from pbdyn.experiments.export import export_csv, export_parquet
+    from pbdyn.experiments.store import ResultsStore
+
+    store = ResultsStore.open(args.results)
+    try:
+        n = export_csv(store, args.csv) if args.csv else export_parquet(store, args.parquet)
+    finally:
+        store.close()
+    sys.stderr.write(f"pbdyn export: {n} trials -> {args.csv or args.parquet}\n")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
+            "export": cmd_export}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -170,10 +170,31 @@ def _wrap(angle: float) -> float:
     return float((angle + math.pi) % (2.0 * math.pi) - math.pi)
 
 
+def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False) -> PyBulletWorld:
+    """The PyBullet world of a trial's map: MAV, obstacles, static bodies, walls (imported worlds: static bodies
+    by their real shapes, moving ones as their bounding spheres). Reusable for every trial of the same map and
+    scenario (run_trial(..., world=...)): trials only move the MAV and the obstacles, which every step sets."""
+    sc = spec.scenario
+    world = PyBulletWorld(dims=sc.world.dims, arena_size=sc.world.size, flight_height=sc.world.flight_height,
+                          mav_radius=sc.drone.radius, obstacle_radii=rollout.radii, static_bodies=rollout.static,
+                          mav_urdf=str(sc.mav_urdf_path()), gui=gui)
+    bodies = rollout.bodies
+    if bodies is not None:
+        try:
+            for b in np.flatnonzero(~bodies.moving).tolist():
+                world.add_static_urdf(bodies.urdf[b], bodies.position[0, b], bodies.orientation[0, b],
+                                      bodies.scale[b])
+        except BaseException:
+            world.close()
+            raise
+    return world
+
+
 class TrialEnv:
     """The environment side of a trial: world, perception, tracking and the outcome checks (no decisions)."""
 
-    def __init__(self, spec: TrialSpec, rollout: Rollout, *, gui: bool = False, fov_deg: float | None = None):
+    def __init__(self, spec: TrialSpec, rollout: Rollout, *, gui: bool = False, fov_deg: float | None = None,
+                 world: PyBulletWorld | None = None):
         sc = spec.scenario
         self.spec = spec
         self.rollout = rollout
@@ -184,18 +205,8 @@ class TrialEnv:
             raise ConfigError("rollout", f"covers {rollout.horizon:g} s, the trial needs {need * self.dt:g} s",
                               rollout.n_steps)
         self.radii = rollout.radii
-        self.world = PyBulletWorld(dims=self.dims, arena_size=sc.world.size, flight_height=sc.world.flight_height,
-                                   mav_radius=sc.drone.radius, obstacle_radii=rollout.radii,
-                                   static_bodies=rollout.static, mav_urdf=str(sc.mav_urdf_path()), gui=gui)
-        bodies = rollout.bodies
-        if bodies is not None:   # imported world: static bodies by their real shapes, moving ones as spheres
-            try:
-                for b in np.flatnonzero(~bodies.moving).tolist():
-                    self.world.add_static_urdf(bodies.urdf[b], bodies.position[0, b], bodies.orientation[0, b],
-                                               bodies.scale[b])
-            except BaseException:
-                self.world.close()
-                raise
+        self.owns_world = world is None
+        self.world = make_world(spec, rollout, gui=gui) if world is None else world
         lo = np.zeros(self.dims)
         hi = np.asarray(sc.world.size, dtype=float)
         self.bounds = (lo, hi)
@@ -211,8 +222,9 @@ class TrialEnv:
         self.swept = sc.collision_check == "swept"
 
     def close(self) -> None:
-        """Disconnect the PyBullet client."""
-        self.world.close()
+        """Disconnect the PyBullet client (unless the world was lent by the caller)."""
+        if self.owns_world:
+            self.world.close()
 
     def check(self, k: int, p0: np.ndarray, p1: np.ndarray) -> tuple[Outcome | None, float]:
         """Step (7) collision part for the move p0 (t_k) -> p1 (t_k+1): (static/dynamic outcome or None, clearance m)."""
@@ -250,17 +262,18 @@ SPLITS = ("wall_world_s", "wall_rays_s", "wall_tracking_s", "wall_planning_s", "
 
 
 def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_path: str | Path | None = None,
-              gui_sleep: float = 0.0, profile: dict | None = None) -> TrialResult:
+              gui_sleep: float = 0.0, profile: dict | None = None, world: PyBulletWorld | None = None) -> TrialResult:
     """Fly one trial and return its TrialResult.
 
     trace_path: save a per-step trace .npz there. profile: if a dict is given, it receives per-step lists of each
     timing split (SPLITS, s) and "candidates_built" (the planner's ``last_candidates_built`` when it planned).
+    world: a PyBulletWorld from make_world for this map to reuse (batch workers); it is left open.
     """
     wall0 = time.perf_counter()
     sc = spec.scenario
     ctx, planner, gaze = build_planners(spec)
     fov = getattr(gaze, "fov_deg", None)
-    env = TrialEnv(spec, rollout, gui=gui, fov_deg=fov)
+    env = TrialEnv(spec, rollout, gui=gui, fov_deg=fov, world=world)
     timings = {"wall_setup_s": time.perf_counter() - wall0, **{name: 0.0 for name in SPLITS}}
     step_walls: list[float] = []
     if profile is not None:

@@ -203,6 +203,26 @@ def cache_dir() -> Path:
     return Path(base) / "pbdyn"
 
 
+def rollout_file(scenario: Scenario, spec: MapSpec, horizon: float | None = None, *,
+                 fallback_dir: str | Path | None = None) -> tuple[str, Path]:
+    """(rollout key, path of its .npz file): the cached file, built and written first if missing (into
+    ``fallback_dir``/.pbdyn-rollouts when the cache folder is not writable)."""
+    horizon = default_horizon(scenario) if horizon is None else float(horizon)
+    key = rollout_key(scenario, spec, horizon)
+    path = cache_dir() / "rollouts" / f"{key}.npz"
+    if path.is_file():
+        return key, path
+    ro = build_rollout(scenario, spec, horizon)
+    try:
+        ro.save(path)
+    except OSError:
+        if fallback_dir is None:
+            raise
+        path = Path(fallback_dir) / ".pbdyn-rollouts" / f"{key}.npz"
+        ro.save(path)
+    return key, path
+
+
 def get_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None, *, use_cache: bool = True) -> Rollout:
     """The map's rollout, from the on-disk cache when present (keyed by rollout_key), else built and cached."""
     horizon = default_horizon(scenario) if horizon is None else float(horizon)

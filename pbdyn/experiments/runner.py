@@ -1,0 +1,312 @@
+"""The batch runner (`pbdyn batch`): every trial and map metric of a scenario, in parallel, into a results store.
+
+The coordinator (this process) enumerates the experiment, skips what the store already holds, builds each map's
+rollout once (cached .npz files, shipped to workers by path; to Dask workers as bytes, scattered once per map),
+submits trials and map-metric tasks to a process pool (spawn: no worker is ever forked from a process holding a
+PyBullet client) or to a Dask cluster through its concurrent.futures executor, and is the only writer of the
+store: rows are inserted with INSERT OR IGNORE and committed at least once a second, so killing the coordinator or
+a worker loses no committed trial and a re-run completes the rest. A trial that raises becomes an "error" row.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import sys
+import time
+from collections.abc import Iterator
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+
+from pbdyn import __version__
+from pbdyn.config import Scenario, canonical_json
+from pbdyn.errors import ConfigError, PbdynError
+from pbdyn.experiments.store import ResultsStore
+from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialTask, enumerate_trials, run_map_task,
+                                     run_trial_task)
+from pbdyn.world.maps import enumerate_maps
+from pbdyn.world.rollout import default_horizon, rollout_file
+
+COMMIT_INTERVAL_S = 1.0
+MAX_POOL_RESTARTS = 3
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """workers: local processes (default: CPU count); scheduler: a Dask scheduler address ("tcp://host:8786") or
+    a dask.distributed Client; limit: fly only the first N trials of the enumeration; extend: accept a scenario
+    that adds grid values, planners, MAV speeds or maps to the one in the store; metrics: compute each map's
+    metrics (METRIC_SET); progress: a progress line on stderr."""
+
+    workers: int | None = None
+    scheduler: object = None
+    limit: int | None = None
+    extend: bool = False
+    metrics: bool = True
+    progress: bool = True
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What a batch run did: trials in the experiment (after --limit), already stored, run now, error rows."""
+
+    total: int
+    skipped: int
+    ran: int
+    errors: int
+    maps_computed: int
+    wall_time_s: float
+
+
+# ------------------------------------------------------------------------------------------------ --extend
+_GROWABLE = {("obstacles", "count"), ("obstacles", "radius"), ("obstacles", "speed"), ("drone", "v_max"),
+             ("planners",)}
+
+
+def _diff(old, new, path=()) -> Iterator[tuple[tuple, object, object]]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        for k in sorted(set(old) | set(new)):
+            yield from _diff(old.get(k), new.get(k), path + (k,))
+    elif old != new:
+        yield path, old, new
+
+
+def scenario_changes(old: dict, new: dict) -> tuple[list[str], list[str]]:
+    """(allowed, refused) changes from the stored resolved scenario ``old`` to ``new``: grid values, planners and
+    MAV speeds may be added (old ones kept, in order), maps_per_setup may grow; anything else is refused."""
+    allowed, refused = [], []
+    for path, a, b in _diff(old, new):
+        name = ".".join(map(str, path))
+        if path in _GROWABLE and isinstance(a, list) and isinstance(b, list) \
+                and [canonical_json(x) for x in b[:len(a)]] == [canonical_json(x) for x in a]:
+            allowed.append(name)
+        elif path == ("obstacles", "maps_per_setup") and isinstance(a, int) and isinstance(b, int) and b > a:
+            allowed.append(name)
+        else:
+            refused.append(name)
+    return allowed, refused
+
+
+def check_scenario(store: ResultsStore, scenario: Scenario, extend: bool) -> None:
+    """Record the scenario in a new store; for an existing one require the same scenario, or with ``extend`` only
+    additions (ConfigError naming SCENARIO otherwise)."""
+    doc = {"name": scenario.name, **scenario.to_dict()}
+    new_json = canonical_json(doc)
+    old_json = store.get_meta("scenario")
+    if old_json is None:
+        store.set_meta("scenario", new_json)
+        return
+    if old_json == new_json:
+        return
+    import json
+
+    allowed, refused = scenario_changes(json.loads(old_json), doc)
+    if refused:
+        raise ConfigError("SCENARIO", f"differs from the scenario {store.path.name} was made with in "
+                          f"{', '.join(refused)}; --extend only accepts added grid values, planners, MAV speeds or "
+                          "maps (use a new --out file)", scenario.source or scenario.name)
+    if not extend:
+        raise ConfigError("SCENARIO", f"adds to the scenario {store.path.name} was made with ({', '.join(allowed)});"
+                          " pass --extend to run the additions", scenario.source or scenario.name)
+    store.set_meta("scenario", new_json)
+
+
+# ------------------------------------------------------------------------------------------------ progress
+class Progress:
+    """A progress line on stderr: done/total, trials per second and ETA; per finished trial on a terminal, every
+    5 s otherwise."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled = total, enabled and total > 0
+        self.done = 0
+        self.t0 = time.perf_counter()
+        self.tty = sys.stderr.isatty()
+        self.last = 0.0
+
+    def step(self, n: int = 1) -> None:
+        self.done += n
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if self.tty or now - self.last >= 5.0 or self.done == self.total:
+            self.last = now
+            rate = self.done / max(now - self.t0, 1e-9)
+            eta = (self.total - self.done) / rate if rate > 0 else float("inf")
+            line = f"pbdyn batch: {self.done}/{self.total} trials, {rate:.2f}/s, ETA {_fmt_s(eta)}"
+            sys.stderr.write(("\r" + line) if self.tty else line + "\n")
+            if self.tty and self.done == self.total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _fmt_s(s: float) -> str:
+    if s == float("inf"):
+        return "?"
+    s = int(round(s))
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+
+
+# ------------------------------------------------------------------------------------------------ executors
+class _Pool:
+    """A process pool (spawn context, BLAS/OpenMP threads = 1 in workers) or a Dask client's executor."""
+
+    def __init__(self, workers: int, scheduler):
+        self.client = None
+        self.own_client = False
+        self.workers = workers
+        if scheduler is not None:
+            from dask.distributed import Client
+
+            if isinstance(scheduler, str):
+                self.client = Client(scheduler)
+                self.own_client = True
+            else:
+                self.client = scheduler
+            self.executor = self.client.get_executor(pure=False)
+            self.scattered: dict[str, object] = {}
+        else:
+            self._start()
+
+    def _start(self) -> None:
+        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+        self.executor = cf.ProcessPoolExecutor(max_workers=self.workers,
+                                               mp_context=multiprocessing.get_context("spawn"))
+
+    @property
+    def dask(self) -> bool:
+        return self.client is not None
+
+    def restart(self) -> None:
+        self.executor.shutdown(wait=False, cancel_futures=True)
+        self._start()
+
+    def submit(self, fn, task, key: str, path: Path):
+        """Submit fn(task) -- for Dask fn(task, data) with the rollout's bytes scattered once per map."""
+        if not self.dask:
+            return self.executor.submit(fn, task)
+        if key not in self.scattered:
+            self.scattered[key] = self.client.scatter(path.read_bytes(), broadcast=True)
+        return self.executor.submit(fn, task, self.scattered[key])
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=True, cancel_futures=True)
+        if self.own_client:
+            self.client.close()
+
+
+def _default_workers() -> int:
+    return max(1, os.cpu_count() or 1)
+
+
+def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions(),
+              command: str = "") -> BatchSummary:
+    """Run (or resume, or extend) the experiment of ``scenario`` into the results store ``out``."""
+    t0 = time.perf_counter()
+    workers = options.workers if options.workers is not None else _default_workers()
+    if not isinstance(workers, int) or workers < 1:
+        raise ConfigError("--workers", "must be an integer >= 1", workers)
+    if options.limit is not None and (not isinstance(options.limit, int) or options.limit < 1):
+        raise ConfigError("--limit", "must be an integer >= 1", options.limit)
+    maps = enumerate_maps(scenario)
+    trials = enumerate_trials(scenario, maps)
+    if options.limit is not None:
+        trials = trials[: options.limit]
+    store = ResultsStore.create(out)
+    try:
+        check_scenario(store, scenario, options.extend)
+        done = store.finished_keys()
+        pending = [t for t in trials if t[0] not in done]
+        used_maps = {t[1].map_id: t[1] for t in trials}
+        need_metrics = [m for mid, m in used_maps.items() if mid not in store.maps_with_metrics()] \
+            if options.metrics else []
+        run_id = store.start_run(__version__, canonical_json(scenario.to_dict()), command,
+                                 "dask" if options.scheduler is not None else str(workers))
+        if not pending and not need_metrics:
+            store.end_run(run_id)
+            return BatchSummary(len(trials), len(trials), 0, 0, 0, time.perf_counter() - t0)
+        horizon = default_horizon(scenario)
+        files: dict[str, tuple[str, Path]] = {}
+        for m in list({t[1].map_id: t[1] for t in pending}.values()) + need_metrics:
+            if m.map_id not in files:
+                files[m.map_id] = rollout_file(scenario, m, horizon, fallback_dir=Path(out).parent)
+        ran, errors, maps_done = _execute(store, scenario, pending, need_metrics, files, workers, options)
+        store.end_run(run_id)
+        return BatchSummary(len(trials), len(trials) - len(pending), ran, errors, maps_done,
+                            time.perf_counter() - t0)
+    finally:
+        store.close()
+
+
+def _execute(store: ResultsStore, scenario: Scenario, pending: list, need_metrics: list, files: dict, workers: int,
+             options: BatchOptions) -> tuple[int, int, int]:
+    pool = _Pool(workers, options.scheduler)
+    progress = Progress(len(pending), options.progress)
+    ran = errors = maps_done = 0
+    remaining_trials = {t[0]: t for t in pending}
+    remaining_maps = {m.map_id: m for m in need_metrics}
+    last_commit = time.perf_counter()
+    restarts = 0
+    try:
+        while remaining_trials or remaining_maps:
+            queue = [("map", m) for m in remaining_maps.values()] + [("trial", t) for t in remaining_trials.values()]
+            in_flight: dict = {}
+            window = 4 * workers if not pool.dask else max(64, 8 * workers)
+            it = iter(queue)
+            try:
+                while True:
+                    while len(in_flight) < window:
+                        item = next(it, None)
+                        if item is None:
+                            break
+                        fut = _submit(pool, scenario, item, files)
+                        in_flight[fut] = item
+                    if not in_flight:
+                        break
+                    finished, _ = cf.wait(list(in_flight), return_when=cf.FIRST_COMPLETED)
+                    for fut in finished:
+                        kind, item = in_flight.pop(fut)
+                        result = fut.result()
+                        if kind == "map":
+                            store.add_map(result)
+                            remaining_maps.pop(item.map_id, None)
+                            maps_done += 1
+                        else:
+                            key, row, err = result
+                            store.add_trials([(key, row, err)])
+                            remaining_trials.pop(key, None)
+                            ran += 1
+                            errors += err is not None
+                            progress.step()
+                    now = time.perf_counter()
+                    if now - last_commit >= COMMIT_INTERVAL_S:
+                        store.commit()
+                        last_commit = now
+            except BrokenProcessPool:
+                store.commit()
+                restarts += 1
+                if restarts > MAX_POOL_RESTARTS:
+                    raise PbdynError(f"worker processes died {restarts} times; {len(remaining_trials)} trials not "
+                                     "run (re-run the same command to resume)") from None
+                sys.stderr.write(f"pbdyn batch: a worker died; restarting the pool ({restarts}/"
+                                 f"{MAX_POOL_RESTARTS}) and resuming\n")
+                pool.restart()
+        store.commit()
+    finally:
+        store.commit()
+        pool.close()
+    return ran, errors, maps_done
+
+
+def _submit(pool: _Pool, scenario: Scenario, item, files: dict):
+    kind, obj = item
+    if kind == "map":
+        key, path = files[obj.map_id]
+        return pool.submit(run_map_task, MapTask(scenario, obj, RolloutRef(key, str(path)), METRIC_SET, "auto"),
+                           key, path)
+    key, m, entry, v, start, goal = obj
+    rkey, path = files[m.map_id]
+    return pool.submit(run_trial_task, TrialTask(key, scenario, m, entry, v, start, goal, RolloutRef(rkey, str(path))),
+                       rkey, path)

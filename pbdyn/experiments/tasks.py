@@ -1,0 +1,181 @@
+"""An experiment's trials and maps as small picklable tasks, and the functions workers run on them.
+
+An experiment = maps x planner pairs x MAV speeds x start/goal pairs (DESIGN.md "Maps and seeds"): the trial key is
+the trial's config hash (sha256 of its resolved, value-only description), so adding a grid value, a planner, a
+speed or maps never changes an existing key. Workers receive the scenario, the map spec and a rollout reference
+(a file path, or the .npz bytes for cluster workers without the coordinator's disk); they keep the last map's
+rollout and PyBullet world and reuse them for the next trial of the same map (one client per worker).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import traceback
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbdyn.config import PlannerEntry, Scenario
+from pbdyn.world.maps import MapSpec
+
+METRIC_SET = ("density", "traversability", "dynamic_traversability", "vo_feasibility", "vo_feasibility_dense",
+              "survivability", "survivability_dense", "global_survivability")
+"""The metrics of the thesis' table 4-5, computed once per map."""
+
+
+@dataclass(frozen=True)
+class RolloutRef:
+    """Where a worker finds a map's rollout: ``path`` (an .npz file) or ``data`` (its bytes); ``key`` identifies it."""
+
+    key: str
+    path: str = ""
+    data: bytes = b""
+
+
+@dataclass(frozen=True)
+class TrialTask:
+    """One trial to fly."""
+
+    key: str
+    scenario: Scenario
+    map_spec: MapSpec
+    planner: PlannerEntry
+    v_max: float
+    start: tuple[float, ...]
+    goal: tuple[float, ...]
+    rollout: RolloutRef
+
+
+@dataclass(frozen=True)
+class MapTask:
+    """One map's metrics to compute."""
+
+    scenario: Scenario
+    map_spec: MapSpec
+    rollout: RolloutRef
+    metrics: tuple[str, ...] = METRIC_SET
+    backend: str = "auto"
+
+
+def trial_spec(scenario: Scenario, map_spec: MapSpec, planner: PlannerEntry, v_max: float, start, goal):
+    """The TrialSpec of one experiment cell."""
+    from pbdyn.sim.trial import TrialSpec
+
+    return TrialSpec(scenario, map_spec, planner, float(v_max), tuple(map(float, start)), tuple(map(float, goal)))
+
+
+def enumerate_trials(scenario: Scenario, maps: list[MapSpec]) -> list[tuple[str, MapSpec, PlannerEntry, float,
+                                                                            tuple, tuple]]:
+    """Every trial of the experiment as (key, map, planner entry, v_max, start, goal), in the order maps (file
+    order) x planner entries x MAV speeds x start/goal pairs."""
+    cands = scenario.task.candidates
+    out = []
+    for m in maps:
+        for entry in scenario.planners:
+            for v in scenario.drone.v_max:
+                for i, j in scenario.task.pairs():
+                    spec = trial_spec(scenario, m, entry, v, cands[i], cands[j])
+                    out.append((spec.config_hash, m, entry, float(v), tuple(cands[i]), tuple(cands[j])))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ worker side
+_CACHE: dict = {"rollout": (None, None), "world": (None, None)}
+
+
+def _limit_threads() -> None:
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def _rollout(ref: RolloutRef, data: bytes | None = None):
+    from pbdyn.world.rollout import Rollout
+
+    key, ro = _CACHE["rollout"]
+    if key != ref.key:
+        ro = Rollout.load(io.BytesIO(data) if data is not None else ref.path if ref.path else io.BytesIO(ref.data))
+        _CACHE["rollout"] = (ref.key, ro)
+    return ro
+
+
+def _world(task: TrialTask, spec, ro):
+    from pbdyn.sim.trial import make_world
+
+    key = (task.rollout.key, task.scenario.world, task.scenario.drone.radius, task.scenario.drone.urdf,
+           task.scenario.source)
+    old_key, world = _CACHE["world"]
+    if old_key != key:
+        if world is not None:
+            world.close()
+        _CACHE["world"] = (None, None)
+        world = make_world(spec, ro)
+        _CACHE["world"] = (key, world)
+    return world
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def error_row(task: TrialTask, message: str) -> dict:
+    """The result row of a trial that raised: outcome "error" with the message, the task's identifying fields."""
+    m = task.map_spec
+    return {"gaze": task.planner.gaze, "planner": task.planner.trajectory, "map_index": m.index,
+            "map_id": m.map_id, "map_seed": m.seed, "map_key": m.key, "mav_speed": task.v_max,
+            "obstacle_count": int(m.setup.get("count", 0)), "obstacle_radius": m.setup.get("radius"),
+            "obstacle_speed": m.setup.get("speed"), "start": list(task.start), "goal": list(task.goal),
+            "outcome": "error", "reason": message, "planner_label": task.planner.label,
+            "scenario": task.scenario.name, "config_hash": task.key}
+
+
+def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dict, str | None]:
+    """Fly one trial in this worker: (trial key, TrialResult dict, None), or an "error" row and its message if the
+    trial raised (the batch goes on). ``data``: the rollout's .npz bytes (cluster workers), else task.rollout."""
+    _limit_threads()
+    from pbdyn.sim.trial import run_trial
+
+    try:
+        ro = _rollout(task.rollout, data)
+        spec = trial_spec(task.scenario, task.map_spec, task.planner, task.v_max, task.start, task.goal)
+        world = _world(task, spec, ro)
+        try:
+            res = run_trial(spec, ro, world=world)
+        except BaseException:
+            _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state
+            world.close()
+            raise
+        return task.key, res.to_dict(), None
+    except Exception as exc:  # any failure of a trial is recorded as an "error" row, never stops the batch
+        msg = _one_line(exc)
+        tb = traceback.extract_tb(exc.__traceback__)
+        if tb:
+            msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno})"
+        return task.key, error_row(task, msg), msg
+
+
+def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
+    """Compute one map's metrics in this worker: a maps-table row (metrics, their compute times, the map's mean
+    obstacle speed and radius)."""
+    _limit_threads()
+    from pbdyn.metrics.cached import resolve_backend
+    from pbdyn.metrics.registry import compute
+
+    ro = _rollout(task.rollout, data)
+    backend = resolve_backend(task.scenario, task.backend)
+    metrics, times = {}, {}
+    for name in task.metrics:
+        params = {"mav_radius": task.scenario.drone.radius}
+        if name in ("survivability", "survivability_dense", "global_survivability"):
+            params["backend"] = backend
+        res = compute(ro, name, **params)
+        metrics[name] = res.value
+        times[name] = res.wall_time_s
+    speeds = np.linalg.norm(ro.velocities[0], axis=-1) if ro.n_obstacles else np.zeros(0)
+    m = task.map_spec
+    return {"map_id": m.map_id, "map_index": m.index, "map_key": m.key, "setup_json": m.setup, "seed": m.seed,
+            "rollout_key": task.rollout.key, "dataset": task.scenario.name,
+            "mean_obstacle_speed": float(speeds.mean()) if speeds.size else 0.0,
+            "mean_obstacle_radius": float(ro.radii.mean()) if ro.n_obstacles else 0.0,
+            "metrics_json": metrics, "metric_times_json": times, "backend": backend}
