@@ -192,7 +192,10 @@ class _Pool:
         return self.executor.submit(fn, task, self.scattered[key])
 
     def close(self) -> None:
-        self.executor.shutdown(wait=True, cancel_futures=True)
+        if self.dask:
+            self.executor.shutdown(wait=True)
+        else:
+            self.executor.shutdown(wait=True, cancel_futures=True)
         if self.own_client:
             self.client.close()
 
