@@ -17,8 +17,10 @@ $(STAMP): setup.cfg pyproject.toml
 sysdeps:
 	@bash tools/install_sysdeps.sh
 
+## The first study: a resumable batch on the quickstart scenario, its maps' metrics, the evaluation table and figures.
 demo: $(STAMP)
-	$(VENV)/bin/pbdyn demo scenarios/quickstart.toml
+	$(VENV)/bin/pbdyn batch scenarios/quickstart.toml --out results/quickstart.sqlite
+	$(VENV)/bin/pbdyn evaluate results/quickstart.sqlite --plots results/quickstart-figures
 
 test: $(STAMP)
 	$(PY) -m pytest -q -p no:cacheprovider

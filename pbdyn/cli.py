@@ -92,6 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     bat.add_argument("--no-metrics", action="store_true", help="skip the maps' difficulty metrics")
     bat.add_argument("--json", action="store_true", help="print a JSON summary")
 
+    ev = sub.add_parser("evaluate", help="success rates and how well each metric ranks maps (table 4-5), figures")
+    ev.add_argument("results", nargs="+", help="results store(s); the first is the reference (controlled) set")
+    ev.add_argument("--plots", help="write the PNG figures into this folder")
+    ev.add_argument("--bootstrap", type=_nonneg_int, default=1000, help="bootstrap draws for the SRCC CIs (1000)")
+    ev.add_argument("--json", action="store_true", help="print the whole report as one JSON document")
+
     exp = sub.add_parser("export", help="export a results store's trials")
     exp.add_argument("results", help="results store")
     fmt = exp.add_mutually_exclusive_group(required=True)
@@ -223,8 +229,21 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from pbdyn.experiments.evaluate import evaluate_stores
+
+    report, table, figures = evaluate_stores(args.results, plots=args.plots, n_boot=args.bootstrap)
+    if args.json:
+        sys.stdout.write(json.dumps(report, sort_keys=True, allow_nan=False) + "\n")
+    else:
+        sys.stdout.write(table.rstrip("\n") + "\n")
+    if figures:
+        sys.stderr.write(f"pbdyn evaluate: {len(figures)} figures in {args.plots}\n")
+    return 0
+
+
 COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
-            "export": cmd_export}
+            "export": cmd_export, "evaluate": cmd_evaluate}
 
 
 def main(argv: list[str] | None = None) -> int:

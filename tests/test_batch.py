@@ -261,3 +261,24 @@ def test_bad_store_inputs_are_one_line_errors(tmp_path, reference):
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "RESULTS" in res.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_evaluate_prints_the_table_writes_figures_and_json(reference, tmp_path):
+    _, out = reference
+    res = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), "--plots", str(tmp_path / "fig"), "--bootstrap", "50"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    for name in ("survivability", "density", "vo_feasibility", "setup_model", "batch_small"):
+        assert name in res.stdout
+    pngs = sorted((tmp_path / "fig").glob("*.png"))
+    assert pngs and all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+    res = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), "--json", "--bootstrap", "50"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert set(doc["metrics"]) >= {"survivability", "survivability_dense", "global_survivability", "setup_model"}
+    per_map = doc["success"]
+    assert per_map
+    missing = subprocess.run(pbdyn_cmd() + ["evaluate", str(tmp_path / "none.sqlite")], capture_output=True,
+                             text=True, timeout=60)
+    assert missing.returncode == 2 and "RESULTS: file not found" in missing.stderr

@@ -1,0 +1,148 @@
+"""PNG figures of an evaluation (matplotlib, Agg canvas; no pyplot state): metric vs success per planner pair with
+1-sigma bands (thesis figs 4-5..4-12), success/deadlock vs survivability per trajectory and per gaze planner
+(figs 5-9, 5-10), success vs the velocity ratio v_obs / v_max (fig 5-14). Controlled-dataset maps only.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from pbdyn.analysis.cv import LEVELS, difficulty_level, level_stats
+from pbdyn.analysis.regression import setup_features
+from pbdyn.analysis.report import difficulty_table
+from pbdyn.analysis.success import grouped_rate, success_table, trial_arrays
+
+_CENTRES = np.arange(LEVELS) + 0.5
+
+
+def _figure(w: float = 7.0, h: float = 4.5, ncols: int = 1) -> tuple[Figure, list]:
+    fig = Figure(figsize=(w, h), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = [fig.add_subplot(1, ncols, i + 1) for i in range(ncols)]
+    return fig, axes
+
+
+def _save(fig: Figure, path: Path, out: list[Path]) -> None:
+    fig.savefig(path, dpi=90, format="png", metadata={"Software": None})
+    out.append(path)
+
+
+def _colours(n: int) -> list:
+    from matplotlib import colormaps
+    cmap = colormaps["tab20" if n > 10 else "tab10"]
+    return [cmap(i % cmap.N) for i in range(n)]
+
+
+def _legend(ax, n: int) -> None:
+    if n:
+        ax.legend(fontsize=6 if n > 8 else 8, ncol=2 if n > 8 else 1, loc="best")
+
+
+def _metric_figure(name: str, d: np.ndarray, rate: np.ndarray, pairs: tuple[str, ...], path: Path,
+                   out: list[Path]) -> None:
+    fig, (ax,) = _figure()
+    cnt, mu, sd = level_stats(d, rate)
+    for j, (pair, col) in enumerate(zip(pairs, _colours(len(pairs)))):
+        ok = cnt[:, j] > 0
+        if not ok.any():
+            continue
+        ax.scatter(d, rate[:, j], s=4, color=col, alpha=0.25, linewidths=0)
+        ax.plot(_CENTRES[ok], mu[ok, j], "-o", ms=3, color=col, label=pair)
+        ax.fill_between(_CENTRES[ok], (mu - sd)[ok, j], (mu + sd)[ok, j], color=col, alpha=0.15, linewidth=0)
+    ax.set(xlabel=f"{name} difficulty (normalised, eq. 4-10/4-11)", ylabel="success rate", xlim=(0, LEVELS),
+           ylim=(-0.05, 1.05), title=f"{name} vs success rate (mean +- 1 sigma per level)")
+    _legend(ax, len(pairs))
+    _save(fig, path, out)
+
+
+def _group_lines(ax, group: np.ndarray, n_groups: int, labels: tuple[str, ...], hit: np.ndarray, lev: np.ndarray,
+                 keep: np.ndarray, ylabel: str) -> None:
+    g = np.where(keep & (lev >= 0), group * LEVELS + lev, -1)
+    p, se, n = grouped_rate(g, hit, n_groups * LEVELS)
+    p, se, n = (a.reshape(n_groups, LEVELS) for a in (p, se, n))
+    for i, (lab, col) in enumerate(zip(labels, _colours(n_groups))):
+        ok = n[i] > 0
+        if ok.any():
+            ax.errorbar(_CENTRES[ok], p[i, ok], yerr=se[i, ok], fmt="-o", ms=3, capsize=2, color=col, label=lab)
+    ax.set(xlabel="survivability difficulty level", ylabel=ylabel, xlim=(0, LEVELS), ylim=(-0.05, 1.05))
+    _legend(ax, n_groups)
+
+
+def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[Path]:
+    """Write the evaluation figures as PNG files into ``out_dir`` (created) and return their paths:
+    metric_<name>.png per report metric (figs 4-5..4-12), survivability_trajectory.png (fig 5-9),
+    survivability_gaze.png (fig 5-10) when the report has a sigma-band metric, velocity_ratio.png (fig 5-14).
+    ``report`` is the dict from pbdyn.analysis.report.evaluate on the same trials and maps."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    map_ids, diff = difficulty_table(maps, report)
+    ta = trial_arrays(trials, map_ids)
+    st = success_table(ta)
+    c = np.array([str(maps[m].get("dataset", "")) == report["controlled_dataset"] for m in map_ids])
+    out: list[Path] = []
+
+    for name, d in diff.items():
+        _metric_figure(name, d[c], st.rate[c], st.pairs, out_dir / f"metric_{name}.png", out)
+
+    on_c = c[ta.map_idx] & ta.flown
+    success = ta.is_outcome("success")
+    band = (report.get("sigma_bands") or {}).get("metric")
+    if band in diff:
+        lev = np.where(c, difficulty_level(diff[band]), -1)[ta.map_idx]
+        nt = len(ta.trajectories)
+        fig, (a1, a2) = _figure(12.0, 4.5, 2)
+        _group_lines(a1, ta.trajectory_idx, nt, ta.trajectories, success, lev, on_c, "success rate")
+        a1.set_title("success rate per trajectory planner")
+        g = np.where(on_c & (lev >= 0), ta.trajectory_idx * LEVELS + lev, -1)
+        ps, _, n = grouped_rate(g, success, nt * LEVELS)
+        pdl, _, _ = grouped_rate(g, ta.is_outcome("deadlock"), nt * LEVELS)
+        ps, pdl, n = (a.reshape(nt, LEVELS) for a in (ps, pdl, n))
+        width = 0.8 / max(nt, 1)
+        for i, (lab, col) in enumerate(zip(ta.trajectories, _colours(nt))):
+            ok = n[i] > 0
+            x = np.arange(LEVELS)[ok] + (i + 0.5) * width + 0.1
+            a2.bar(x, ps[i, ok], width, color=col, label=f"{lab} success")
+            a2.bar(x, pdl[i, ok], width, bottom=ps[i, ok], color=col, alpha=0.4, hatch="//",
+                   label=f"{lab} deadlock")
+        a2.set(xlabel="survivability difficulty level", ylabel="rate", xlim=(0, LEVELS), ylim=(0, 1.05),
+               title="success (solid) and deadlock (hatched) rates")
+        _legend(a2, 2 * nt)
+        fig.suptitle(f"Trajectory planners vs {band} (fig. 5-9)")
+        _save(fig, out_dir / "survivability_trajectory.png", out)
+
+        fig, axes = _figure(4.5 * nt, 4.0, nt)
+        for i, (ax, traj) in enumerate(zip(axes, ta.trajectories)):
+            _group_lines(ax, ta.gaze_idx, len(ta.gazes), ta.gazes, success, lev, on_c & (ta.trajectory_idx == i),
+                         "success rate")
+            ax.set_title(traj)
+        fig.suptitle(f"Gaze planners vs {band} (fig. 5-10)")
+        _save(fig, out_dir / "survivability_gaze.png", out)
+
+    v_obs = np.array([setup_features(maps[m])[2] for m in map_ids])[ta.map_idx]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.round(v_obs / ta.mav_speed, 3)
+    keep = on_c & np.isfinite(ratio)
+    fig, (a1, a2) = _figure(12.0, 4.5, 2)
+    cols = _colours(len(ta.pairs))
+    for a, x, sel, xl in ((a1, ratio, keep, "velocity ratio v_obs / v_max"),
+                          (a2, v_obs, keep & (np.abs(ratio - 1.0) < 1e-6), "obstacle speed v_obs [m/s] at ratio 1")):
+        xs, xi = np.unique(np.where(sel, x, np.inf), return_inverse=True)
+        grp = np.where(sel, ta.pair_idx * len(xs) + xi.reshape(-1), -1)
+        p, se, n = (v.reshape(len(ta.pairs), len(xs)) for v in grouped_rate(grp, success, len(ta.pairs) * len(xs)))
+        for j, pair in enumerate(ta.pairs):
+            ok = n[j] > 0
+            if ok.any():
+                a.errorbar(xs[ok], p[j, ok], yerr=se[j, ok], fmt="-o", ms=3, capsize=2, color=cols[j], label=pair)
+        if not (n > 0).any():
+            a.text(0.5, 0.5, "no trials", ha="center", va="center", transform=a.transAxes)
+        a.set(xlabel=xl, ylabel="success rate", ylim=(-0.05, 1.05))
+        _legend(a, len(ta.pairs))
+    a1.set_title("success vs velocity ratio")
+    a2.set_title("same ratio (1), different obstacle speeds")
+    fig.suptitle("Velocity ratio (fig. 5-14)")
+    _save(fig, out_dir / "velocity_ratio.png", out)
+    return out

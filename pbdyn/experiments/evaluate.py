@@ -1,0 +1,61 @@
+"""`pbdyn evaluate`: results stores -> the analysis input (pbdyn.analysis.report) -> table, JSON and figures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from pbdyn.errors import ConfigError
+from pbdyn.experiments.store import ResultsStore
+
+
+def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], str]:
+    """(trials, maps, controlled dataset name) from one or more stores: the first store's scenario is the
+    reference (controlled) set, the others are compared with it (e.g. the uncontrolled sets). Map ids are prefixed
+    with their store's scenario name so that maps of different stores never collide."""
+    trials: list[dict] = []
+    maps: dict[str, dict] = {}
+    names: list[str] = []
+    for path in paths:
+        store = ResultsStore.open(path)
+        try:
+            rows, store_maps, raw = store.results(), store.maps(), store.get_meta("scenario")
+        finally:
+            store.close()
+        name = (json.loads(raw).get("name") if raw else None) or Path(path).stem
+        if name in names:
+            raise ConfigError("RESULTS", f"two stores hold the same scenario {name!r}", str(path))
+        names.append(name)
+        for mid, m in store_maps.items():
+            maps[f"{name}/{mid}"] = {"setup": m["setup"], "dataset": name, "metrics": m["metrics"],
+                                     "metric_times": m["metric_times"],
+                                     "mean_obstacle_speed": m["mean_obstacle_speed"],
+                                     "mean_obstacle_radius": m["mean_obstacle_radius"]}
+        for r in rows:
+            mid = f"{name}/{r.get('map_id')}"
+            if mid not in maps:   # a store run with --no-metrics: the map without metrics
+                maps[mid] = {"setup": {"count": r.get("obstacle_count"), "radius": r.get("obstacle_radius"),
+                                       "speed": r.get("obstacle_speed")}, "dataset": name, "metrics": {},
+                             "metric_times": {}, "mean_obstacle_speed": None, "mean_obstacle_radius": None}
+            trials.append({"map_id": mid, "pair": r.get("planner_label"), "trajectory": r.get("planner"),
+                           "gaze": r.get("gaze"), "mav_speed": r.get("mav_speed"), "outcome": r.get("outcome"),
+                           "obstacle_count": r.get("obstacle_count"), "obstacle_radius": r.get("obstacle_radius"),
+                           "obstacle_speed": r.get("obstacle_speed"), "dataset": name})
+    if not trials:
+        raise ConfigError("RESULTS", "holds no trials", [str(p) for p in paths])
+    return trials, maps, names[0]
+
+
+def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None, n_boot: int = 1000,
+                    seed: int = 0) -> tuple[dict, str, list[Path]]:
+    """(report dict, formatted table, figure paths) of the stores (see load_results)."""
+    from pbdyn.analysis.report import evaluate, format_table
+
+    trials, maps, controlled = load_results(paths)
+    report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
+    figures: list[Path] = []
+    if plots is not None:
+        from pbdyn.analysis.plots import write_plots
+
+        figures = write_plots(trials, maps, report, Path(plots))
+    return report, format_table(report), figures
