@@ -38,7 +38,7 @@ def _colours(n: int) -> list:
 
 
 def _legend(ax, n: int) -> None:
-    if n:
+    if n and ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=6 if n > 8 else 8, ncol=2 if n > 8 else 1, loc="best")
 
 

@@ -57,22 +57,29 @@ class LinearFit:
     n: int
 
     def predict(self, x: np.ndarray) -> np.ndarray:
-        """b0 + X b for rows x [rows, features]."""
+        """b0 + X b for rows x [rows, features] (features with a NaN, i.e. not identifiable, coefficient count 0)."""
         x = np.asarray(x, float)
-        return self.coefficients[0] + x @ self.coefficients[1:]
+        return self.coefficients[0] + x @ np.nan_to_num(self.coefficients[1:], nan=0.0)
 
 
 def fit_linear(x: np.ndarray, y: np.ndarray) -> LinearFit:
     """Ordinary least squares of y [rows] on x [rows, features] with an intercept (thesis eq. 5-1) over the rows
-    finite in x and y; R^2 = 1 - SS_res / SS_tot (NaN if y is constant or fewer rows than coefficients)."""
+    finite in x and y; R^2 = 1 - SS_res / SS_tot (NaN if y is constant or fewer rows than coefficients). A feature
+    that is constant over those rows cannot be told from the intercept: its coefficient is NaN (not identifiable)
+    and the fit uses the others."""
     x = np.asarray(x, float)
     y = np.asarray(y, float)
     ok = np.isfinite(y) & np.isfinite(x).all(axis=1)
-    a = np.column_stack([np.ones(int(ok.sum())), x[ok]])
+    xs = x[ok]
+    varies = np.ptp(xs, axis=0) > 0 if xs.shape[0] else np.zeros(x.shape[1], dtype=bool)
+    a = np.column_stack([np.ones(int(ok.sum())), xs[:, varies]])
     if a.shape[0] < a.shape[1]:
-        return LinearFit(np.full(a.shape[1], np.nan), float("nan"), int(ok.sum()))
-    coef, *_ = np.linalg.lstsq(a, y[ok], rcond=None)
-    res = y[ok] - a @ coef
+        return LinearFit(np.full(x.shape[1] + 1, np.nan), float("nan"), int(ok.sum()))
+    sub, *_ = np.linalg.lstsq(a, y[ok], rcond=None)
+    coef = np.full(x.shape[1] + 1, np.nan)
+    coef[0] = sub[0]
+    coef[1:][varies] = sub[1:]
+    res = y[ok] - a @ sub
     tot = y[ok] - y[ok].mean()
     ss_tot = float(tot @ tot)
     r2 = 1.0 - float(res @ res) / ss_tot if ss_tot > 0 else float("nan")
