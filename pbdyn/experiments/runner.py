@@ -25,7 +25,7 @@ from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, PbdynError
 from pbdyn.experiments.store import ResultsStore
 from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialTask, enumerate_trials, run_map_task,
-                                     run_trial_task)
+                                     run_trial_task, trial_spec)
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import default_horizon, rollout_file
 
@@ -311,5 +311,5 @@ def _submit(pool: _Pool, scenario: Scenario, item, files: dict):
                            key, path)
     key, m, entry, v, start, goal = obj
     rkey, path = files[m.map_id]
-    return pool.submit(run_trial_task, TrialTask(key, scenario, m, entry, v, start, goal, RolloutRef(rkey, str(path))),
-                       rkey, path)
+    spec = trial_spec(scenario, m, entry, v, start, goal)
+    return pool.submit(run_trial_task, TrialTask(key, spec, RolloutRef(rkey, str(path))), rkey, path)

@@ -35,15 +35,10 @@ class RolloutRef:
 
 @dataclass(frozen=True)
 class TrialTask:
-    """One trial to fly."""
+    """One trial to fly: its key (the spec's config hash), its TrialSpec and where its map's rollout is."""
 
     key: str
-    scenario: Scenario
-    map_spec: MapSpec
-    planner: PlannerEntry
-    v_max: float
-    start: tuple[float, ...]
-    goal: tuple[float, ...]
+    spec: object  # pbdyn.sim.trial.TrialSpec (imported lazily: workers import the trial loop on first use)
     rollout: RolloutRef
 
 
@@ -102,8 +97,8 @@ def _rollout(ref: RolloutRef, data: bytes | None = None):
 def _world(task: TrialTask, spec, ro):
     from pbdyn.sim.trial import make_world
 
-    key = (task.rollout.key, task.scenario.world, task.scenario.drone.radius, task.scenario.drone.urdf,
-           task.scenario.source)
+    sc = spec.scenario
+    key = (task.rollout.key, sc.world, sc.drone.radius, sc.drone.urdf, sc.source)
     old_key, world = _CACHE["world"]
     if old_key != key:
         if world is not None:
@@ -121,13 +116,14 @@ def _one_line(exc: BaseException) -> str:
 
 def error_row(task: TrialTask, message: str) -> dict:
     """The result row of a trial that raised: outcome "error" with the message, the task's identifying fields."""
-    m = task.map_spec
-    return {"gaze": task.planner.gaze, "planner": task.planner.trajectory, "map_index": m.index,
-            "map_id": m.map_id, "map_seed": m.seed, "map_key": m.key, "mav_speed": task.v_max,
+    s = task.spec
+    m = s.map_spec
+    return {"gaze": s.planner.gaze, "planner": s.planner.trajectory, "map_index": m.index,
+            "map_id": m.map_id, "map_seed": m.seed, "map_key": m.key, "mav_speed": s.v_max,
             "obstacle_count": int(m.setup.get("count", 0)), "obstacle_radius": m.setup.get("radius"),
-            "obstacle_speed": m.setup.get("speed"), "start": list(task.start), "goal": list(task.goal),
-            "outcome": "error", "reason": message, "planner_label": task.planner.label,
-            "scenario": task.scenario.name, "config_hash": task.key}
+            "obstacle_speed": m.setup.get("speed"), "start": list(s.start), "goal": list(s.goal),
+            "outcome": "error", "reason": message, "planner_label": s.planner.label,
+            "scenario": s.scenario.name, "config_hash": task.key}
 
 
 def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dict, str | None]:
@@ -138,7 +134,7 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
 
     try:
         ro = _rollout(task.rollout, data)
-        spec = trial_spec(task.scenario, task.map_spec, task.planner, task.v_max, task.start, task.goal)
+        spec = task.spec
         world = _world(task, spec, ro)
         try:
             res = run_trial(spec, ro, world=world)
