@@ -4,12 +4,14 @@ Every step the planner solves one convex problem (pbdyn.planning.mpc_problem) ov
 integrator (eq. A-5), a quadratic cost toward the goal plus control effort (A-6, A-11), Euclidean norm limits on v
 and a as second-order cones (A-8), and collision constraints (A-10) made convex by linearisation:
 
-* Tracks (thesis A-10, constant-velocity predictions): the M tracks nearest to the reference path give one
-  half-plane (3D: half-space) per step, tangent to the predicted disc/ball inflated by the MAV radius + margin, with
-  its normal pointing from the predicted centre to the reference path's point at that step. The reference path is
-  the previous plan (view.trajectory, read at the same absolute times, extrapolated at constant velocity past its
-  end); without one, a constant-velocity guess from the current state. If the normal is degenerate (the reference
-  point is at the centre) the current obstacle-to-MAV direction is used.
+* Tracks (A-10 with constant-velocity predictions): the M tracks nearest to the reference path give one half-plane
+  (3D: half-space) per step, tangent to the predicted disc/ball inflated by the MAV radius + margin, with its normal
+  pointing from the predicted centre to the reference path's point at that step. The reference path is the previous
+  plan (view.trajectory, read at the same absolute times, extrapolated at constant velocity past its end); without
+  one, a constant-velocity guess from the current state. A degenerate normal (the reference point at the centre)
+  takes the current obstacle-to-MAV direction. Steps whose reference point lies more than 5 cm inside the inflated
+  disc all take the normal of the reference's closest approach, so a reference that runs through an obstacle asks
+  for one side of it rather than for "in front" at one step and "behind" at the next.
 * Occupied grid cells near the MAV: per step, the n_cells cells nearest to the reference point, each as the
   half-plane through the point of the cell's square (3D: cube) nearest to it. UNKNOWN cells count as free, as in
   pbdyn.planning.checks; the grid's 1-cell border is left to the walls.
@@ -17,13 +19,15 @@ and a as second-order cones (A-8), and collision constraints (A-10) made convex 
 
 The right-hand side of every linearised row is the support function of the inflated obstacle in the row's normal,
 so any unit normal gives a constraint that excludes the whole obstacle. Symmetric deadlock (an obstacle straight
-ahead on the goal line gives a normal exactly against the goal direction, and the plan then stops in front of it):
-a normal within ``bias_deg`` of the reverse goal direction is turned to exactly bias_deg away from it, toward the
-side the MAV already is on (left of the goal direction when it is exactly on the line).
+ahead on the goal line gives a normal exactly against the goal direction, and the plan stops in front of it): every
+normal within bias_deg of the reverse goal direction is turned to exactly bias_deg from it, all toward one side per
+plan (MPC.bias_side: the MAV's lateral velocity, else the side it is on relative to what blocks it, else the left).
 
-All collision rows share one slack per step (L1 penalty w_slack): the problem is always feasible, and a plan fails
-(the MAV brakes) when the solve is not optimal or a slack exceeds max_slack within the first slack_window_s.
-Unused rows are padding (zero normal), so the problem's structure never changes and the solver is built once.
+Soft constraints: all rows of a step share one slack s_k (cost w_slack per m) and one margin band b_k in
+[0, margin - hard_margin] (cost w_band per m): a plan may give up the safety margin down to hard_margin at a moderate
+price, and only what goes beyond that is slack. The problem is therefore always feasible; a plan fails (the MAV
+brakes) when the solve is not optimal or a slack exceeds max_slack within the first slack_window_s. Unused rows are
+padding (zero normal), so the problem's structure never changes and the solver is built once.
 
 Limits: the solver gets v_max (1 - limit_eps) and a_max (1 - limit_eps). The returned trajectory is rebuilt from the
 solver's accelerations, each first projected onto the a_max ball, by exact integration of A-5 from the current
@@ -48,6 +52,8 @@ from pbdyn.planning.view import View
 
 _DEGENERATE = 1e-9  # m; a normal shorter than this is degenerate
 _MAX_CELLS = 64     # occupied cells kept around the MAV before the per-step choice (nearest to the MAV)
+_PENETRATION = 0.05  # m; a reference point deeper than this inside an inflated obstacle penetrates it (a plan
+#                    resting on a constraint is never taken as penetrating)
 SIDE_SPEED = 0.1    # m/s; a lateral speed above this fixes the side normals are turned to (bias_side)
 
 
@@ -88,40 +94,48 @@ class MPC:
     Args:
         context: the trial's fixed facts (dims, dt, limits, arena box).
         horizon: N, the number of steps of the world dt (default 25: 2.5 s at 0.1 s, as the thesis program).
-        n_tracks: M, the number of tracks constrained (the nearest to the reference path over the horizon,
-            by surface distance); default 5, as the thesis program.
+        n_tracks: M, the number of tracks constrained (A-10): the nearest to the reference path over the horizon
+            by surface distance, ties by track order; default 5, as the thesis program.
         n_cells: occupied grid cells constrained per step (the nearest to that step's reference point).
         margin: safety margin (m) added to the MAV radius against tracks and cells (as pbdyn.planning.checks).
+        hard_margin: the part of the margin (m) that is never traded for cost (see the module doc).
         wall_margin: margin (m) added to the MAV radius against the arena walls (default checks.WALL_MARGIN_CAP).
-        w_goal: weight of |p_k - ref|^2 (cost per m^2, every step k = 1..N; Q in A-11).
-        w_acc: weight of |u_k|^2 (cost per (m/s^2)^2; R in A-11).
-        w_slack: cost per metre of collision slack per step (L1 exact penalty).
+        w_goal: weight of |p_k - ref|^2 (cost per m^2 at every step k = 1..N; Q of A-11, on position).
+        w_acc: weight of |u_k|^2 (cost per (m/s^2)^2 at every step k = 0..N-1; R of A-11).
+        w_slack: cost per metre of collision slack per step (L1, exact penalty).
+        w_band: cost per metre of margin given up per step (L1).
         ref_dist: the goal reference is the goal, or the point ref_dist (m) from the MAV toward it when the goal is
             further; default 2 v_max N dt. Keeps the cost's scale independent of the arena size.
         bias_deg: symmetric-deadlock breaking angle (deg, see the module doc); 0 disables it.
-        max_slack: largest slack (m) accepted within the first slack_window_s (s) of the plan.
+        max_slack: largest slack (m) accepted within the first slack_window_s (s) of a plan.
+        relinearise: extra solves per step, each linearised about the previous solve's path, while the slack
+            test fails (0: one solve per step).
         limit_eps: relative tightening of v_max and a_max given to the solver.
         backend: "clarabel" (the problem written directly in Clarabel's form, a persistent solver whose data is
             updated each step) or "cvxpy" (the same problem built once in cvxpy with Parameters and re-solved with
             Clarabel); a test checks that they agree.
 
     Diagnostics of the last plan() call: last_data (MPCData), last_solution (MPCSolution), last_max_slack (m, over
-    the slack window), last_fail_reason (None on success), last_solve_wall_s.
+    the slack window), last_fail_reason (None on success), last_solve_wall_s (problem set-up and solves, s),
+    last_relinearisations, last_track_index (indices into view.tracks of the constrained tracks, in row order).
     """
 
     def __init__(self, context: PlannerContext, *, horizon: int = 25, n_tracks: int = 5, n_cells: int = 6,
-                 margin: float = 0.5, wall_margin: float = WALL_MARGIN_CAP, w_goal: float = 1.0,
-                 w_acc: float = 0.1, w_slack: float = 1.0e4, ref_dist: float | None = None, bias_deg: float = 15.0,
-                 max_slack: float = 0.05, slack_window_s: float = 1.0, limit_eps: float = 1.0e-6,
-                 backend: str = "clarabel"):
+                 margin: float = 0.5, hard_margin: float = 0.1, wall_margin: float = WALL_MARGIN_CAP,
+                 w_goal: float = 1.0, w_acc: float = 0.1, w_slack: float = 1.0e4, w_band: float = 1.0e3,
+                 ref_dist: float | None = None, bias_deg: float = 15.0,
+                 max_slack: float = 0.05, slack_window_s: float = 1.0, relinearise: int = 0,
+                 limit_eps: float = 1.0e-6, backend: str = "clarabel"):
         if int(horizon) != horizon or horizon < 2:
             raise ValueError(f"horizon must be an integer >= 2, got {horizon}")
         if int(n_tracks) != n_tracks or n_tracks < 0 or int(n_cells) != n_cells or n_cells < 0:
             raise ValueError(f"n_tracks and n_cells must be integers >= 0, got {n_tracks}, {n_cells}")
-        if margin < 0 or wall_margin < 0 or max_slack < 0 or slack_window_s < 0:
-            raise ValueError("margin, wall_margin, max_slack and slack_window_s must be >= 0")
-        if w_goal <= 0 or w_acc <= 0 or w_slack <= 0:
-            raise ValueError(f"w_goal, w_acc, w_slack must be > 0, got {w_goal}, {w_acc}, {w_slack}")
+        if wall_margin < 0 or max_slack < 0 or slack_window_s < 0:
+            raise ValueError("wall_margin, max_slack and slack_window_s must be >= 0")
+        if not 0 <= hard_margin <= margin:
+            raise ValueError(f"need 0 <= hard_margin <= margin, got {hard_margin}, {margin}")
+        if w_goal <= 0 or w_acc <= 0 or w_slack <= 0 or w_band <= 0:
+            raise ValueError(f"w_goal, w_acc, w_slack, w_band must be > 0, got {w_goal}, {w_acc}, {w_slack}, {w_band}")
         if ref_dist is not None and ref_dist <= 0:
             raise ValueError(f"ref_dist must be > 0, got {ref_dist}")
         if not 0 <= bias_deg < 90:
@@ -139,14 +153,19 @@ class MPC:
         self.n_tracks = int(n_tracks)
         self.n_cells = int(n_cells)
         self.margin = float(margin)
+        self.hard_margin = float(hard_margin)
         self.wall_margin = float(wall_margin)
         self.ref_dist = float(ref_dist) if ref_dist is not None else 2.0 * lim.v_max * self.horizon * self.dt
         self.bias_deg = float(bias_deg)
         self.max_slack = float(max_slack)
+        if int(relinearise) != relinearise or relinearise < 0:
+            raise ValueError(f"relinearise must be an integer >= 0, got {relinearise}")
+        self.relinearise = int(relinearise)
+        self.last_relinearisations = 0
         self.slack_steps = int(math.floor(slack_window_s / self.dt + 1e-9))
         self.limit_eps = float(limit_eps)
         self.backend = backend
-        self.weights = MPCWeights(float(w_goal), float(w_acc), float(w_slack))
+        self.weights = MPCWeights(float(w_goal), float(w_acc), float(w_slack), float(w_band))
         self.shape = MPCShape(d, self.horizon, self.dt, self.n_tracks + self.n_cells)
         self._solver = (ClarabelMPC if backend == "clarabel" else CvxpyMPC)(self.shape, self.weights)
         self._k = np.arange(1, self.horizon + 1)
@@ -155,6 +174,7 @@ class MPC:
         self.last_max_slack = math.nan
         self.last_fail_reason: str | None = None
         self.last_solve_wall_s = 0.0
+        self.last_track_index = np.zeros(0, np.int64)
 
     def replan_check(self, view: View) -> bool:
         """Always True: receding horizon, a new plan every step."""
@@ -187,6 +207,11 @@ class MPC:
         e[0] = 1.0
         return e
 
+    def _fallback(self, view: View, x: np.ndarray) -> np.ndarray:
+        """Unit vectors of x [..., d]; degenerate ones become lateral_axis(goal direction)."""
+        u, n = _unit(x)
+        return np.where((n > _DEGENERATE)[..., None], u, lateral_axis(self.goal_direction(view)))
+
     def track_rows(self, view: View, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rows of the M nearest tracks: unit normals [M, N, d] (0 for padding), predicted centres [M, N, d] (m) and
         inflated radii [M] (track radius + MAV radius + margin, m). Nearest = smallest surface distance to the
@@ -196,18 +221,27 @@ class MPC:
         centres = np.zeros((m, n, d))
         reach = np.zeros(m)
         tracks = view.tracks
+        self.last_track_index = np.zeros(0, np.int64)
         if m == 0 or len(tracks) == 0:
             return normals, centres, reach
         pred = tracks.predict(self._k * self.dt)                              # [N, T, d]
         nrm, dist = _unit(ref[:, None, :] - pred)
         score = (dist - tracks.radius[None, :]).min(axis=0)
         sel = np.argsort(score, kind="stable")[:m]
-        now, _ = _unit(view.position - tracks.position[sel])                  # obstacle -> MAV, now [S, d]
-        nrm = np.where((dist[:, sel] > _DEGENERATE)[..., None], nrm[:, sel], now[None])
+        self.last_track_index = sel
+        now = self._fallback(view, view.position - tracks.position[sel])      # obstacle -> MAV, now [S, d]
+        nrm, dist = nrm[:, sel], dist[:, sel]
+        nrm = np.where((dist > _DEGENERATE)[..., None], nrm, now[None])
         k = sel.shape[0]
+        reach[:k] = tracks.radius[sel] + self.limits.radius + self.margin
+        # steps whose reference point is inside the inflated disc all take the normal of the closest approach, so a
+        # reference passing through an obstacle asks for one side of it instead of flipping from front to back
+        kstar = np.argmin(dist, axis=0)                                       # [S]
+        side = nrm[kstar, np.arange(k)]                                       # [S, d]
+        inside = dist < reach[None, :k] - _PENETRATION
+        nrm = np.where(inside[..., None], side[None], nrm)
         normals[:k] = np.swapaxes(nrm, 0, 1)
         centres[:k] = np.swapaxes(pred[:, sel], 0, 1)
-        reach[:k] = tracks.radius[sel] + self.limits.radius + self.margin
         return normals, centres, reach
 
     def cell_rows(self, view: View, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -232,7 +266,7 @@ class MPC:
         dist = np.take_along_axis(dist, sel, axis=1)
         lo_sel = lo_cells[sel]                                                 # [N, k, d]
         now, now_n = _unit(view.position - np.clip(view.position, lo_sel, lo_sel + res))
-        now_c, _ = _unit(view.position - (lo_sel + 0.5 * res))
+        now_c = self._fallback(view, view.position - (lo_sel + 0.5 * res))
         now = np.where((now_n > _DEGENERATE)[..., None], now, now_c)
         nrm = np.where((dist > _DEGENERATE)[..., None], nrm, now)
         normals[:k] = np.swapaxes(nrm, 0, 1)
@@ -277,10 +311,12 @@ class MPC:
                 return lat / np.linalg.norm(lat)
         return lateral_axis(gdir)
 
-    def problem_data(self, view: View) -> MPCData:
-        """The parameter values of this step's problem (see pbdyn.planning.mpc_problem and the module doc)."""
+    def problem_data(self, view: View, ref_path: np.ndarray | None = None) -> MPCData:
+        """The parameter values of this step's problem (see pbdyn.planning.mpc_problem and the module doc),
+        linearised about ref_path [N, d] (default: reference_path(view))."""
         p0 = np.asarray(view.position, float)
-        ref_path = self.reference_path(view)
+        if ref_path is None:
+            ref_path = self.reference_path(view)
         gdir = self.goal_direction(view)
         tn, tc, reach = self.track_rows(view, ref_path)
         cn, cc = self.cell_rows(view, ref_path)
@@ -302,7 +338,7 @@ class MPC:
         scale = 1.0 - self.limit_eps
         return MPCData(p0.copy(), np.asarray(view.velocity, float).copy(), np.tile(goal_ref, (self.horizon, 1)),
                        normals, rhs, view.bounds_lo + wall, view.bounds_hi - wall, self.limits.v_max * scale,
-                       self.limits.a_max * scale)
+                       self.limits.a_max * scale, self.margin - self.hard_margin)
 
     # ------------------------------------------------------------------ plan
 
@@ -316,13 +352,24 @@ class MPC:
         max_slack."""
         if abs(view.dt - self.dt) > 1e-12:
             raise ValueError(f"view.dt {view.dt} differs from the planner's dt {self.dt}")
-        data = self.problem_data(view)
         t0 = time.perf_counter()
+        data = self.problem_data(view)
         sol = self.solve(data)
-        self.last_solve_wall_s = time.perf_counter() - t0
-        self.last_data, self.last_solution = data, sol
         window = sol.s[:self.slack_steps]
         self.last_max_slack = float(np.max(window)) if window.size else 0.0
+        self.last_relinearisations = 0
+        while (sol.optimal and self.last_max_slack > self.max_slack
+               and self.last_relinearisations < self.relinearise):
+            self.last_relinearisations += 1
+            data2 = self.problem_data(view, sol.p)
+            sol2 = self.solve(data2)
+            window = sol2.s[:self.slack_steps]
+            slack2 = float(np.max(window)) if window.size else 0.0
+            if not sol2.optimal or slack2 >= self.last_max_slack:
+                break
+            data, sol, self.last_max_slack = data2, sol2, slack2
+        self.last_solve_wall_s = time.perf_counter() - t0
+        self.last_data, self.last_solution = data, sol
         self.last_fail_reason = None
         if not sol.optimal:
             self.last_fail_reason = f"solver status {sol.status}"

@@ -1,14 +1,17 @@
 """The MPC's convex problem (thesis A-3, eqs. A-5..A-11) with a fixed structure, and its two solver paths.
 
 Decision variables (d = 2 or 3, N horizon steps of dt): p_k, v_k for k = 1..N (m, m/s), u_k for k = 0..N-1 (m/s^2,
-constant over step k -> k+1) and one collision slack s_k >= 0 (m) per step k = 1..N.
+constant over step k -> k+1), one collision slack s_k >= 0 (m) and one margin-band use b_k (m) per step k = 1..N.
 
-    minimise   sum_k w_goal |p_k - ref_k|^2 + sum_k w_acc |u_k|^2 + w_slack sum_k s_k         (A-6, A-11)
-    subject to p_k+1 = p_k + dt v_k + dt^2/2 u_k,  v_k+1 = v_k + dt u_k,  (p_0, v_0) given       (A-5, A-7)
-               |v_k| <= v_lim, |u_k| <= a_lim      (second-order cones)                            (A-8)
-               n_jk . p_k + s_k >= rhs_jk          (R rows per step: tracks and cells)            (A-10)
+    minimise   sum_k w_goal |p_k - ref_k|^2 + sum_k w_acc |u_k|^2 + sum_k (w_slack s_k + w_band b_k)   (A-6, A-11)
+    subject to p_k+1 = p_k + dt v_k + dt^2/2 u_k,  v_k+1 = v_k + dt u_k,  (p_0, v_0) given          (A-5, A-7)
+               |v_k| <= v_lim, |u_k| <= a_lim      (second-order cones)                               (A-8)
+               n_jk . p_k + s_k + b_k >= rhs_jk    (R rows per step: tracks and cells)               (A-10)
                wall_lo - s_k <= p_k <= wall_hi + s_k
-               s_k >= 0
+               s_k >= 0,  0 <= b_k <= band
+
+rhs_jk includes the full safety margin; the band lets a plan give up to ``band`` metres of it at a moderate price
+(w_band), and only what goes beyond the band is slack s_k (the quantity a plan is judged by).
 
 Every quantity that changes from step to step (initial state, reference, row normals and right-hand sides) is a
 parameter; the sparsity pattern, the cone list and the row count never change (unused rows are given n = 0 and a
@@ -25,6 +28,11 @@ import numpy as np
 import scipy.sparse as sp
 
 INACTIVE_RHS = -1.0e3  # m; right-hand side of a padding row: 0 . p_k + s_k >= -1000 always holds
+
+# Clarabel settings of both paths. The problem is scaled by construction (unit normals, metres, seconds):
+# Ruiz equilibration computed once on the first step's data made later solves stop at "AlmostSolved" now and then,
+# and iterative refinement costs ~40% of the solve time without changing the status on this problem.
+SOLVER_SETTINGS = {"equilibrate_enable": False, "iterative_refinement_enable": False, "max_threads": 1}
 
 
 @dataclass(frozen=True)
@@ -46,12 +54,13 @@ class MPCShape:
 
 @dataclass(frozen=True)
 class MPCWeights:
-    """Cost weights (A-11): w_goal on |p_k - ref_k|^2 (1/m^2 units of cost), w_acc on |u_k|^2 ((s^2/m)^2),
-    w_slack on each metre of collision slack (L1 exact penalty)."""
+    """Cost weights (A-11): w_goal on |p_k - ref_k|^2 (cost per m^2), w_acc on |u_k|^2 (cost per (m/s^2)^2),
+    w_slack on each metre of collision slack and w_band on each metre of margin given up, per step (L1)."""
 
     w_goal: float
     w_acc: float
     w_slack: float
+    w_band: float
 
 
 @dataclass(frozen=True)
@@ -65,6 +74,7 @@ class MPCData:
         rhs: row right-hand sides [R, N] (m): n . p_k + s_k >= rhs.
         wall_lo, wall_hi: box the MAV centre must stay in [d] (m).
         v_lim, a_lim: norm bounds (m/s, m/s^2) given to the solver.
+        band: the part of the margin (m) a row may give up at price w_band (0 <= b_k <= band).
     """
 
     p0: np.ndarray
@@ -76,17 +86,19 @@ class MPCData:
     wall_hi: np.ndarray
     v_lim: float
     a_lim: float
+    band: float
 
 
 @dataclass(frozen=True)
 class MPCSolution:
-    """A solver's answer: p, v [N, d] (k = 1..N), u [N, d] (k = 0..N-1), s [N] (k = 1..N); ``optimal`` is True only
-    for a status of "solved"; ``status`` is the solver's status text; ``iterations`` its iteration count."""
+    """A solver's answer: p, v [N, d] (k = 1..N), u [N, d] (k = 0..N-1), s, b [N] (k = 1..N); ``optimal`` is True
+    only for a status of "solved"; ``status`` is the solver's status text; ``iterations`` its iteration count."""
 
     p: np.ndarray
     v: np.ndarray
     u: np.ndarray
     s: np.ndarray
+    b: np.ndarray
     optimal: bool
     status: str
     iterations: int
@@ -96,9 +108,9 @@ class ClarabelMPC:
     """The problem stated directly in Clarabel's form (min 1/2 z'Pz + q'z, Az + s = b, s in K); built once, then
     each ``solve`` writes the parameters into A's CSC values, b and q and updates the persistent solver.
 
-    Variable order z = [p_1..p_N, v_1..v_N, u_0..u_N-1, s_1..s_N] (each p/v/u block k-major, axis-minor).
-    Row order: 2dN dynamics equalities; N slack rows, RN collision rows, 2dN wall rows (nonnegative cone);
-    N velocity cones and N acceleration cones of size d + 1.
+    Variable order z = [p_1..p_N, v_1..v_N, u_0..u_N-1, s_1..s_N, b_1..b_N] (p/v/u blocks k-major, axis-minor).
+    Row order: 2dN dynamics equalities; N slack rows, 2N band rows, RN collision rows, 2dN wall rows (nonnegative
+    cone); N velocity cones and N acceleration cones of size d + 1.
     """
 
     def __init__(self, shape: MPCShape, weights: MPCWeights, *, max_iter: int = 100):
@@ -110,7 +122,8 @@ class ClarabelMPC:
         d, n, r = shape.dims, shape.horizon, shape.rows
         nd = n * d
         self._ip, self._iv, self._iu, self._is = 0, nd, 2 * nd, 3 * nd
-        self.n_var = 3 * nd + n
+        self._ib = 3 * nd + n
+        self.n_var = 3 * nd + 2 * n
         rows, cols, vals = [], [], []
 
         def add(rr, cc, vv):
@@ -134,11 +147,18 @@ class ClarabelMPC:
         add(vel_row[1:], v_col[:-1], -1.0)
         m = 2 * nd
         s_col = self._is + np.arange(n)
+        b_col = self._ib + np.arange(n)
         add(m + np.arange(n), s_col, -1.0)                                   # -s_k <= 0
+        m += n
+        add(m + np.arange(n), b_col, -1.0)                                   # -b_k <= 0
+        m += n
+        self._band_row0 = m
+        add(m + np.arange(n), b_col, 1.0)                                    # b_k <= band
         m += n
         self._coll_row0 = m
         cr = m + n * np.arange(r)[:, None] + np.arange(n)[None, :]           # [R, N]
         add(cr, np.broadcast_to(s_col, (r, n)), -1.0)
+        add(cr, np.broadcast_to(b_col, (r, n)), -1.0)
         self._normal_start = sum(len(x) for x in rows)
         cr3 = np.broadcast_to(cr[:, :, None], (r, n, d))
         pc3 = np.broadcast_to(p_col[None], (r, n, d))
@@ -167,8 +187,6 @@ class ClarabelMPC:
         if tag.nnz != nnz:
             raise AssertionError("duplicate entries in the MPC constraint matrix")
         order = tag.data.astype(np.int64) - 1                               # data position -> COO entry
-        self._coo_vals = v_all
-        self._perm = order
         self._normal_pos = np.empty(nnz, np.int64)
         self._normal_pos[order] = np.arange(nnz)
         self._normal_pos = self._normal_pos[self._normal_start:self._normal_start + r * n * d]
@@ -180,16 +198,17 @@ class ClarabelMPC:
         diag[self._iu:self._is] = 2.0 * weights.w_acc
         self._P = sp.diags(diag).tocsc()
         self._q = np.zeros(self.n_var)
-        self._q[self._is:] = weights.w_slack
-        self._cones = [clarabel.ZeroConeT(2 * nd), clarabel.NonnegativeConeT(n + r * n + 2 * nd)]
+        self._q[self._is:self._ib] = weights.w_slack
+        self._q[self._ib:] = weights.w_band
+        self._cones = [clarabel.ZeroConeT(2 * nd), clarabel.NonnegativeConeT(3 * n + r * n + 2 * nd)]
         self._cones += [clarabel.SecondOrderConeT(d + 1)] * (2 * n)
         settings = clarabel.DefaultSettings()
         settings.verbose = False
         settings.presolve_enable = False
         settings.input_sparse_dropzeros = False
         settings.max_iter = int(max_iter)
-        settings.max_threads = 1
-        settings.iterative_refinement_enable = False  # ~40% faster here; convergence is still judged on residuals
+        for key, value in SOLVER_SETTINGS.items():
+            setattr(settings, key, value)
         self._settings = settings
         self._solver = None
 
@@ -201,6 +220,7 @@ class ClarabelMPC:
         dt = self.shape.dt
         b[0:d] = data.p0 + dt * data.v0
         b[d:2 * d] = data.v0
+        b[self._band_row0:self._band_row0 + n] = data.band
         b[self._coll_row0:self._coll_row0 + r * n] = -np.asarray(data.rhs, float).reshape(-1)
         w = b[self._wall_row0:self._wall_row0 + 2 * n * d].reshape(n, 2, d)
         w[:, 0, :] = -data.wall_lo
@@ -221,17 +241,19 @@ class ClarabelMPC:
         sol = self._solver.solve()
         z = np.asarray(sol.x, float)
         status = str(sol.status)
-        return _unpack(z, self.shape, self._iv, self._iu, self._is, status, int(sol.iterations))
+        n, d = self.shape.horizon, self.shape.dims
+        p = z[:self._iv].reshape(n, d).copy()
+        v = z[self._iv:self._iu].reshape(n, d).copy()
+        u = z[self._iu:self._is].reshape(n, d).copy()
+        ok = status.split(".")[-1].lower() == "solved"
+        return MPCSolution(p, v, u, z[self._is:self._ib].copy(), z[self._ib:].copy(), ok, status,
+                           int(sol.iterations))
 
 
-def _unpack(z, shape: MPCShape, iv, iu, is_, status: str, iterations: int) -> MPCSolution:
-    d, n = shape.dims, shape.horizon
-    p = z[:iv].reshape(n, d).copy()
-    v = z[iv:iu].reshape(n, d).copy()
-    u = z[iu:is_].reshape(n, d).copy()
-    s = z[is_:is_ + n].copy()
-    ok = status.split(".")[-1].lower() == "solved"
-    return MPCSolution(p, v, u, s, ok, status, iterations)
+def _failed(shape: MPCShape, status: str, iterations: int = 0) -> MPCSolution:
+    nan = np.full((shape.horizon, shape.dims), np.nan)
+    return MPCSolution(nan, nan, nan, np.full(shape.horizon, np.nan), np.full(shape.horizon, np.nan), False, status,
+                       iterations)
 
 
 class CvxpyMPC:
@@ -247,7 +269,8 @@ class CvxpyMPC:
         V = cp.Variable((n, d))
         U = cp.Variable((n, d))
         S = cp.Variable(n)
-        self._vars = (P, V, U, S)
+        B = cp.Variable(n)
+        self._vars = (P, V, U, S, B)
         self.p0 = cp.Parameter(d)
         self.v0 = cp.Parameter(d)
         self.ref = cp.Parameter((n, d))
@@ -257,16 +280,18 @@ class CvxpyMPC:
         self.wall_hi = cp.Parameter(d)
         self.v_lim = cp.Parameter(nonneg=True)
         self.a_lim = cp.Parameter(nonneg=True)
+        self.band = cp.Parameter(nonneg=True)
         h = 0.5 * dt * dt
         cons = [P[0] == self.p0 + dt * self.v0 + h * U[0], V[0] == self.v0 + dt * U[0],
-                P[1:] == P[:-1] + dt * V[:-1] + h * U[1:], V[1:] == V[:-1] + dt * U[1:], S >= 0]
+                P[1:] == P[:-1] + dt * V[:-1] + h * U[1:], V[1:] == V[:-1] + dt * U[1:], S >= 0,
+                B >= 0, B <= self.band]
         for j in range(r):
-            cons.append(cp.sum(cp.multiply(self.normals[j], P), axis=1) + S >= self.rhs[j])
+            cons.append(cp.sum(cp.multiply(self.normals[j], P), axis=1) + S + B >= self.rhs[j])
         for i in range(d):
             cons += [P[:, i] >= self.wall_lo[i] - S, P[:, i] <= self.wall_hi[i] + S]
         cons += [cp.norm(V, 2, axis=1) <= self.v_lim, cp.norm(U, 2, axis=1) <= self.a_lim]
         cost = (weights.w_goal * cp.sum_squares(P - self.ref) + weights.w_acc * cp.sum_squares(U)
-                + weights.w_slack * cp.sum(S))
+                + weights.w_slack * cp.sum(S) + weights.w_band * cp.sum(B))
         self.problem = cp.Problem(cp.Minimize(cost), cons)
         if not self.problem.is_dcp(dpp=True):
             raise AssertionError("the MPC problem is not DPP")
@@ -283,18 +308,15 @@ class CvxpyMPC:
         self.wall_hi.value = np.asarray(data.wall_hi, float)
         self.v_lim.value = float(data.v_lim)
         self.a_lim.value = float(data.a_lim)
+        self.band.value = float(data.band)
         try:
-            self.problem.solve(solver=self._cp.CLARABEL, warm_start=False)
+            self.problem.solve(solver=self._cp.CLARABEL, warm_start=False, **SOLVER_SETTINGS)
         except self._cp.error.SolverError as exc:
-            n, d = self.shape.horizon, self.shape.dims
-            nan = np.full((n, d), np.nan)
-            return MPCSolution(nan, nan, nan, np.full(n, np.nan), False, f"solver error: {exc}", 0)
-        P, V, U, S = self._vars
+            return _failed(self.shape, f"solver error: {exc}")
+        P, V, U, S, B = self._vars
         status = self.problem.status
-        iters = self.problem.solver_stats.num_iters if self.problem.solver_stats is not None else 0
+        iters = int(self.problem.solver_stats.num_iters or 0) if self.problem.solver_stats is not None else 0
         if P.value is None:
-            n, d = self.shape.horizon, self.shape.dims
-            nan = np.full((n, d), np.nan)
-            return MPCSolution(nan, nan, nan, np.full(n, np.nan), False, status, int(iters or 0))
+            return _failed(self.shape, status, iters)
         return MPCSolution(np.array(P.value), np.array(V.value), np.array(U.value), np.array(S.value),
-                           status == self._cp.OPTIMAL, status, int(iters or 0))
+                           np.array(B.value), status == self._cp.OPTIMAL, status, iters)
