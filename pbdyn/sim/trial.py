@@ -113,8 +113,10 @@ def make_trial_spec(scenario: Scenario, map_spec: MapSpec, *, planner: str | Non
         entry = match[0] if match else PlannerEntry(planner, gaze or entry.gaze)
     if gaze is not None and entry.gaze != gaze:
         entry = PlannerEntry(entry.trajectory, gaze, entry.trajectory_params, {}, "")
-    resolve_trajectory_planner(entry.trajectory, "--planner")
-    resolve_gaze_planner(entry.gaze, "--gaze")
+    idx = next((i for i, e in enumerate(entries) if e == entry), None)
+    resolve_trajectory_planner(entry.trajectory, "--planner" if planner is not None or idx is None
+                               else f"planners[{idx}].trajectory")
+    resolve_gaze_planner(entry.gaze, "--gaze" if gaze is not None or idx is None else f"planners[{idx}].gaze")
     if v_max is None:
         v = scenario.drone.v_max[0]
     else:
