@@ -20,8 +20,6 @@ from pbdyn.planning.protocols import PlannerContext, TrajectoryPlanner
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.demo import demo_pairs
-from pbdyn.sim.trial import make_trial_spec, run_trial
-from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout
 from tests.helpers import first_map, fly, handmade_rollout, open_scenario
 
@@ -418,26 +416,3 @@ def test_boxed_in_is_a_deadlock_of_the_map_not_of_the_budget():
     gp = planners[-1]
     assert gp.n_plans >= 10 and gp.n_budget_hits == 0 and gp.last_status == "exhausted"
     assert math.isnan(gp.last_cost)
-
-
-@pytest.mark.slow
-def test_success_rate_on_the_easy_setup_beats_straight_line():
-    """Setup 10 obstacles, 0.5 m, 2 m/s; v_max 4; FullRange; 5 maps x 72 pairs."""
-    sc = parse_scenario({"obstacles": {"count": 10, "radius": 0.5, "speed": 2.0, "radius_jitter": 0.2,
-                                       "maps_per_setup": 5},
-                         "drone": {"v_max": 4.0}, "planners": GP_PLANNERS})
-    cands = sc.task.candidates
-    wins = {"fullrange+global_primitives": 0, "fullrange+straight_line": 0}
-    n = 0
-    for spec_map in enumerate_maps(sc)[:5]:
-        rollout = build_rollout(sc, spec_map)
-        for i, j in sc.task.pairs():
-            n += 1
-            for label in wins:
-                spec = make_trial_spec(sc, spec_map, planner=label, start=cands[i], goal=cands[j])
-                wins[label] += run_trial(spec, rollout).outcome == "success"
-    rate = {k: w / n for k, w in wins.items()}
-    print("success rates", rate, "n =", n)
-    assert n == 360
-    assert rate["fullrange+global_primitives"] >= 0.6
-    assert rate["fullrange+global_primitives"] > rate["fullrange+straight_line"]

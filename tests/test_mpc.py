@@ -16,7 +16,6 @@ from pbdyn.planning.mpc_problem import INACTIVE_RHS
 from pbdyn.planning.protocols import PlannerContext, TrajectoryPlanner
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.demo import demo_pairs
-from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout
 from tests.helpers import first_map, fly, handmade_rollout, open_scenario
 
@@ -332,30 +331,3 @@ def test_mpc_registry_and_parameter_errors():
     for bad in ({"horizon": 1}, {"n_tracks": -1}, {"w_acc": 0.0}, {"backend": "osqp"}, {"bias_deg": 95.0}):
         with pytest.raises(ConfigError, match=r"^planners\[0\]\.trajectory_params: invalid parameters for MPC"):
             registry.build_planner(MPC, ctx, bad, "planners[0].trajectory_params")
-
-
-# ---------------------------------------------------------------- slow experiment
-
-@pytest.mark.slow
-def test_mpc_success_rate_on_sparse_maps_beats_straight_line():
-    """10 obstacles of 0.5 m at 2 m/s, v_max 4 m/s, FullRange gaze: 5 maps x 72 pairs."""
-    sc = parse_scenario({"obstacles": {"count": 10, "radius": 0.5, "speed": 2.0, "maps_per_setup": 5,
-                                       "root_seed": 1},
-                         "drone": {"v_max": 4.0},
-                         "planners": [{"trajectory": "mpc", "gaze": "fullrange"},
-                                      {"trajectory": "straight_line", "gaze": "fullrange"}]})
-    maps = enumerate_maps(sc)
-    assert len(maps) == 5
-    cands = sc.task.candidates
-    wins = {"fullrange+mpc": 0, "fullrange+straight_line": 0}
-    from pbdyn.sim.trial import make_trial_spec, run_trial
-    for spec_map in maps:
-        rollout = build_rollout(sc, spec_map)
-        for label in wins:
-            for i, j in sc.task.pairs():
-                spec = make_trial_spec(sc, spec_map, planner=label, start=cands[i], goal=cands[j])
-                wins[label] += run_trial(spec, rollout).outcome == "success"
-    n = 5 * 72
-    rate = {k: w / n for k, w in wins.items()}
-    print(f"success rates over {n} trials: {rate}")
-    assert rate["fullrange+mpc"] >= 0.6 and rate["fullrange+mpc"] > rate["fullrange+straight_line"]

@@ -268,7 +268,8 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
     """Fly one trial and return its TrialResult.
 
     trace_path: save a per-step trace .npz there. profile: if a dict is given, it receives per-step lists of each
-    timing split (SPLITS, s) and "candidates_built" (the planner's ``last_candidates_built`` when it planned).
+    timing split (SPLITS, s), "candidates_built" (the planner's ``last_candidates_built`` when it planned) and
+    "planned" (True where replan_check asked for a plan).
     world: a PyBulletWorld from make_world for this map to reuse (batch workers); it is left open.
     """
     wall0 = time.perf_counter()
@@ -279,7 +280,7 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
     timings = {"wall_setup_s": time.perf_counter() - wall0, **{name: 0.0 for name in SPLITS}}
     step_walls: list[float] = []
     if profile is not None:
-        for name in SPLITS + ("candidates_built",):
+        for name in SPLITS + ("candidates_built", "planned"):
             profile[name] = []
     trace = _Trace() if trace_path is not None else None
     dims, dt = ctx.dims, ctx.dt
@@ -313,7 +314,8 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
             view = View(t, dt, p, v, a, yaw, goal, sc.task.goal_radius, limits, env.bounds[0], env.bounds[1],
                         env.grid, tracks, traj, env.fov_deg, sc.sensor.range, sc.sensor.vfov_deg)
             plan_ok = True
-            if planner.replan_check(view):                                # (4)
+            planned = planner.replan_check(view)
+            if planned:                                                   # (4)
                 state = "PLANNING"
                 new = planner.plan(view)
                 if new is None:
@@ -353,6 +355,7 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
                     profile[name].append(dt_wall)
             if profile is not None:
                 profile["candidates_built"].append(getattr(planner, "last_candidates_built", float("nan")))
+                profile["planned"].append(bool(planned))
             step_walls.append(c6 - c0)
             p, v, a, yaw = p1, v1, a1, yaw1
             if hit is not None:
