@@ -8,9 +8,9 @@ pairs x 216 trials, and the three uncontrolled sets, 45 maps x 3 pairs x 216 tri
 grid written next to the results (scenarios/ in the output folder), derived from the same files:
 
 - controlled: all 27 setups x QUICK_MAPS maps (>= 3, so the within-setup SRCC exists), the pairs QUICK_PAIRS, MAV
-  speed QUICK_VMAX, start/goal candidates QUICK_CANDIDATES (30 ordered pairs);
-- each uncontrolled set: its 9 setups x QUICK_UNCONTROLLED_MAPS maps, its first QUICK_UNCONTROLLED_PAIRS pairs
-  that exist in QUICK_PAIRS' planners, the same speed and candidates.
+  speed QUICK_VMAX, start/goal candidates QUICK_CANDIDATES (20 ordered pairs): 4860 trials;
+- each uncontrolled set: its 9 setups x QUICK_UNCONTROLLED_MAPS maps, its pairs that are in QUICK_PAIRS, the same
+  speed and candidates: 1080 trials each.
 
 Every run is a `pbdyn batch` (resumable: re-run the same command after an interruption) followed by `pbdyn
 evaluate` of the controlled store with the uncontrolled stores; the folder receives table.txt, report.json and
@@ -38,9 +38,11 @@ SETS = ("controlled_2d", "uncontrolled_speed_2d", "uncontrolled_size_2d", "uncon
 
 QUICK_MAPS = 3
 QUICK_UNCONTROLLED_MAPS = 2
-QUICK_PAIRS = (("fullrange", "local_primitives"), ("lookahead", "local_primitives"))
+QUICK_PAIRS = (("fullrange", "local_primitives"), ("finean", "global_primitives"), ("lookahead", "mpc"))
+"""The thesis' three pairs of the uncontrolled sets: one per trajectory planner (best, worst and a third)."""
 QUICK_VMAX = (4.0,)
-QUICK_CANDIDATES = ((4.0, 4.0), (4.0, 25.0), (4.0, 46.0), (46.0, 4.0), (46.0, 25.0), (46.0, 46.0))
+QUICK_CANDIDATES = ((4.0, 4.0), (4.0, 46.0), (46.0, 4.0), (46.0, 46.0), (25.0, 25.0))
+"""The four corner candidates and the centre: 20 ordered start/goal pairs, every flight crossing the arena."""
 
 
 def _toml_value(v) -> str:
