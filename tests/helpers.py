@@ -49,3 +49,26 @@ def fly(scenario: Scenario, rollout: Rollout, planner: str, start, goal, **kw):
 
     spec = make_trial_spec(scenario, first_map(scenario), planner=planner, start=start, goal=goal)
     return run_trial(spec, rollout, **kw)
+
+
+def make_tracks(pos, vel, radius):
+    """Tracks of M obstacles at centres pos [M, d] (m) with velocities vel [M, d] (m/s), one radius (m), zero
+    covariance."""
+    from pbdyn.planning.view import Tracks
+
+    pos = np.atleast_2d(np.asarray(pos, float))
+    m, d = pos.shape
+    return Tracks(np.arange(m), pos, np.atleast_2d(np.asarray(vel, float)), np.zeros((m, 2 * d, 2 * d)),
+                  np.full(m, float(radius)))
+
+
+def failed_pairs(scenario: Scenario, rollout: Rollout, planner: str) -> list:
+    """Every ordered start/goal pair of the scenario flown by ``planner`` (an entry label): the ones that did not
+    succeed or had planning failures, as (start, goal, outcome, failures)."""
+    cands = scenario.task.candidates
+    bad = []
+    for i, j in scenario.task.pairs():
+        res = fly(scenario, rollout, planner, cands[i], cands[j])
+        if res.outcome != "success" or res.planning_failures:
+            bad.append((cands[i], cands[j], res.outcome, res.planning_failures))
+    return bad

@@ -384,3 +384,21 @@ def test_write_plots(table, report, tmp_path):
         data = p.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n"
         assert len(data) > 10_000, p.name
+
+
+def test_within_setup_reliability_separates_noise_from_real_differences():
+    from pbdyn.analysis.success import within_setup_reliability
+
+    rng = np.random.default_rng(3)
+    groups = np.repeat(np.arange(20), 5)
+    n = np.full((100, 1), 400.0)
+    same = rng.binomial(400, 0.5, size=(100, 1)) / 400.0                  # identical maps: only noise
+    spread = rng.binomial(400, rng.uniform(0.2, 0.8, size=(100, 1))) / 400.0  # real differences >> noise
+    r_same = within_setup_reliability(same, n, groups)
+    r_spread = within_setup_reliability(spread, n, groups)
+    assert r_same["n_setups"] == 20 and abs(r_same["mean_reliability"]) < 0.35
+    assert r_spread["mean_reliability"] > 0.9
+    # hand check of one pair: V_b and V_n over setups
+    vb = np.mean([spread[groups == g, 0].var(ddof=1) for g in range(20)])
+    vn = np.mean([np.mean(spread[groups == g, 0] * (1 - spread[groups == g, 0]) / 400.0) for g in range(20)])
+    assert r_spread["per_pair"][0]["reliability"] == pytest.approx(1 - vn / vb, rel=1e-12)

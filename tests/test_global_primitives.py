@@ -21,7 +21,7 @@ from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.demo import demo_pairs
 from pbdyn.world.rollout import build_rollout
-from tests.helpers import first_map, fly, handmade_rollout, open_scenario
+from tests.helpers import failed_pairs, first_map, fly, handmade_rollout, make_tracks, open_scenario
 
 DT = 0.1
 GP_PLANNERS = [{"trajectory": "global_primitives", "gaze": "lookahead"},
@@ -50,11 +50,7 @@ def _view(ctx, p, goal, v=None, grid=None, tracks=None, t=0.0, trajectory=None):
                 trajectory=trajectory)
 
 
-def _tracks(pos, vel, radius):
-    pos = np.atleast_2d(np.asarray(pos, float))
-    m, d = pos.shape
-    return Tracks(np.arange(m), pos, np.atleast_2d(np.asarray(vel, float)), np.zeros((m, 2 * d, 2 * d)),
-                  np.full(m, float(radius)))
+_tracks = make_tracks
 
 
 def _scenario(dims=2, **extra):
@@ -336,14 +332,8 @@ def test_replan_check_on_new_predictions_new_occupied_cells_and_end_of_plan():
 
 def test_all_72_pairs_succeed_in_an_empty_arena_2d():
     sc = _scenario()
-    rollout = build_rollout(sc, first_map(sc))
-    cands = sc.task.candidates
-    bad = []
-    for i, j in sc.task.pairs():
-        res = fly(sc, rollout, "lookahead+global_primitives", cands[i], cands[j])
-        if res.outcome != "success" or res.planning_failures:
-            bad.append((cands[i], cands[j], res.outcome, res.planning_failures))
-    assert len(sc.task.pairs()) == 72 and not bad
+    assert len(sc.task.pairs()) == 72
+    assert failed_pairs(sc, build_rollout(sc, first_map(sc)), "lookahead+global_primitives") == []
 
 
 def test_sample_of_pairs_succeeds_in_an_empty_volume_3d():

@@ -17,7 +17,7 @@ from pbdyn.planning.protocols import PlannerContext, TrajectoryPlanner
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.demo import demo_pairs
 from pbdyn.world.rollout import build_rollout
-from tests.helpers import first_map, fly, handmade_rollout, open_scenario
+from tests.helpers import failed_pairs, first_map, fly, handmade_rollout, open_scenario
 
 DT = 0.1
 MPC_PLANNERS = [{"trajectory": "mpc", "gaze": "lookahead"}, {"trajectory": "straight_line", "gaze": "lookahead"},
@@ -65,14 +65,8 @@ def _cluttered_view(ctx, planner_t=0.0):
 
 def test_mpc_all_72_pairs_succeed_in_an_empty_arena_2d():
     sc = _scenario()
-    rollout = build_rollout(sc, first_map(sc))
-    cands = sc.task.candidates
-    bad = []
-    for i, j in sc.task.pairs():
-        res = fly(sc, rollout, "lookahead+mpc", cands[i], cands[j])
-        if res.outcome != "success" or res.planning_failures:
-            bad.append((cands[i], cands[j], res.outcome, res.planning_failures))
-    assert len(sc.task.pairs()) == 72 and not bad
+    assert len(sc.task.pairs()) == 72
+    assert failed_pairs(sc, build_rollout(sc, first_map(sc)), "lookahead+mpc") == []
 
 
 def test_mpc_sample_of_pairs_succeeds_in_an_empty_arena_3d():

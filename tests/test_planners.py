@@ -15,6 +15,7 @@ from pbdyn.planning.protocols import GazePlanner, PlannerContext, TrajectoryPlan
 from pbdyn.planning.straight_line import StraightLine
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, Tracks, View
+from tests.helpers import make_tracks
 
 DT = 0.1
 SIZE = 50.0
@@ -41,11 +42,7 @@ def _view(ctx, p, goal, v=None, a=None, grid=None, tracks=None, t=0.0, yaw=0.0, 
                 trajectory=trajectory)
 
 
-def _tracks(pos, vel, radius):
-    pos = np.atleast_2d(np.asarray(pos, float))
-    m, d = pos.shape
-    return Tracks(np.arange(m), pos, np.atleast_2d(np.asarray(vel, float)), np.zeros((m, 2 * d, 2 * d)),
-                  np.full(m, float(radius)))
+_tracks = make_tracks
 
 
 def _fly(planner, ctx, start, goal, steps=800, grid=None, tracks=None):

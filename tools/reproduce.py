@@ -8,7 +8,7 @@ pairs x 216 trials, and the three uncontrolled sets, 45 maps x 3 pairs x 216 tri
 grid written next to the results (scenarios/ in the output folder), derived from the same files:
 
 - controlled: all 27 setups x QUICK_MAPS maps (>= 3, so the within-setup SRCC exists), the pairs QUICK_PAIRS, MAV
-  speed QUICK_VMAX, start/goal candidates QUICK_CANDIDATES (20 ordered pairs): 4860 trials;
+  speed QUICK_VMAX, start/goal candidates QUICK_CANDIDATES (20 ordered pairs): 8100 trials;
 - each uncontrolled set: its 9 setups x QUICK_UNCONTROLLED_MAPS maps, its pairs that are in QUICK_PAIRS, the same
   speed and candidates: 1080 trials each.
 
@@ -36,7 +36,7 @@ from pbdyn.experiments.runner import BatchOptions, run_batch  # noqa: E402
 DATASETS = ROOT / "scenarios" / "datasets"
 SETS = ("controlled_2d", "uncontrolled_speed_2d", "uncontrolled_size_2d", "uncontrolled_rvo_2d")
 
-QUICK_MAPS = 3
+QUICK_MAPS = 5
 QUICK_UNCONTROLLED_MAPS = 2
 QUICK_PAIRS = (("fullrange", "local_primitives"), ("finean", "global_primitives"), ("lookahead", "mpc"))
 """The thesis' three pairs of the uncontrolled sets: one per trajectory planner (best, worst and a third)."""
@@ -97,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
     ap.add_argument("--scheduler", help="Dask scheduler address")
     ap.add_argument("--bootstrap", type=int, default=1000)
+    ap.add_argument("--extend", action="store_true", help="accept grown grids in existing stores (pbdyn batch --extend)")
     args = ap.parse_args(argv)
     out = Path(args.out or ROOT / "results" / f"reproduce-{args.scale}")
     out.mkdir(parents=True, exist_ok=True)
@@ -113,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
         scenario = parse_scenario(tomllib.loads(path.read_text()), str(path))
         store = out / f"{scenario.name}.sqlite"
         sys.stderr.write(f"reproduce: {scenario.name} -> {store}\n")
-        s = run_batch(scenario, store, BatchOptions(workers=args.workers, scheduler=args.scheduler),
+        s = run_batch(scenario, store, BatchOptions(workers=args.workers, scheduler=args.scheduler,
+                                                         extend=args.extend),
                       command=f"tools/reproduce.py --scale {args.scale}")
         sys.stderr.write(f"reproduce: {scenario.name}: {s.total} trials ({s.ran} run now, {s.errors} errors) in "
                          f"{s.wall_time_s:.0f} s\n")

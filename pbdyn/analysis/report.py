@@ -29,7 +29,8 @@ from pbdyn.analysis.cv import LEVELS, cv_by_level, cv_summary
 from pbdyn.analysis.normalise import Normaliser, fit_normaliser
 from pbdyn.analysis.regression import FEATURES, LinearFit, fit_linear, setup_features, setup_key
 from pbdyn.analysis.srcc import bootstrap_mean_srcc, mean_std, pair_srcc, percentile_ci, within_group_srcc
-from pbdyn.analysis.success import OUTCOMES, SuccessTable, rate_and_se, success_table, trial_arrays
+from pbdyn.analysis.success import (OUTCOMES, SuccessTable, rate_and_se, success_table, trial_arrays,
+                                   within_setup_reliability)
 from pbdyn.errors import ConfigError
 
 METRIC_ORDER = ("density", "traversability", "dynamic_traversability", "survivability", "survivability_dense",
@@ -220,6 +221,7 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         "metrics": rows,
         "setup_model": {**_fit_dict(setup_fit, "pooled success rate per map"), "rows": "metrics.setup_model"},
         "success": _success_block(st, datasets, map_ids),
+        "within_setup_reliability": within_setup_reliability(rate_c, st.n[c], keys_c),
         "sigma_bands": bands,
         "regression": regression,
         "regression_raw": regression_raw,
@@ -266,6 +268,11 @@ def format_table(report: dict) -> str:
         lines.append(f"{name:<24} {_f(r['srcc_mean']):>7} +- {_f(r['srcc_std']):<5} "
                      f"[{_f(ci[0]):>6}, {_f(ci[1]):>6}]  {_f(r['within_setup_srcc']):>12} "
                      f"{_f(r['cv_mean']):>7} +- {_f(r['cv_std']):<5} {_f(r['compute_time_s'], '.2f'):>9}")
+    rel = report.get("within_setup_reliability") or {}
+    if rel.get("n_setups"):
+        lines += ["", f"Within-setup reliability of per-map success: {_f(rel['mean_reliability'], '.2f')} (mean over "
+                      f"pairs over {rel['n_setups']} setups; 1 - binomial noise variance / between-map variance). A "
+                      "metric's within-setup SRCC cannot exceed about its square root."]
     b = report.get("sigma_bands")
     if b:
         lines += ["", f"Share of (map, pair) points within k sigma of the controlled fit of success vs "

@@ -114,3 +114,38 @@ def success_table(ta: TrialArrays) -> SuccessTable:
     pr, pse, pn = grouped_rate(np.where(flown, ta.map_idx, -1), ta.is_outcome("success"), m)
     return SuccessTable(ta.map_ids, ta.pairs, n.reshape(m, p), k.reshape(m, p).astype(np.int64),
                         rate.reshape(m, p), se.reshape(m, p), pn, pr, pse)
+
+
+def within_setup_reliability(rate: np.ndarray, n: np.ndarray, groups, min_maps: int = 3) -> dict:
+    """How much of the map-to-map spread of success within setups is real rather than trial noise.
+
+    rate, n: success rates and trial counts [maps, pairs]; groups: a setup key per map. Per pair, over the setups
+    with >= min_maps flown maps: V_b = mean within-setup sample variance of the rates (ddof 1), V_n = mean binomial
+    noise variance rate (1 - rate) / n; reliability = 1 - V_n / V_b (the share of V_b that is not noise; <= 0:
+    within a setup, maps cannot be told apart at this trial count). Since noise caps any metric's correlation with
+    success near sqrt(reliability), it bounds what the within-setup SRCC can show. Returns per-pair values and
+    their mean."""
+    rate = np.asarray(rate, float)
+    n = np.asarray(n, float)
+    keys = np.asarray([str(g) for g in groups])
+    out = {"per_pair": [], "n_setups": 0}
+    for j in range(rate.shape[1]):
+        vb, vn = [], []
+        for key in np.unique(keys):
+            sel = (keys == key) & (n[:, j] > 0) & np.isfinite(rate[:, j])
+            if sel.sum() < min_maps:
+                continue
+            r = rate[sel, j]
+            vb.append(r.var(ddof=1))
+            vn.append(np.mean(r * (1.0 - r) / n[sel, j]))
+        out["n_setups"] = max(out["n_setups"], len(vb))
+        if vb and np.mean(vb) > 0:
+            out["per_pair"].append({"between_var": float(np.mean(vb)), "noise_var": float(np.mean(vn)),
+                                    "reliability": float(1.0 - np.mean(vn) / np.mean(vb))})
+        else:
+            out["per_pair"].append({"between_var": float(np.mean(vb)) if vb else float("nan"),
+                                    "noise_var": float(np.mean(vn)) if vn else float("nan"),
+                                    "reliability": float("nan")})
+    rel = [p["reliability"] for p in out["per_pair"] if np.isfinite(p["reliability"])]
+    out["mean_reliability"] = float(np.mean(rel)) if rel else float("nan")
+    return out
