@@ -282,3 +282,31 @@ def test_evaluate_prints_the_table_writes_figures_and_json(reference, tmp_path):
     missing = subprocess.run(pbdyn_cmd() + ["evaluate", str(tmp_path / "none.sqlite")], capture_output=True,
                              text=True, timeout=60)
     assert missing.returncode == 2 and "RESULTS: file not found" in missing.stderr
+
+
+def test_a_reused_client_and_world_fly_exactly_like_fresh_ones(tmp_path):
+    from pbdyn.sim.trial import make_trial_spec, make_world, run_trial
+    from pbdyn.world.maps import enumerate_maps
+    from pbdyn.world.rollout import build_rollout
+
+    sc = load_scenario(small(tmp_path))
+    maps = enumerate_maps(sc)
+    cands = sc.task.candidates
+    specs = [make_trial_spec(sc, m, planner=label, start=cands[0], goal=cands[1])
+             for m in maps for label in ("lookahead+local_primitives", "fullrange+straight_line")]
+    rollouts = {m.map_id: build_rollout(sc, m) for m in maps}
+    fresh = [run_trial(s, rollouts[s.map_spec.map_id]).without_wall_times() for s in specs]
+    from pbdyn.world.bullet import new_client
+
+    reused, world, client, prev = [], None, new_client(), None
+    for s in specs:
+        ro = rollouts[s.map_spec.map_id]
+        if s.map_spec != prev:
+            if world is not None:
+                world.close()
+            world = make_world(s, ro, client=client)
+        prev = s.map_spec
+        reused.append(run_trial(s, ro, world=world).without_wall_times())
+    world.close()
+    client.disconnect()
+    assert reused == fresh

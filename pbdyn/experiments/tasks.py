@@ -4,7 +4,8 @@ An experiment = maps x planner pairs x MAV speeds x start/goal pairs (DESIGN.md 
 the trial's config hash (sha256 of its resolved, value-only description), so adding a grid value, a planner, a
 speed or maps never changes an existing key. Workers receive the scenario, the map spec and a rollout reference
 (a file path, or the .npz bytes for cluster workers without the coordinator's disk); they keep the last map's
-rollout and PyBullet world and reuse them for the next trial of the same map (one client per worker).
+rollout and PyBullet world for the next trial of the same map, and one PyBullet client for their whole life
+(reset and refilled when the map changes).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ def enumerate_trials(scenario: Scenario, maps: list[MapSpec]) -> list[tuple[str,
 
 
 # ------------------------------------------------------------------------------------------------ worker side
-_CACHE: dict = {"rollout": (None, None), "world": (None, None)}
+_CACHE: dict = {"rollout": (None, None), "world": (None, None), "client": None}
 
 
 def _limit_threads() -> None:
@@ -102,9 +103,13 @@ def _world(task: TrialTask, spec, ro):
     old_key, world = _CACHE["world"]
     if old_key != key:
         if world is not None:
-            world.close()
+            world.close()                      # leaves the worker's client connected
         _CACHE["world"] = (None, None)
-        world = make_world(spec, ro)
+        if _CACHE["client"] is None:
+            from pbdyn.world.bullet import new_client
+
+            _CACHE["client"] = new_client()    # one client per worker, reset for every map
+        world = make_world(spec, ro, client=_CACHE["client"])
         _CACHE["world"] = (key, world)
     return world
 
@@ -139,8 +144,7 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
         try:
             res = run_trial(spec, ro, world=world)
         except BaseException:
-            _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state
-            world.close()
+            _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state: rebuild it
             raise
         return task.key, res.to_dict(), None
     except Exception as exc:  # any failure of a trial is recorded as an "error" row, never stops the batch

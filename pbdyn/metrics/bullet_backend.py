@@ -30,7 +30,7 @@ import numpy as np
 
 from pbdyn.errors import ConfigError, check_positive, HorizonError
 from pbdyn.metrics.sampling import step_window
-from pbdyn.world.bullet import bullet_client, load_scaled_urdf, pybullet, stdout_to_stderr
+from pbdyn.world.bullet import bullet_client, load_scaled_urdf, pybullet, silenced_stdout, stdout_to_stderr
 
 QUERY_GROUP = 0x200
 """Collision filter group of the query (MAV) spheres."""
@@ -183,7 +183,7 @@ class _RolloutScene:
         self.rollout, self.dims, self.h = rollout, d, plane_height(rollout, flight_height)
         self.spheres = getattr(rollout, "bodies", None) is None
         self.extra = world_bodies(rollout) + tuple(extra_bodies)
-        with stdout_to_stderr():
+        with silenced_stdout():
             self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         try:
             self._build(pts, mav_radius, exact_pillars)

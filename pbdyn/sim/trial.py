@@ -172,14 +172,15 @@ def _wrap(angle: float) -> float:
     return float((angle + math.pi) % (2.0 * math.pi) - math.pi)
 
 
-def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False) -> PyBulletWorld:
+def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, client=None) -> PyBulletWorld:
     """The PyBullet world of a trial's map: MAV, obstacles, static bodies, walls (imported worlds: static bodies
     by their real shapes, moving ones as their bounding spheres). Reusable for every trial of the same map and
-    scenario (run_trial(..., world=...)): trials only move the MAV and the obstacles, which every step sets."""
+    scenario (run_trial(..., world=...)): trials only move the MAV and the obstacles, which every step sets.
+    ``client``: an existing BulletClient to reset and reuse (see PyBulletWorld)."""
     sc = spec.scenario
     world = PyBulletWorld(dims=sc.world.dims, arena_size=sc.world.size, flight_height=sc.world.flight_height,
                           mav_radius=sc.drone.radius, obstacle_radii=rollout.radii, static_bodies=rollout.static,
-                          mav_urdf=str(sc.mav_urdf_path()), gui=gui)
+                          mav_urdf=str(sc.mav_urdf_path()), gui=gui, client=client)
     bodies = rollout.bodies
     if bodies is not None:
         try:

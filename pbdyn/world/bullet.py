@@ -71,6 +71,29 @@ def stdout_to_stderr() -> Iterator[None]:
 
 
 @contextlib.contextmanager
+def silenced_stdout() -> Iterator[None]:
+    """Send file descriptor 1 to /dev/null for the duration (PyBullet's connect prints a bare "argv[0]=" banner that
+    carries no information); both C and Python buffers are flushed first, so nothing else is lost."""
+    sys.stdout.flush()
+    _flush_c_stdout()
+    try:
+        saved = os.dup(1)
+    except OSError:
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        _flush_c_stdout()
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+@contextlib.contextmanager
 def _quiet_import() -> Iterator[None]:
     """Silence file descriptors 1 and 2 while PyBullet imports (its build-time banner carries no information;
     import errors still raise as Python exceptions)."""
@@ -218,6 +241,12 @@ def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], posit
 
 
 # --------------------------------------------------------------------------------------------- the world
+def new_client(gui: bool = False):
+    """A new BulletClient (DIRECT, or GUI), its banner silenced; the caller disconnects it."""
+    with silenced_stdout():
+        return bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+
+
 class PyBulletWorld:
     """Collision geometry of one trial or metric run, in one PyBullet client (SI units, world frame, z-up).
 
@@ -228,6 +257,8 @@ class PyBulletWorld:
         static_bodies: StaticBody list (pillars, boxes). mav_urdf: the MAV model (default urdf/quadrotor.urdf;
         loaded scaled uniformly by mav_radius). wall_thickness: (m). gui: PyBullet GUI instead of DIRECT.
         exact_pillars: load 2D pillars with cylinder collision shapes instead of the equivalent spheres.
+        client: an existing BulletClient to reuse (it is reset, then filled with this world; close() leaves it
+        connected) -- one client per batch worker for every map it flies.
 
     Public attributes: client, dims, mav_id, obstacle_ids (int64 [N]), static_ids, wall_ids (int64), arena_size,
     flight_height, mav_radius, obstacle_radii, obstacle_positions ([N, d], the last positions set; obstacles start
@@ -236,7 +267,7 @@ class PyBulletWorld:
 
     def __init__(self, *, dims: int, arena_size: Sequence[float], flight_height: float = 2.0, mav_radius: float,
                  obstacle_radii, static_bodies: Sequence[StaticBody] = (), mav_urdf: str | None = None,
-                 wall_thickness: float = 1.0, gui: bool = False, exact_pillars: bool = False):
+                 wall_thickness: float = 1.0, gui: bool = False, exact_pillars: bool = False, client=None):
         if dims not in (2, 3):
             raise ConfigError("dims", "must be 2 or 3", dims)
         self.dims = int(dims)
@@ -254,8 +285,12 @@ class PyBulletWorld:
         if mav_urdf is not None and not Path(mav_urdf).is_file():
             raise ConfigError("mav_urdf", "file not found", str(mav_urdf))
         self._pid = os.getpid()
-        with stdout_to_stderr():
-            self.client = bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        self._owns_client = client is None
+        if client is None:
+            self.client = new_client(gui)
+        else:   # a client lent by the caller (batch workers): emptied, then rebuilt for this world
+            self.client = client
+            self.client.resetSimulation()
         self._closed = False
         try:
             self._build(mav_urdf, tuple(static_bodies), exact_pillars)
@@ -595,11 +630,13 @@ class PyBulletWorld:
 
     # ----------------------------------------------------------------------------------------- lifetime
     def close(self) -> None:
-        """Disconnect the PyBullet client (idempotent)."""
+        """Disconnect the PyBullet client (idempotent); a lent client is left connected (its bodies stay until the
+        next world resets it)."""
         if not self._closed:
             self._closed = True
-            with stdout_to_stderr():
-                self.client.disconnect()
+            if self._owns_client:
+                with stdout_to_stderr():
+                    self.client.disconnect()
 
     def __enter__(self) -> "PyBulletWorld":
         return self
