@@ -72,3 +72,13 @@ def failed_pairs(scenario: Scenario, rollout: Rollout, planner: str) -> list:
         if res.outcome != "success" or res.planning_failures:
             bad.append((cands[i], cands[j], res.outcome, res.planning_failures))
     return bad
+
+
+def assert_avoids(scenario: Scenario, rollout: Rollout, planner: str, start, goal) -> None:
+    """straight_line collides with the rollout's obstacle between start and goal; ``planner`` (an entry label)
+    succeeds with min_clearance >= 0 and has tracked the obstacle."""
+    sl = fly(scenario, rollout, "lookahead+straight_line", start, goal)
+    assert sl.outcome == "dynamic_collision", sl
+    res = fly(scenario, rollout, planner, start, goal)
+    assert res.outcome == "success", res
+    assert res.min_clearance_m >= 0.0 and res.obstacles_tracked == 1

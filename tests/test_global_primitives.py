@@ -21,7 +21,7 @@ from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.demo import demo_pairs
 from pbdyn.world.rollout import build_rollout
-from tests.helpers import failed_pairs, first_map, fly, handmade_rollout, make_tracks, open_scenario
+from tests.helpers import assert_avoids, failed_pairs, first_map, fly, handmade_rollout, make_tracks, open_scenario
 
 DT = 0.1
 GP_PLANNERS = [{"trajectory": "global_primitives", "gaze": "lookahead"},
@@ -355,12 +355,7 @@ def test_avoids_head_on_and_crossing_obstacles_that_straight_line_hits(dims, p0,
     sc = _scenario(dims)
     z = [10.0] if dims == 3 else []
     start, goal = tuple([4.0, 25.0] + z), tuple([46.0, 25.0] + z)
-    rollout = handmade_rollout(sc, [p0], [v0], [radius])
-    sl = fly(sc, rollout, "lookahead+straight_line", start, goal)
-    assert sl.outcome == "dynamic_collision", sl
-    res = fly(sc, rollout, planner, start, goal)
-    assert res.outcome == "success", res
-    assert res.min_clearance_m >= 0.0 and res.obstacles_tracked == 1
+    assert_avoids(sc, handmade_rollout(sc, [p0], [v0], [radius]), planner, start, goal)
 
 
 def test_trials_respect_norm_limits_and_are_deterministic(tmp_path):

@@ -47,12 +47,9 @@ def _flush_c_stdout() -> None:
 
 
 @contextlib.contextmanager
-def stdout_to_stderr() -> Iterator[None]:
-    """Redirect file descriptor 1 to descriptor 2 for the duration (PyBullet prints on import, connect, loadURDF).
-
-    Python's and the C runtime's stdout buffers are flushed on both sides, so nothing printed inside the block can
-    reach the real stdout later.
-    """
+def _stdout_to(fd: int | None) -> Iterator[None]:
+    """Point file descriptor 1 at ``fd`` (None: /dev/null) for the duration; Python's and the C runtime's stdout
+    buffers are flushed on both sides, so nothing printed inside the block can reach the real stdout later."""
     sys.stdout.flush()
     _flush_c_stdout()
     try:
@@ -60,37 +57,28 @@ def stdout_to_stderr() -> Iterator[None]:
     except OSError:  # no fd 1 at all: nothing to protect
         yield
         return
+    devnull = os.open(os.devnull, os.O_WRONLY) if fd is None else None
     try:
-        os.dup2(2, 1)
+        os.dup2(devnull if fd is None else fd, 1)
         yield
     finally:
         sys.stdout.flush()
         _flush_c_stdout()
         os.dup2(saved, 1)
         os.close(saved)
+        if devnull is not None:
+            os.close(devnull)
 
 
-@contextlib.contextmanager
-def silenced_stdout() -> Iterator[None]:
+def stdout_to_stderr():
+    """Redirect file descriptor 1 to descriptor 2 for the duration (PyBullet prints on import, connect, loadURDF)."""
+    return _stdout_to(2)
+
+
+def silenced_stdout():
     """Send file descriptor 1 to /dev/null for the duration (PyBullet's connect prints a bare "argv[0]=" banner that
-    carries no information); both C and Python buffers are flushed first, so nothing else is lost."""
-    sys.stdout.flush()
-    _flush_c_stdout()
-    try:
-        saved = os.dup(1)
-    except OSError:
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        yield
-    finally:
-        sys.stdout.flush()
-        _flush_c_stdout()
-        os.dup2(saved, 1)
-        os.close(saved)
-        os.close(devnull)
+    carries no information)."""
+    return _stdout_to(None)
 
 
 @contextlib.contextmanager
