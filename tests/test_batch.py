@@ -33,7 +33,7 @@ root_seed = 3
 [drone]
 v_max = [4.0]
 [task]
-candidates = [[4.0, 4.0], [46.0, 46.0], [4.0, 46.0], [46.0, 4.0]]
+candidates = [[4.0, 4.0], [46.0, 46.0], [4.0, 46.0], [46.0, 4.0], [25.0, 25.0]]
 {planners}
 """
 PLANNERS = """
@@ -69,14 +69,14 @@ def batch(args: list[str], **kw) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    """An uninterrupted 2-worker run of the small experiment (2 maps x 2 planners x 12 pairs = 48 trials)."""
+    """An uninterrupted 2-worker run of the small experiment (2 maps x 2 planners x 20 pairs = 80 trials)."""
     d = tmp_path_factory.mktemp("ref")
     sc = small(d)
     out = d / "ref.sqlite"
     res = batch([str(sc), "--out", str(out), "--workers", "2", "--json"])
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    assert doc["trials"] == 48 and doc["ran"] == 48 and doc["errors"] == 0 and doc["maps_computed"] == 2
+    assert doc["trials"] == 80 and doc["ran"] == 80 and doc["errors"] == 0 and doc["maps_computed"] == 2
     return sc, out
 
 
@@ -86,7 +86,7 @@ def test_rerun_skips_everything_and_store_holds_each_trial_once(reference):
     assert res.returncode == 0
     assert json.loads(res.stdout)["ran"] == 0
     rows = rows_without_wall(out)
-    assert len(rows) == 48
+    assert len(rows) == 80
     store = ResultsStore.open(out)
     maps = store.maps()
     store.close()
@@ -131,14 +131,14 @@ def test_kill_9_of_the_coordinator_loses_nothing_and_resume_completes(reference,
     proc = subprocess.Popen(pbdyn_cmd() + ["batch", str(sc), "--out", str(out), "--workers", "1"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        k = _wait_rows(out, 5, proc)
+        k = _wait_rows(out, 1, proc)
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     committed = _count(out)
-    assert k <= committed < 48
+    assert k <= committed < 80
     res = batch([str(sc), "--out", str(out), "--workers", "2", "--json"])
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["already_stored"] == committed
@@ -151,7 +151,7 @@ def test_kill_9_of_a_worker_is_survived(reference, tmp_path):
     proc = subprocess.Popen(pbdyn_cmd() + ["batch", str(sc), "--out", str(out), "--workers", "2"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        _wait_rows(out, 3, proc)
+        _wait_rows(out, 1, proc)
         kids = [c for c in _children(proc.pid) if "spawn" in Path(f"/proc/{c}/cmdline").read_text()]
         assert kids, "no worker processes found"
         os.kill(kids[0], signal.SIGKILL)
@@ -172,7 +172,7 @@ def test_dask_local_cluster_gives_the_process_pool_rows(reference, tmp_path):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client:
         s = run_batch(load_scenario(sc), out, BatchOptions(scheduler=client, progress=False))
-    assert s.ran == 48 and s.errors == 0
+    assert s.ran == 80 and s.errors == 0
     assert rows_without_wall(out) == rows_without_wall(ref_out)
 
 
@@ -190,7 +190,7 @@ def test_a_planner_that_raises_gives_error_rows_and_the_batch_completes(tmp_path
                 env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    assert doc["ran"] == 24 and 0 < doc["errors"] < 24
+    assert doc["ran"] == 40 and 0 < doc["errors"] < 40
     store = ResultsStore.open(out)
     rows = store.results()
     store.close()
@@ -211,7 +211,7 @@ def test_extend_accepts_additions_only(reference, tmp_path):
     res = batch([str(more), "--out", str(out), "--workers", "2", "--extend", "--json", "--limit", "60"])
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    assert doc["already_stored"] == 48 and doc["ran"] == 12
+    assert doc["already_stored"] == 40 and doc["ran"] == 20     # the first 60: map 0 x 3 planners
     changed = small(tmp_path, name="changed.toml", **{"radius = 1.0": "radius = 1.2"})
     res = batch([str(changed), "--out", str(out), "--extend"])
     assert res.returncode == 2 and "obstacles.radius" in res.stderr
