@@ -377,9 +377,11 @@ def test_write_plots(table, report, tmp_path):
     trials, maps, _ = table
     paths = write_plots(trials, maps, report, tmp_path / "figs")
     names = sorted(p.name for p in paths)
+    others = sorted({m["dataset"] for m in maps.values()} - {report["controlled_dataset"]})
+    assert others                                             # the table has uncontrolled datasets (figs 4-14..4-16)
     assert names == sorted(["metric_density.png", "metric_survivability.png", "metric_vo_feasibility.png",
                             f"metric_{SETUP_MODEL}.png", "survivability_trajectory.png", "survivability_gaze.png",
-                            "velocity_ratio.png"])
+                            "velocity_ratio.png"] + [f"uncontrolled_{d}.png" for d in others])
     for p in paths:
         data = p.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n"

@@ -11,6 +11,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from pbdyn.analysis.bands import band_curve
 from pbdyn.analysis.cv import LEVELS, difficulty_level, level_stats
 from pbdyn.analysis.regression import setup_features
 from pbdyn.analysis.report import difficulty_table
@@ -72,10 +73,41 @@ def _group_lines(ax, group: np.ndarray, n_groups: int, labels: tuple[str, ...], 
     _legend(ax, n_groups)
 
 
+def _uncontrolled_figures(report: dict, band: str, d: np.ndarray, st, map_ids, maps: dict, out_dir: Path,
+                          out: list[Path]) -> None:
+    """uncontrolled_<dataset>.png per non-controlled dataset (figs 4-14..4-16): its (difficulty, success) points per
+    pair over the controlled fit mu_j(D) +- 1 and 2 sigma_j(D) (the curves the sigma-band shares are counted
+    against)."""
+    fit = report["sigma_bands"]["fit"]
+    mu = np.array(fit["mean"], dtype=float)
+    sig = np.array(fit["sigma"], dtype=float)
+    grid = np.linspace(0.0, float(LEVELS), 101)
+    m_curve, s_curve = band_curve(mu, sig, grid)
+    datasets = np.array([str(maps[m].get("dataset", "")) for m in map_ids])
+    cols = _colours(len(st.pairs))
+    for name in sorted(set(datasets.tolist()) - {report["controlled_dataset"]}):
+        sel = datasets == name
+        fig, axes = _figure(4.5 * len(st.pairs), 4.0, len(st.pairs))
+        for j, (ax, pair) in enumerate(zip(axes, st.pairs)):
+            ax.fill_between(grid, m_curve[:, j] - 2 * s_curve[:, j], m_curve[:, j] + 2 * s_curve[:, j],
+                            color=cols[j], alpha=0.12, label="controlled fit +- 2 sigma")
+            ax.fill_between(grid, m_curve[:, j] - s_curve[:, j], m_curve[:, j] + s_curve[:, j], color=cols[j],
+                            alpha=0.25, label="+- 1 sigma")
+            ax.plot(grid, m_curve[:, j], color=cols[j], label="controlled mean")
+            ok = sel & np.isfinite(st.rate[:, j]) & np.isfinite(d)
+            ax.scatter(d[ok], st.rate[ok, j], s=14, color="k", label=f"{name} maps")
+            ax.set(xlabel=f"{band} difficulty", ylabel="success rate", xlim=(0, LEVELS), ylim=(-0.05, 1.05),
+                   title=pair)
+            _legend(ax, 4)
+        fig.suptitle(f"{name} against the controlled fit (figs. 4-14..4-16)")
+        _save(fig, out_dir / f"uncontrolled_{name}.png", out)
+
+
 def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[Path]:
     """Write the evaluation figures as PNG files into ``out_dir`` (created) and return their paths:
     metric_<name>.png per report metric (figs 4-5..4-12), survivability_trajectory.png (fig 5-9),
-    survivability_gaze.png (fig 5-10) when the report has a sigma-band metric, velocity_ratio.png (fig 5-14).
+    survivability_gaze.png (fig 5-10) and uncontrolled_<dataset>.png per non-controlled dataset (figs 4-14..4-16)
+    when the report has a sigma-band metric, velocity_ratio.png (fig 5-14).
     ``report`` is the dict from pbdyn.analysis.report.evaluate on the same trials and maps."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -121,6 +153,9 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
             ax.set_title(traj)
         fig.suptitle(f"Gaze planners vs {band} (fig. 5-10)")
         _save(fig, out_dir / "survivability_gaze.png", out)
+
+    if band in diff:
+        _uncontrolled_figures(report, band, diff[band], st, map_ids, maps, out_dir, out)
 
     v_obs = np.array([setup_features(maps[m])[2] for m in map_ids])[ta.map_idx]
     with np.errstate(invalid="ignore", divide="ignore"):
