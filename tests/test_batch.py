@@ -310,3 +310,13 @@ def test_a_reused_client_and_world_fly_exactly_like_fresh_ones(tmp_path):
     world.close()
     client.disconnect()
     assert reused == fresh
+
+
+def test_an_unreachable_scheduler_is_a_one_line_error_and_leaves_no_store(tmp_path):
+    out = tmp_path / "never.sqlite"
+    res = batch([str(SCENARIOS / "quickstart.toml"), "--out", str(out), "--scheduler", "tcp://no-such-host-xyz:8786",
+                 "--limit", "2"])
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--scheduler: cannot reach a Dask scheduler" in lines[0]
+    assert not out.exists()

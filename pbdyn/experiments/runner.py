@@ -17,7 +17,7 @@ import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from pbdyn import __version__
@@ -31,6 +31,7 @@ from pbdyn.world.rollout import default_horizon, rollout_file
 
 COMMIT_INTERVAL_S = 1.0
 MAX_POOL_RESTARTS = 3
+CONNECT_TIMEOUT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -157,13 +158,8 @@ class _Pool:
         self.own_client = False
         self.workers = workers
         if scheduler is not None:
-            from dask.distributed import Client
-
-            if isinstance(scheduler, str):
-                self.client = Client(scheduler)
-                self.own_client = True
-            else:
-                self.client = scheduler
+            self.client = connect(scheduler) if isinstance(scheduler, str) else scheduler
+            self.own_client = isinstance(scheduler, str)
             self.executor = self.client.get_executor(pure=False)
             self.scattered: dict[str, object] = {}
         else:
@@ -200,6 +196,18 @@ class _Pool:
             self.client.close()
 
 
+def connect(address: str):
+    """A dask.distributed Client of the scheduler at ``address``; ConfigError naming --scheduler if it cannot be
+    reached within CONNECT_TIMEOUT_S."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ConfigError("--scheduler", "cannot reach a Dask scheduler there "
+                          f"({type(exc).__name__}: {' '.join(str(exc).split())[:160]})", address) from None
+
+
 def _default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
@@ -217,6 +225,12 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
     trials = enumerate_trials(scenario, maps)
     if options.limit is not None:
         trials = trials[: options.limit]
+    if isinstance(options.scheduler, str):   # reach the cluster before touching the store
+        client = connect(options.scheduler)
+        try:
+            return run_batch(scenario, out, replace(options, scheduler=client), command)
+        finally:
+            client.close()
     store = ResultsStore.create(out)
     try:
         check_scenario(store, scenario, options.extend)
