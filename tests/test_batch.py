@@ -320,3 +320,14 @@ def test_an_unreachable_scheduler_is_a_one_line_error_and_leaves_no_store(tmp_pa
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "--scheduler: cannot reach a Dask scheduler" in lines[0]
     assert not out.exists()
+
+
+def test_a_bad_planner_entry_stops_the_batch_before_it_starts(tmp_path):
+    sc = small(tmp_path, '[[planners]]\ntrajectory = "local_primitives"\ngaze = "no_such_gaze"\n', name="bad.toml")
+    out = tmp_path / "bad.sqlite"
+    res = batch([str(sc), "--out", str(out)])
+    assert res.returncode == 2 and "planners[0].gaze" in res.stderr and not out.exists()
+    sc = small(tmp_path, '[[planners]]\ntrajectory = "mpc"\ntrajectory_params = { horizon = 1 }\n',
+               name="bad2.toml")
+    res = batch([str(sc), "--out", str(out)])
+    assert res.returncode == 2 and "planners[0].trajectory_params" in res.stderr and not out.exists()

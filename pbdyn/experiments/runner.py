@@ -196,6 +196,26 @@ class _Pool:
             self.client.close()
 
 
+def check_planners(scenario: Scenario) -> None:
+    """Resolve and build every planner entry once (names, plug-in imports, parameters), so that a bad entry is one
+    clear error before the batch starts rather than an "error" row for each of its trials."""
+    import numpy as np
+
+    from pbdyn.planning.protocols import PlannerContext
+    from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
+    from pbdyn.planning.view import MAVLimits
+
+    d = scenario.drone
+    for v in d.v_max:
+        ctx = PlannerContext(scenario.world.dims, scenario.world.dt, MAVLimits(d.radius, v, d.a_max, d.yaw_rate_limit),
+                             np.zeros(scenario.world.dims), np.asarray(scenario.world.size, dtype=float), 0)
+        for i, e in enumerate(scenario.planners):
+            build_planner(resolve_trajectory_planner(e.trajectory, f"planners[{i}].trajectory"), ctx,
+                          e.trajectory_params, f"planners[{i}].trajectory_params")
+            build_planner(resolve_gaze_planner(e.gaze, f"planners[{i}].gaze"), ctx, e.gaze_params,
+                          f"planners[{i}].gaze_params")
+
+
 def connect(address: str):
     """A dask.distributed Client of the scheduler at ``address``; ConfigError naming --scheduler if it cannot be
     reached within CONNECT_TIMEOUT_S."""
@@ -221,6 +241,7 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
         raise ConfigError("--workers", "must be an integer >= 1", workers)
     if options.limit is not None and (not isinstance(options.limit, int) or options.limit < 1):
         raise ConfigError("--limit", "must be an integer >= 1", options.limit)
+    check_planners(scenario)
     maps = enumerate_maps(scenario)
     trials = enumerate_trials(scenario, maps)
     if options.limit is not None:
