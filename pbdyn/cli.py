@@ -174,14 +174,22 @@ def cmd_metrics(args: argparse.Namespace) -> int:
     values = map_metrics(scenario, spec_map, names, backend=backend)
     doc = {"scenario": scenario.name, "map_index": spec_map.index, "map_id": spec_map.map_id,
            "setup": spec_map.setup, "replicate": spec_map.replicate, "backend": backend, "metrics": values}
+    if scenario.is_world:
+        doc["bodies"] = [{"name": b.name, "motion": b.motion} for b in scenario.bodies]
+        del doc["setup"], doc["replicate"]
     if args.json:
         sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+        return 0
+    if scenario.is_world:
+        moving = sum(b.moving for b in scenario.bodies)
+        sys.stdout.write(f"world {scenario.name}: {len(scenario.bodies)} bodies ({moving} moving), backend {backend}\n")
     else:
-        sys.stdout.write(f"map {spec_map.index} ({spec_map.map_id}) {spec_map.setup} replicate {spec_map.replicate}\n")
-        for name, v in values.items():
-            err = f" +- {v['stderr']:.3f}" if v.get("stderr") is not None else ""
-            sys.stdout.write(f"{name:>24}: {v['value']:.4f}{err}  (n={v['n_samples']}, excluded {v['n_excluded']}, "
-                             f"{1000 * v['wall_time_s']:.1f} ms{', cached' if v['cached'] else ''})\n")
+        sys.stdout.write(f"map {spec_map.index} ({spec_map.map_id}) {spec_map.setup} replicate {spec_map.replicate}, "
+                         f"backend {backend}\n")
+    for name, v in values.items():
+        err = f" +- {v['stderr']:.3f}" if v.get("stderr") is not None else ""
+        sys.stdout.write(f"{name:>24}: {v['value']:.4f}{err}  (n={v['n_samples']}, excluded {v['n_excluded']}, "
+                         f"{1000 * v['wall_time_s']:.1f} ms{', cached' if v['cached'] else ''})\n")
     return 0
 
 

@@ -234,6 +234,9 @@ def test_example_worlds_fly_and_measure_deterministically(name, tmp_path):
     assert docs[0]["backend"] == "bullet"
     surv = docs[0]["metrics"]["survivability"]
     assert 0.0 < surv["value"] <= 12.0 and surv["stderr"] > 0
+    text = subprocess.run(pbdyn_cmd() + ["metrics", str(WORLDS / f"{name}.toml"), "--metric", "density"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert text.returncode == 0 and text.stdout.startswith(f"world {name}:") and "density:" in text.stdout
     run = subprocess.run(pbdyn_cmd() + ["run", str(WORLDS / f"{name}.toml"), "--json", "--planner",
                                         "lookahead+local_primitives"],
                          capture_output=True, text=True, env=env, timeout=300)
