@@ -3,6 +3,7 @@
     .venv/bin/python tools/reproduce.py --scale quick [--out results/reproduce-quick] [--workers N]
     .venv/bin/python tools/reproduce.py --scale full  [--out results/reproduce-full] [--scheduler tcp://HOST:8786]
 
+``--dims 3`` uses the 3D counterparts (scenarios/datasets/*_3d.toml) the same way.
 ``full`` flies the thesis' datasets as shipped (scenarios/datasets/*_2d.toml: the controlled set, 540 maps x 18
 pairs x 216 trials, and the three uncontrolled sets, 45 maps x 3 pairs x 216 trials). ``quick`` flies a reduced
 grid written next to the results (scenarios/ in the output folder), derived from the same files:
@@ -34,7 +35,7 @@ from pbdyn.experiments.evaluate import evaluate_stores  # noqa: E402
 from pbdyn.experiments.runner import BatchOptions, run_batch  # noqa: E402
 
 DATASETS = ROOT / "scenarios" / "datasets"
-SETS = ("controlled_2d", "uncontrolled_speed_2d", "uncontrolled_size_2d", "uncontrolled_rvo_2d")
+SETS = ("controlled", "uncontrolled_speed", "uncontrolled_size", "uncontrolled_rvo")
 
 QUICK_MAPS = 5
 QUICK_UNCONTROLLED_MAPS = 2
@@ -42,7 +43,8 @@ QUICK_PAIRS = (("fullrange", "local_primitives"), ("finean", "global_primitives"
 """The thesis' three pairs of the uncontrolled sets: one per trajectory planner (best, worst and a third)."""
 QUICK_VMAX = (4.0,)
 QUICK_CANDIDATES = ((4.0, 4.0), (4.0, 46.0), (46.0, 4.0), (46.0, 46.0), (25.0, 25.0))
-"""The four corner candidates and the centre: 20 ordered start/goal pairs, every flight crossing the arena."""
+"""The four corner candidates and the centre: 20 ordered start/goal pairs, every flight crossing the arena (3D: at
+z = 10 m, the default candidates' height)."""
 
 
 def _toml_value(v) -> str:
@@ -81,7 +83,8 @@ def quick_doc(name: str) -> dict:
     doc["name"] = f"{name}_quick"
     doc["obstacles"]["maps_per_setup"] = QUICK_MAPS if controlled else QUICK_UNCONTROLLED_MAPS
     doc["drone"]["v_max"] = list(QUICK_VMAX)
-    doc["task"] = {"candidates": [list(c) for c in QUICK_CANDIDATES]}
+    z = [] if doc["world"].get("dims", 2) == 2 else [doc["world"]["size"][2] / 2.0]
+    doc["task"] = {"candidates": [list(c) + z for c in QUICK_CANDIDATES]}
     if controlled:
         doc["planners"] = [{"trajectory": t, "gaze": g} for g, t in QUICK_PAIRS]
     else:
@@ -93,17 +96,18 @@ def quick_doc(name: str) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scale", choices=("quick", "full"), default="quick")
+    ap.add_argument("--dims", type=int, choices=(2, 3), default=2, help="the 2D datasets (default) or their 3D counterparts")
     ap.add_argument("--out", help="output folder (default results/reproduce-SCALE)")
     ap.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
     ap.add_argument("--scheduler", help="Dask scheduler address")
     ap.add_argument("--bootstrap", type=int, default=1000)
     ap.add_argument("--extend", action="store_true", help="accept grown grids in existing stores (pbdyn batch --extend)")
     args = ap.parse_args(argv)
-    out = Path(args.out or ROOT / "results" / f"reproduce-{args.scale}")
+    out = Path(args.out or ROOT / "results" / f"reproduce-{args.scale}{'' if args.dims == 2 else '-3d'}")
     out.mkdir(parents=True, exist_ok=True)
     stores = []
     t0 = time.perf_counter()
-    for name in SETS:
+    for name in (f"{s}_{args.dims}d" for s in SETS):
         if args.scale == "quick":
             doc = quick_doc(name)
             path = out / "scenarios" / f"{doc['name']}.toml"
