@@ -37,3 +37,26 @@ def check_positive(field: str, value: object) -> float:
     if not (v == v and abs(v) != float("inf")) or v <= 0:
         raise ConfigError(field, "must be a finite number > 0", value)
     return v
+
+
+def one_line(exc: BaseException) -> str:
+    """``exc`` as one line: "Type: message" with the message's whitespace collapsed."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def import_object(name: str, field: str):
+    """The object named by "package.module:attr[.attr...]" (user plug-ins, motion functions); ConfigError naming
+    ``field`` if the module cannot be imported or has no such attribute."""
+    import importlib
+
+    module_name, _, attr = name.partition(":")
+    try:
+        obj = importlib.import_module(module_name)
+    except Exception as exc:  # any failure while importing user code is a configuration problem
+        raise ConfigError(field, f"cannot import module {module_name!r} ({one_line(exc)})", name) from None
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ConfigError(field, f"module {module_name!r} has no attribute {attr!r}", name)
+        obj = getattr(obj, part)
+    return obj

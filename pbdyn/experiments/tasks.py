@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbdyn.config import PlannerEntry, Scenario
+from pbdyn.errors import one_line
 from pbdyn.world.maps import MapSpec
 
 METRIC_SET = ("density", "traversability", "dynamic_traversability", "vo_feasibility", "vo_feasibility_dense",
@@ -114,11 +115,6 @@ def _world(task: TrialTask, spec, ro):
     return world
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 def error_row(task: TrialTask, message: str) -> dict:
     """The result row of a trial that raised: outcome "error" with the message, the task's identifying fields."""
     s = task.spec
@@ -148,7 +144,7 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
             raise
         return task.key, res.to_dict(), None
     except Exception as exc:  # any failure of a trial is recorded as an "error" row, never stops the batch
-        msg = _one_line(exc)
+        msg = one_line(exc)
         tb = traceback.extract_tb(exc.__traceback__)
         if tb:
             msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno})"
@@ -159,17 +155,14 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
     """Compute one map's metrics in this worker: a maps-table row (metrics, their compute times, the map's mean
     obstacle speed and radius)."""
     _limit_threads()
-    from pbdyn.metrics.cached import resolve_backend
+    from pbdyn.metrics.cached import metric_params, resolve_backend
     from pbdyn.metrics.registry import compute
 
     ro = _rollout(task.rollout, data)
     backend = resolve_backend(task.scenario, task.backend)
     metrics, times = {}, {}
     for name in task.metrics:
-        params = {"mav_radius": task.scenario.drone.radius}
-        if name in ("survivability", "survivability_dense", "global_survivability"):
-            params["backend"] = backend
-        res = compute(ro, name, **params)
+        res = compute(ro, name, **metric_params(task.scenario, name, backend))
         metrics[name] = res.value
         times[name] = res.wall_time_s
     speeds = np.linalg.norm(ro.velocities[0], axis=-1) if ro.n_obstacles else np.zeros(0)

@@ -66,6 +66,15 @@ def resolve_backend(scenario: Scenario, backend: str) -> str:
     return backend
 
 
+def metric_params(scenario: Scenario, name: str, backend: str) -> dict:
+    """The parameters a scenario's map metric runs with: the scenario's MAV radius, and the (resolved) backend for
+    the survivability-type metrics; every other parameter at its default."""
+    params = {"mav_radius": scenario.drone.radius}
+    if name in BACKEND_METRICS:
+        params["backend"] = backend
+    return params
+
+
 def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend: str = "analytic",
                 use_cache: bool = True) -> dict[str, dict]:
     """Compute (or read from the cache) each named metric of one map; returns name -> MetricResult.to_dict()
@@ -78,9 +87,7 @@ def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend:
     key = rollout_key(scenario, spec, horizon)
     out = {}
     for name in names:
-        params = {"mav_radius": scenario.drone.radius}
-        if name in BACKEND_METRICS:
-            params["backend"] = backend
+        params = metric_params(scenario, name, backend)
         tag = hashlib.sha256(canonical_json({"v": METRICS_VERSION, "name": name, "params": params}).encode())
         path = cache_dir() / "metrics" / key / f"{name}-{tag.hexdigest()[:16]}.json"
         if use_cache and path.is_file():

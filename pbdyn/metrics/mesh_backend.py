@@ -14,17 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from pbdyn.errors import ConfigError, check_positive
-from pbdyn.metrics.sampling import step_window
+from pbdyn.metrics.sampling import plane_points, step_window
 
 CHUNK_POINTS = 400_000
 """Upper bound on the sample x step points of one query (memory)."""
-
-
-def _plane_points(rollout, pts: np.ndarray) -> np.ndarray:
-    if rollout.dims == 3:
-        return pts
-    h = float(rollout.meta.get("flight_height", 2.0)) if isinstance(rollout.meta, dict) else 2.0
-    return np.concatenate([pts, np.full((pts.shape[0], 1), h)], axis=1)
 
 
 def survival_times_mesh(rollout, points, *, mav_radius: float = 1.0, t_max: float = 12.0,
@@ -47,7 +40,7 @@ def survival_times_mesh(rollout, points, *, mav_radius: float = 1.0, t_max: floa
     if pts.shape[0] == 0 or not moving:
         return out
     field = bodies.field()
-    p3 = _plane_points(rollout, pts)
+    p3 = plane_points(rollout, pts)
     first = np.full(pts.shape[0], -1, dtype=np.int64)
     alive = np.arange(pts.shape[0])
     k = 0

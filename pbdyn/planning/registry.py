@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import importlib
 import inspect
 
-from pbdyn.errors import ConfigError
+from pbdyn.errors import ConfigError, import_object, one_line
 from pbdyn.planning.gaze import FullRange, LookAhead, LookGoal, LookGoalUnexplored, Rotating
 from pbdyn.planning.gaze_finean import Finean
 from pbdyn.planning.gaze_owl import Owl
@@ -25,11 +24,6 @@ _TRAJECTORY_METHODS = ("replan_check", "plan")
 _GAZE_METHODS = ("yaw_rate",)
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 def _resolve(name: object, field: str, kind: str, registry: dict[str, type], methods: tuple[str, ...]) -> type:
     if not isinstance(name, str) or not name:
         raise ConfigError(field, f"must be a {kind} planner name or 'package.module:Class'", name)
@@ -41,14 +35,7 @@ def _resolve(name: object, field: str, kind: str, registry: dict[str, type], met
     module_name, _, attr = name.partition(":")
     if not module_name or not attr:
         raise ConfigError(field, "a plug-in must be given as 'package.module:Class'", name)
-    try:
-        obj = importlib.import_module(module_name)
-    except Exception as exc:  # any failure while importing user code is a configuration problem
-        raise ConfigError(field, f"cannot import module {module_name!r} ({_one_line(exc)})", name) from None
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise ConfigError(field, f"module {module_name!r} has no attribute {attr!r}", name)
-        obj = getattr(obj, part)
+    obj = import_object(name, field)
     if not callable(obj):
         raise ConfigError(field, f"{attr!r} is not a class or factory", name)
     missing = [m for m in methods if not callable(getattr(obj, m, None))]
@@ -88,4 +75,4 @@ def build_planner(cls: type, context: PlannerContext, params: dict | None, field
     try:
         return cls(context, **params)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(field, f"invalid parameters for {name} ({_one_line(exc)})", params) from None
+        raise ConfigError(field, f"invalid parameters for {name} ({one_line(exc)})", params) from None

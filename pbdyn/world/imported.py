@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn.config import BodyConfig, Scenario
-from pbdyn.errors import ConfigError
+from pbdyn.errors import ConfigError, import_object, one_line
+from pbdyn.world.motion import cvm_fold
 from pbdyn.world.shapes import ShapeField, body_primitives, bounds_of, quat_from_rpy, rotation_from_quat
 
 YAW_ONLY_TOL = 1e-9
@@ -105,18 +106,9 @@ def waypoint_loop(waypoints: np.ndarray, speeds: np.ndarray, times: np.ndarray) 
 
 
 def _load_function(body: BodyConfig, where: str):
-    module_name, _, attr = body.motion.partition(":")
-    try:
-        obj = importlib.import_module(module_name)
-    except Exception as exc:  # user code: any import failure is a configuration problem
-        raise ConfigError(f"{where}.motion", f"cannot import module {module_name!r} "
-                          f"({type(exc).__name__}: {' '.join(str(exc).split())})", body.motion) from None
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise ConfigError(f"{where}.motion", f"module {module_name!r} has no attribute {attr!r}", body.motion)
-        obj = getattr(obj, part)
+    obj = import_object(body.motion, f"{where}.motion")
     if not callable(obj):
-        raise ConfigError(f"{where}.motion", f"{attr!r} is not callable", body.motion)
+        raise ConfigError(f"{where}.motion", f"{body.motion.partition(':')[2]!r} is not callable", body.motion)
     return obj
 
 
@@ -128,8 +120,8 @@ def _function_poses(body: BodyConfig, where: str, times: np.ndarray) -> tuple[np
         try:
             out = fn(t, **dict(body.params))
         except Exception as exc:
-            raise ConfigError(f"{where}.motion", f"the motion function raised at t = {t:g} s "
-                              f"({type(exc).__name__}: {' '.join(str(exc).split())})", body.motion) from None
+            raise ConfigError(f"{where}.motion", f"the motion function raised at t = {t:g} s ({one_line(exc)})",
+                              body.motion) from None
         q = (0.0, 0.0, 0.0, 1.0)
         if isinstance(out, tuple) and len(out) == 2:
             out, q = out
@@ -180,8 +172,6 @@ def build_world_bodies(scenario: Scenario, times: np.ndarray) -> WorldBodies:
         yaw_only = bool(np.all(np.abs(quat[:, :2]) <= YAW_ONLY_TOL))
         c_local, r = _sphere(prims, dims, yaw_only)
         if body.motion == "constant_velocity":
-            from pbdyn.world.motion import cvm_fold
-
             c0 = pos[0] + rotation_from_quat(q0) @ c_local
             if np.any(c0[:dims] - r < 0) or np.any(c0[:dims] + r > size):
                 raise ConfigError(f"{where}.position", f"the body's bounding sphere (radius {r:.3g} m) must start "
@@ -215,8 +205,6 @@ def sphere_tracks(bodies: WorldBodies, dims: int, dt: float, scenario: Scenario)
     for j, b in enumerate(idx.tolist()):
         cfg = scenario.bodies[b]
         if cfg.motion == "constant_velocity":
-            from pbdyn.world.motion import cvm_fold
-
             _, v = cvm_fold(cen[:1, j], np.asarray(cfg.velocity, float)[None, :],
                             bodies.sphere_radius[b:b + 1], size, np.arange(cen.shape[0]) * dt)
             vel[:, j] = v[:, 0]
