@@ -1,0 +1,62 @@
+"""The trial-row fixture: built-in planner pairs on the bundled quickstart (2D) and spheres_3d (3D) maps.
+
+tests/data/trial_rows.json holds the rows these cases produced before the trial loop was split into a steppable
+core (main at 145e667); test_trial_fixture.py re-flies them and requires bit-identical rows (all fields but wall
+times). Regenerate only for an intended behaviour change: python -m tests.trial_fixture
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+FIXTURE = Path(__file__).resolve().parent / "data" / "trial_rows.json"
+
+TRAJECTORY = ("local_primitives", "global_primitives", "mpc", "straight_line")
+GAZE = ("lookahead", "fullrange", "lookgoal", "lookgoal_unexplored", "rotating", "finean", "owl")
+
+
+def cases() -> list[tuple[str, int, str, str, tuple, tuple]]:
+    """(scenario file, map index, trajectory, gaze, start, goal) of every fixture trial."""
+    from pbdyn.config import load_scenario
+
+    out = []
+    for name, maps in (("quickstart.toml", (0, 4, 8)), ("spheres_3d.toml", (1, 3))):
+        sc = load_scenario(ROOT / "scenarios" / name)
+        cands = sc.task.candidates
+        pairs = sc.task.pairs()
+        n = 0
+        for m in maps:
+            for traj in TRAJECTORY:
+                for _ in range(3 if sc.world.dims == 2 else 2):
+                    gaze = GAZE[n % len(GAZE)]
+                    i, g = pairs[(7 * n + 3) % len(pairs)]
+                    out.append((name, m, traj, gaze, cands[i], cands[g]))
+                    n += 1
+    return out
+
+
+def fly_cases() -> list[dict]:
+    """Fly every case; each row is TrialResult.without_wall_times() plus the case."""
+    from pbdyn.config import load_scenario
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+    from pbdyn.world.maps import get_map
+    from pbdyn.world.rollout import get_rollout
+
+    rows = []
+    scenarios: dict = {}
+    for name, m, traj, gaze, start, goal in cases():
+        sc = scenarios.setdefault(name, load_scenario(ROOT / "scenarios" / name))
+        ms = get_map(sc, m)
+        spec = make_trial_spec(sc, ms, planner=traj, gaze=gaze, start=tuple(start), goal=tuple(goal))
+        res = run_trial(spec, get_rollout(sc, ms))
+        rows.append({"case": [name, m, traj, gaze, list(start), list(goal)], "row": res.without_wall_times()})
+    return rows
+
+
+if __name__ == "__main__":
+    rows = fly_cases()
+    FIXTURE.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
+    sys.stderr.write(f"wrote {len(rows)} rows to {FIXTURE}\n")
