@@ -9,7 +9,8 @@ jerk-limited, time-synchronised profiles with the same boundary conditions and t
 Each primitive is built in a frame whose first axis points at its end point (the planner is then invariant to the
 arena's orientation, and a straight primitive uses one axis, so the per-axis limits rarely exceed the norm limits).
 Norm limits from ruckig's per-axis limits: first build with per-axis (v_max, a_max, jerk_max); if a sample's
-|v| or |a| exceeds the norm limit, rebuild with the per-axis limits scaled by 0.95 * limit / observed peak (at most
+|v| or |a| exceeds the norm limit, or two consecutive samples need more than a_max to connect (the plan contract's
+step bounds, pbdyn.sim.contract), rebuild with the per-axis limits scaled by 0.95 * limit / observed peak (at most
 two rebuilds; the peak does not shrink in proportion to the limit, and the exact ratio tends to land just above it),
 then with the conservative per-axis v_max / sqrt(d), a_max / sqrt(d) (DESIGN.md "Limits are norms");
 a candidate that still violates, or that ruckig rejects, is skipped.
@@ -216,7 +217,7 @@ class LocalPrimitives:
                 stage = _N_SCALED_REBUILDS + 1  # nothing to scale from: go to the conservative limits
                 continue
             vv_peak, aa_peak = np.einsum("kij,kij->ki", samples[1:, 1:], samples[1:, 1:]).max(axis=0).tolist()
-            v_peak, a_peak = math.sqrt(vv_peak), math.sqrt(aa_peak)
+            v_peak, a_peak = math.sqrt(vv_peak), max(math.sqrt(aa_peak), self._step_acceleration(samples))
             if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
                 world = samples @ basis                      # [K, 3, d]: frame -> world (rows of basis)
                 world[:, 0] += view.position
@@ -228,6 +229,17 @@ class LocalPrimitives:
                 a_lim *= _SCALE_SAFETY * a_max / a_peak
             stage += 1
         return None
+
+    def _step_acceleration(self, samples: np.ndarray) -> float:
+        """The least acceleration bound (m/s^2) under which consecutive samples [K, 3, d] are reachable, as the plan
+        contract checks it (pbdyn.sim.contract): max over steps of |dv| / dt and 4 |p_k+1 - p_k - (v_k + v_k+1)
+        dt/2| / dt^2. Between samples a per-axis-limited profile can exceed the norm limit even when every sample
+        is within it."""
+        dt = self.dt
+        p, v = samples[:, 0], samples[:, 1]
+        dv = np.linalg.norm(v[1:] - v[:-1], axis=1)
+        gap = np.linalg.norm(p[1:] - p[:-1] - 0.5 * (v[:-1] + v[1:]) * dt, axis=1)
+        return float(max(dv.max() / dt, 4.0 * gap.max() / (dt * dt)))
 
     def _calculate(self, view: View, v_lim: float, a_lim: float):
         """One ruckig build with per-axis limits; samples [K, 3 (p, v, a), d] at 0, dt, ..., or None on error."""

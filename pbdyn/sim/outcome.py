@@ -13,6 +13,7 @@ class Outcome(str, Enum):
     DYNAMIC_COLLISION = "dynamic_collision"
     FREEZING = "freezing"
     DEADLOCK = "deadlock"
+    INVALID_PLAN = "invalid_plan"
     ERROR = "error"
 
     @property
@@ -27,5 +28,6 @@ _REASONS = {
     Outcome.DYNAMIC_COLLISION: "touched a moving obstacle",
     Outcome.FREEZING: "did not reach the goal within the time limit",
     Outcome.DEADLOCK: "planning failed repeatedly with the MAV at rest",
+    Outcome.INVALID_PLAN: "the planner returned a plan that breaks the plan contract",
     Outcome.ERROR: "the trial raised an exception",
 }

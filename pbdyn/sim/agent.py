@@ -1,0 +1,142 @@
+"""The agent side of a trial (DESIGN.md "One trial step" (4)-(6)): the planner pair, braking and the plan contract.
+
+Each step the agent asks its trajectory planner whether to replan and for a plan, checks every returned plan against
+the plan contract (pbdyn.sim.contract) before it can be executed, asks its gaze planner for a yaw rate, and turns
+the plan in execution (or braking) into the MAV's state at t_k+1.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbdyn.planning.protocols import PlannerContext
+from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
+from pbdyn.planning.trajectory import Trajectory
+from pbdyn.planning.view import MAVLimits, View
+from pbdyn.sim.contract import PlanViolation, check_plan
+from pbdyn.sim.env import Action
+from pbdyn.sim.spec import TrialSpec
+
+
+def brake(p: np.ndarray, v: np.ndarray, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One braking step: v -= min(a_max dt, |v|) v/|v|; p advances with the mean velocity (exact for constant a)."""
+    speed = float(np.linalg.norm(v))
+    if speed <= 0.0:
+        return p.copy(), np.zeros_like(v), np.zeros_like(v)
+    dv = min(a_max * dt, speed)
+    v1 = v - dv * v / speed
+    return p + 0.5 * (v + v1) * dt, v1, (v1 - v) / dt
+
+
+def _project(x: np.ndarray, limit: float) -> np.ndarray:
+    n = float(np.linalg.norm(x))
+    return x * (limit / n) if n > limit else x
+
+
+def planner_context(spec: TrialSpec) -> PlannerContext:
+    """The fixed facts a trial's planners are constructed with."""
+    sc = spec.scenario
+    limits = MAVLimits(sc.drone.radius, spec.v_max, sc.drone.a_max, sc.drone.yaw_rate_limit)
+    return PlannerContext(sc.world.dims, sc.world.dt, limits, np.zeros(sc.world.dims),
+                          np.asarray(sc.world.size, dtype=float), spec.seed)
+
+
+def build_planners(spec: TrialSpec, trajectory=None, gaze=None):
+    """(context, trajectory planner, gaze planner) of a trial. ``trajectory``/``gaze``: a planner class (built
+    with the context and the entry's params) or an instance (used as it is) instead of the spec's named ones."""
+    ctx = planner_context(spec)
+    idx = next((i for i, e in enumerate(spec.scenario.planners) if e == spec.planner), 0)
+    objs = []
+    for kind, given, name, params, resolve in (
+            ("trajectory", trajectory, spec.planner.trajectory, spec.planner.trajectory_params,
+             resolve_trajectory_planner),
+            ("gaze", gaze, spec.planner.gaze, spec.planner.gaze_params, resolve_gaze_planner)):
+        if given is not None and not inspect.isclass(given):
+            objs.append(given)
+            continue
+        cls = given if given is not None else resolve(name, f"planners[{idx}].{kind}")
+        objs.append(build_planner(cls, ctx, params, f"planners[{idx}].{kind}_params"))
+    return ctx, objs[0], objs[1]
+
+
+@dataclass
+class Decision:
+    """The agent's step: the action handed to the environment, and what happened on the way.
+
+    planned: replan_check asked for a plan; plan_ok: False if that plan failed (None); violation: the plan broke
+    the contract (the trial must end as invalid_plan; ``action`` is then None); planning_wall_s, gaze_wall_s: wall
+    times of steps (4) and (5) (s).
+    """
+
+    action: Action | None
+    planned: bool
+    plan_ok: bool
+    violation: PlanViolation | None
+    planning_wall_s: float
+    gaze_wall_s: float
+
+
+class Agent:
+    """A trial's decision maker: its trajectory and gaze planners, the plan contract, braking and the MAV's
+    planning state ("PLANNING" or "EXECUTING"). ``physical``: enforce the MAV's limits on every plan (the
+    default profile); False checks only a plan's form and continuity."""
+
+    def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool = True):
+        self.spec = spec
+        self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze)
+        self.limits = self.context.limits
+        self.physical = physical
+        self.fov_deg = getattr(self.gaze, "fov_deg", None)
+        self.trajectory: Trajectory | None = None
+        self.state = "PLANNING"
+        self.consecutive_failures = 0
+        self.total_failures = 0
+
+    def act(self, view: View) -> Decision:
+        """Steps (4)-(6) at view.t: replan if asked (checking the plan contract), the gaze yaw rate, and the MAV's
+        next state from the plan in execution or, without one, a braking step."""
+        c3 = time.perf_counter()
+        limits = self.limits
+        plan_ok = True
+        planned = bool(self.planner.replan_check(view))
+        if planned:                                                   # (4)
+            self.state = "PLANNING"
+            new = self.planner.plan(view)
+            if new is None:
+                self.trajectory = None
+                self.consecutive_failures += 1
+                self.total_failures += 1
+                plan_ok = False
+            else:
+                bad = check_plan(new, t=view.t, dt=view.dt, position=view.position, velocity=view.velocity,
+                                 v_max=limits.v_max, a_max=limits.a_max, physical=self.physical)
+                if bad is not None:
+                    self.trajectory = None
+                    return Decision(None, planned, False, bad, time.perf_counter() - c3, 0.0)
+                self.trajectory = new
+                self.consecutive_failures = 0
+                self.state = "EXECUTING"
+        c4 = time.perf_counter()
+        rate = float(self.gaze.yaw_rate(view, self.trajectory))      # (5)
+        if not math.isfinite(rate):
+            raise ValueError(f"gaze planner {self.spec.planner.gaze} returned a non-finite yaw rate")
+        rate = min(max(rate, -limits.yaw_rate), limits.yaw_rate)
+        c5 = time.perf_counter()
+        t1 = view.t + view.dt                                         # (6)
+        traj = self.trajectory
+        if traj is not None and traj.covers(t1) and traj.index_at(t1) >= 1:
+            p1, v1, a1 = (np.array(x, dtype=float) for x in traj.state_at(t1))
+            v1 = _project(v1, limits.v_max)
+            a1 = _project(a1, limits.a_max)
+        else:
+            if traj is not None:
+                self.trajectory = None
+                self.state = "PLANNING"
+            p1, v1, a1 = brake(view.position, view.velocity, limits.a_max, view.dt)
+        action = Action(p1, v1, a1, rate, self.consecutive_failures)
+        return Decision(action, planned, plan_ok, None, c4 - c3, c5 - c4)

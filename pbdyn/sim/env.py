@@ -1,0 +1,222 @@
+"""The environment side of a trial (DESIGN.md "One trial step"): world, sensing, tracking, execution, outcome checks.
+
+``TrialEnv`` owns steps (1)-(3), (6) and (7) and makes no decisions: ``reset()`` places the MAV at the start and
+senses at t_0; ``step(action)`` executes the MAV's next state (6), checks it at t_k+1 (7) and, unless the trial
+ended, senses at t_k+1 ((1)-(3) of the next step). The decisions (steps (4)-(5)) come from an agent
+(pbdyn.sim.agent) or any caller, e.g. a Gymnasium facade.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbdyn.errors import ConfigError
+from pbdyn.perception.grid import OccupancyGrid
+from pbdyn.perception.perceive import Perception
+from pbdyn.perception.tracker import KalmanTracks
+from pbdyn.planning.view import MAVLimits, View
+from pbdyn.sim.collision import sampled_dynamic, sampled_static, swept_dynamic, swept_static
+from pbdyn.sim.outcome import Outcome
+from pbdyn.sim.spec import TrialSpec
+from pbdyn.world.bullet import PyBulletWorld
+from pbdyn.world.rollout import Rollout
+
+REST_SPEED = 1e-3  # m/s: "at rest" for the deadlock rule
+
+SENSE_SPLITS = ("wall_world_s", "wall_rays_s", "wall_tracking_s")
+"""Wall-time splits of steps (1), (2), (3)."""
+
+
+@dataclass(frozen=True)
+class Action:
+    """What the MAV does from t_k to t_k+1: its state at t_k+1 (p m, v m/s, a m/s^2, world frame [d]), its yaw
+    rate (rad/s; clipped to the limit by the environment) and its consecutive planning failures (for the deadlock
+    rule; 0 for callers without a planner)."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    yaw_rate: float
+    consecutive_failures: int = 0
+
+
+def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, client=None) -> PyBulletWorld:
+    """The PyBullet world of a trial's map: MAV, obstacles, static bodies, walls (imported worlds: static bodies
+    by their real shapes, moving ones as their bounding spheres). Reusable for every trial of the same map and
+    scenario (run_trial(..., world=...)): trials only move the MAV and the obstacles, which every step sets.
+    ``client``: an existing BulletClient to reset and reuse (see PyBulletWorld)."""
+    sc = spec.scenario
+    world = PyBulletWorld(dims=sc.world.dims, arena_size=sc.world.size, flight_height=sc.world.flight_height,
+                          mav_radius=sc.drone.radius, obstacle_radii=rollout.radii, static_bodies=rollout.static,
+                          mav_urdf=str(sc.mav_urdf_path()), gui=gui, client=client)
+    bodies = rollout.bodies
+    if bodies is not None:
+        try:
+            for b in np.flatnonzero(~bodies.moving).tolist():
+                world.add_static_urdf(bodies.urdf[b], bodies.position[0, b], bodies.orientation[0, b],
+                                      bodies.scale[b])
+        except BaseException:
+            world.close()
+            raise
+    return world
+
+
+def wrap_angle(angle: float) -> float:
+    """The angle in [-pi, pi) (rad)."""
+    return float((angle + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+class TrialEnv:
+    """One trial's environment. After ``reset()`` and each ``step()``: ``k`` (step index), ``t`` (s), the MAV state
+    ``position``/``velocity``/``acceleration``/``yaw``, ``detections`` (this step's sensing), ``outcome`` (None
+    while running), ``reason``, ``min_clearance`` (m), ``sense_timings`` (SENSE_SPLITS of the last sensing, s) and
+    ``collision_wall_s`` (the last step's (6)-(7) time, s)."""
+
+    def __init__(self, spec: TrialSpec, rollout: Rollout, *, gui: bool = False, fov_deg: float | None = None,
+                 world: PyBulletWorld | None = None):
+        sc = spec.scenario
+        self.spec = spec
+        self.rollout = rollout
+        self.dims = sc.world.dims
+        self.dt = sc.world.dt
+        self.n_steps = sc.world.n_steps
+        if rollout.n_steps < self.n_steps + 1:
+            raise ConfigError("rollout", f"covers {rollout.horizon:g} s, the trial needs {self.n_steps * self.dt:g} s",
+                              rollout.n_steps)
+        self.radii = rollout.radii
+        self.limits = MAVLimits(sc.drone.radius, spec.v_max, sc.drone.a_max, sc.drone.yaw_rate_limit)
+        self.goal = np.asarray(spec.goal, dtype=float)
+        self.goal_radius = sc.task.goal_radius
+        self.deadlock_steps = sc.task.deadlock_steps
+        self.owns_world = world is None
+        self.world = make_world(spec, rollout, gui=gui) if world is None else world
+        lo = np.zeros(self.dims)
+        hi = np.asarray(sc.world.size, dtype=float)
+        self.bounds = (lo, hi)
+        self.fov_deg = float(fov_deg) if fov_deg is not None else sc.sensor.fov_deg
+        self.swept = sc.collision_check == "swept"
+        self.grid: OccupancyGrid | None = None
+        self.perception: Perception | None = None
+        self.tracker: KalmanTracks | None = None
+        self.k = 0
+        self.outcome: Outcome | None = None
+
+    # -------------------------------------------------------------------------------------------- episode
+    def reset(self) -> None:
+        """Start the trial: fresh grid, tracks and sensor noise; the MAV at the start, at rest, facing the goal;
+        then sense at t_0 (steps (1)-(3))."""
+        sc = self.spec.scenario
+        lo, hi = self.bounds
+        self.grid = OccupancyGrid(lo, hi, sc.world.grid_resolution)
+        self.perception = Perception(self.world, self.grid, fov_deg=self.fov_deg, range_m=sc.sensor.range,
+                                     resolution_deg=sc.sensor.resolution_deg, noise_std=sc.sensor.noise_std,
+                                     rng=np.random.default_rng(self.spec.seed), vfov_deg=sc.sensor.vfov_deg,
+                                     vresolution_deg=sc.sensor.resolution_deg if self.dims == 3 else None)
+        tr = sc.tracking
+        self.tracker = KalmanTracks(self.rollout.n_obstacles, self.dims, self.dt, q=tr.q, r=tr.r, p0_pos=tr.p0_pos,
+                                    p0_vel=tr.p0_vel, drop_pos_var=tr.drop_pos_var, bounds_lo=lo, bounds_hi=hi)
+        self.position = np.asarray(self.spec.start, dtype=float)
+        self.velocity = np.zeros(self.dims)
+        self.acceleration = np.zeros(self.dims)
+        to_goal = self.goal - self.position
+        self.yaw = math.atan2(to_goal[1], to_goal[0])
+        self.k = 0
+        self.outcome = None
+        self.reason = ""
+        self.min_clearance = math.inf
+        self.collision_wall_s = 0.0
+        self._sense()
+
+    @property
+    def t(self) -> float:
+        """Time of the current step (s)."""
+        return self.k * self.dt
+
+    @property
+    def done(self) -> bool:
+        """True once an outcome has ended the trial."""
+        return self.outcome is not None
+
+    @property
+    def steps(self) -> int:
+        """Steps flown so far (the flight time is steps * dt)."""
+        return self.k
+
+    def _sense(self) -> None:
+        """Steps (1)-(3) at t_k: obstacle poses from the rollout, MAV pose, ray sensing, tracker update."""
+        c0 = time.perf_counter()
+        obs_p, _ = self.rollout.at(self.k)
+        self.world.set_obstacle_positions(obs_p)                       # (1)
+        self.world.set_mav_pose(self.position, self.yaw)
+        c1 = time.perf_counter()
+        self.detections = self.perception.sense(self.position, self.yaw)   # (2)
+        c2 = time.perf_counter()
+        self.tracker.step(self.detections.ids, self.detections.centers)    # (3)
+        self.tracks = self.tracker.tracks(self.radii)
+        c3 = time.perf_counter()
+        self.sense_timings = (c1 - c0, c2 - c1, c3 - c2)
+
+    def view(self, trajectory=None) -> View:
+        """The read-only snapshot planners see at t_k, with the plan in execution (or None)."""
+        sc = self.spec.scenario
+        return View(self.t, self.dt, self.position, self.velocity, self.acceleration, self.yaw, self.goal,
+                    self.goal_radius, self.limits, self.bounds[0], self.bounds[1], self.grid, self.tracks,
+                    trajectory, self.fov_deg, sc.sensor.range, sc.sensor.vfov_deg)
+
+    def step(self, action: Action) -> None:
+        """Steps (6)-(7): move the MAV to the action's state at t_k+1 and turn it by the clipped yaw rate, then
+        check static collision, dynamic collision, goal, time limit and deadlock, in that order; the first that
+        holds ends the trial. If it goes on, sense at t_k+1."""
+        if self.outcome is not None:
+            raise RuntimeError("step() after the trial ended; call reset()")
+        c5 = time.perf_counter()
+        lim = self.limits.yaw_rate
+        rate = min(max(float(action.yaw_rate), -lim), lim)
+        p1, v1, a1 = action.position, action.velocity, action.acceleration
+        yaw1 = wrap_angle(self.yaw + rate * self.dt)
+        hit, clearance = self.check(self.k, self.position, p1)         # (7)
+        self.collision_wall_s = time.perf_counter() - c5
+        self.min_clearance = min(self.min_clearance, clearance)
+        self.position, self.velocity, self.acceleration, self.yaw = p1, v1, a1, yaw1
+        self.k += 1
+        if hit is not None:
+            self.end(hit)
+        elif float(np.linalg.norm(self.position - self.goal)) <= self.goal_radius:
+            self.end(Outcome.SUCCESS)
+        elif self.k >= self.n_steps:
+            self.end(Outcome.FREEZING)
+        elif action.consecutive_failures >= self.deadlock_steps and float(np.linalg.norm(self.velocity)) < REST_SPEED:
+            self.end(Outcome.DEADLOCK)
+        else:
+            self._sense()
+
+    def end(self, outcome: Outcome, reason: str | None = None) -> None:
+        """End the trial now with ``outcome`` (reason: a specific explanation, default the outcome's own)."""
+        self.outcome = outcome
+        self.reason = outcome.reason if reason is None else reason
+
+    def check(self, k: int, p0: np.ndarray, p1: np.ndarray) -> tuple[Outcome | None, float]:
+        """Step (7) collision part for the move p0 (t_k) -> p1 (t_k+1): (static/dynamic outcome or None, clearance m)."""
+        obs0, _ = self.rollout.at(k)
+        obs1, _ = self.rollout.at(k + 1)
+        if self.swept:
+            st = swept_static(self.world, p0, p1)
+            dy = swept_dynamic(p0, p1, obs0, obs1, self.radii, self.spec.scenario.drone.radius)
+        else:
+            st = sampled_static(self.world, p1)
+            dy = sampled_dynamic(p1, obs1, self.radii, self.spec.scenario.drone.radius)
+        clearance = min(float(st.min_clearance), float(dy.min_clearance))
+        if st.hit and (not dy.hit or st.fraction <= dy.fraction):
+            return Outcome.STATIC_COLLISION, clearance
+        if dy.hit:
+            return Outcome.DYNAMIC_COLLISION, clearance
+        return None, clearance
+
+    def close(self) -> None:
+        """Disconnect the PyBullet client (unless the world was lent by the caller)."""
+        if self.owns_world:
+            self.world.close()

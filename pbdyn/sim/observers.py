@@ -1,0 +1,155 @@
+"""Observers of a trial: they watch each step and never change it (trace file, per-step profile, GUI pacing).
+
+An observer has ``on_step(env, agent, decision, record)``, called after every executed step with ``record`` the
+step's StepRecord (what the MAV knew and did at t_k, the wall-time splits), and ``on_end(env, agent)``, called
+once when the trial has ended normally (not when it raised).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+SPLITS = ("wall_world_s", "wall_rays_s", "wall_tracking_s", "wall_planning_s", "wall_gaze_s", "wall_collision_s")
+"""Wall-time splits of one step: (1) world, (2) rays, (3) tracking, (4) planning, (5) gaze, (6)-(7) collision."""
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One executed step: t (s), the MAV state at t_k (p m, v m/s, a m/s^2 [d], yaw rad), the clipped yaw rate
+    (rad/s), whether replan_check asked for a plan and whether it succeeded, the tracks (pbdyn Tracks) and the
+    detected obstacle ids at t_k, and the step's wall-time splits (s, in SPLITS order)."""
+
+    t: float
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    yaw: float
+    yaw_rate: float
+    planned: bool
+    plan_ok: bool
+    tracks: object
+    detected: np.ndarray
+    splits: tuple[float, ...]
+
+
+class Observer(Protocol):
+    """Watches a trial (see the module docstring)."""
+
+    def on_step(self, env, agent, decision, record: StepRecord) -> None: ...
+
+    def on_end(self, env, agent) -> None: ...
+
+
+class ProfileObserver:
+    """Per-step lists of each timing split (SPLITS, s), "candidates_built" (the planner's ``last_candidates_built``
+    when it has one, else NaN) and "planned", written into the given dict."""
+
+    def __init__(self, profile: dict):
+        self.profile = profile
+        for name in SPLITS + ("candidates_built", "planned"):
+            profile[name] = []
+
+    def on_step(self, env, agent, decision, record: StepRecord) -> None:
+        for name, value in zip(SPLITS, record.splits):
+            self.profile[name].append(value)
+        self.profile["candidates_built"].append(getattr(agent.planner, "last_candidates_built", float("nan")))
+        self.profile["planned"].append(bool(record.planned))
+
+    def on_end(self, env, agent) -> None:
+        pass
+
+
+class GuiPacer:
+    """Sleeps ``seconds`` after every step that did not end the trial (real-time pacing of the GUI)."""
+
+    def __init__(self, seconds: float):
+        self.seconds = float(seconds)
+
+    def on_step(self, env, agent, decision, record: StepRecord) -> None:
+        if not env.done and self.seconds > 0:
+            time.sleep(self.seconds)
+
+    def on_end(self, env, agent) -> None:
+        pass
+
+
+@dataclass
+class TraceObserver:
+    """Records per-step arrays and writes them to ``path`` (.npz) when the trial ends (``pbdyn run --trace``)."""
+
+    path: str | Path
+    t: list = field(default_factory=list)
+    p: list = field(default_factory=list)
+    v: list = field(default_factory=list)
+    a: list = field(default_factory=list)
+    yaw: list = field(default_factory=list)
+    yaw_rate: list = field(default_factory=list)
+    planned: list = field(default_factory=list)
+    plan_ok: list = field(default_factory=list)
+    track_mean: list = field(default_factory=list)
+    track_active: list = field(default_factory=list)
+    seen: list = field(default_factory=list)
+
+    def on_step(self, env, agent, decision, record: StepRecord) -> None:
+        self.t.append(record.t)
+        self.p.append(record.position.copy())
+        self.v.append(record.velocity.copy())
+        self.a.append(record.acceleration.copy())
+        self.yaw.append(record.yaw)
+        self.yaw_rate.append(record.yaw_rate)
+        self.plan_ok.append(record.plan_ok)
+        traj = agent.trajectory
+        self.planned.append(None if traj is None else traj.remaining(record.t).p.copy())
+        n, d = env.rollout.n_obstacles, env.dims
+        mean = np.full((n, d), np.nan)
+        tr = record.tracks
+        mean[tr.ids] = tr.position
+        active = np.zeros(n, dtype=bool)
+        active[tr.ids] = True
+        self.track_mean.append(mean)
+        self.track_active.append(active)
+        seen = np.zeros(n, dtype=bool)
+        seen[np.asarray(record.detected, dtype=np.int64)] = True
+        self.seen.append(seen)
+
+    def on_end(self, env, agent) -> None:
+        save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome)
+
+
+def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome) -> None:
+    """Write the trace .npz atomically: per-step t [S], p/v/a [S, d], yaw [S], yaw_rate [S], plan_ok [S],
+    plan [S, Kmax, d] (NaN-padded remaining plan at each step), track_mean [S, N, d] (NaN if inactive),
+    track_active [S, N], seen [S, N], final_p/v/a [d], final_yaw, outcome."""
+    kmax = max([0] + [x.shape[0] for x in trace.planned if x is not None])
+    d = p.shape[0]
+    plans = np.full((len(trace.t), max(kmax, 1), d), np.nan)
+    for i, x in enumerate(trace.planned):
+        if x is not None:
+            plans[i, : x.shape[0]] = x
+    n = len(trace.track_active[0]) if trace.track_active else 0
+    arrays = {
+        "t": np.asarray(trace.t), "p": np.asarray(trace.p).reshape(-1, d), "v": np.asarray(trace.v).reshape(-1, d),
+        "a": np.asarray(trace.a).reshape(-1, d), "yaw": np.asarray(trace.yaw), "yaw_rate": np.asarray(trace.yaw_rate),
+        "plan_ok": np.asarray(trace.plan_ok, dtype=bool), "plan": plans,
+        "track_mean": np.asarray(trace.track_mean, dtype=float).reshape(len(trace.t), n, d),
+        "track_active": np.asarray(trace.track_active, dtype=bool).reshape(len(trace.t), n),
+        "seen": np.asarray(trace.seen, dtype=bool).reshape(len(trace.t), n),
+        "final_p": p, "final_v": v, "final_a": a, "final_yaw": np.array(yaw), "outcome": np.array(outcome.value),
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".trace-", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,113 @@
+"""A trial's specification, resolved once: scenario, map, planner pair, MAV speed, start and goal.
+
+The config hash (DESIGN.md "Outcomes and the record") and the per-trial seed are computed once per TrialSpec and
+cached; everything a trial does is a function of its spec and its map's rollout.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+from pbdyn.config import PlannerEntry, Scenario, canonical_json
+from pbdyn.errors import ConfigError
+from pbdyn.planning.registry import resolve_gaze_planner, resolve_trajectory_planner
+from pbdyn.world.imported import bodies_fingerprint
+from pbdyn.world.maps import MapSpec, stable_hash64
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """Everything that defines one trial: scenario, map, planner pair, MAV speed, start and goal (m)."""
+
+    scenario: Scenario
+    map_spec: MapSpec
+    planner: PlannerEntry
+    v_max: float
+    start: tuple[float, ...]
+    goal: tuple[float, ...]
+
+    def resolved(self) -> dict:
+        """The canonical, path- and version-free description of the trial (what config_hash hashes)."""
+        sc = self.scenario.to_dict()
+        skip = {"count", "radius", "speed", "maps_per_setup", "grid_order"}
+        if sc["obstacles"]["motion"] != "rvo":
+            skip.add("rvo")
+        obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
+        drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
+        task = {k: v for k, v in sc["task"].items() if k != "candidates"}
+        return {
+            "world": sc["world"], "obstacles": obstacles, "map": {"setup": self.map_spec.setup,
+                                                                  "replicate": self.map_spec.replicate},
+            "static_obstacles": sc["static_obstacles"], "drone": drone, "v_max": float(self.v_max),
+            "sensor": sc["sensor"], "tracking": sc["tracking"], "task": task,
+            "candidates": sc["task"]["candidates"],
+            "start": [float(x) for x in self.start], "goal": [float(x) for x in self.goal],
+            "planner": {"trajectory": self.planner.trajectory, "gaze": self.planner.gaze,
+                        "trajectory_params": dict(self.planner.trajectory_params),
+                        "gaze_params": dict(self.planner.gaze_params)},
+            "collision_check": self.scenario.collision_check,
+            **({"bodies": bodies_fingerprint(self.scenario)} if self.scenario.is_world else {}),
+        }
+
+    @cached_property
+    def config_hash(self) -> str:
+        """sha256 of the canonical JSON of resolved() (computed once per spec)."""
+        return hashlib.sha256(canonical_json(self.resolved()).encode()).hexdigest()
+
+    @cached_property
+    def seed(self) -> int:
+        """A per-trial seed (sensor noise, planners that need randomness), derived from config_hash."""
+        return stable_hash64(self.config_hash) >> 1
+
+
+def _parse_point(text: str | None, field_name: str, dims: int) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise ConfigError(field_name, "must be comma-separated numbers like 4,25", text) from None
+    if len(vals) != dims or not all(math.isfinite(v) for v in vals):
+        raise ConfigError(field_name, f"must have {dims} finite coordinates", text)
+    return vals
+
+
+def make_trial_spec(scenario: Scenario, map_spec: MapSpec, *, planner: str | None = None, gaze: str | None = None,
+                    v_max: float | None = None, start: str | tuple | None = None,
+                    goal: str | tuple | None = None) -> TrialSpec:
+    """Resolve CLI-style choices into a TrialSpec (defaults: first planner entry, first v_max, first candidate as
+    start, last candidate as goal). ``planner`` picks an entry by label or trajectory name, or names a trajectory
+    planner; ``gaze`` overrides the entry's gaze planner."""
+    entries = scenario.planners
+    entry = entries[0]
+    if planner is not None:
+        match = [e for e in entries if e.label == planner] or [e for e in entries if e.trajectory == planner]
+        if gaze is not None:
+            match = [e for e in match if e.gaze == gaze] or match
+        entry = match[0] if match else PlannerEntry(planner, gaze or entry.gaze)
+    if gaze is not None and entry.gaze != gaze:
+        entry = PlannerEntry(entry.trajectory, gaze, entry.trajectory_params, {}, "")
+    idx = next((i for i, e in enumerate(entries) if e == entry), None)
+    resolve_trajectory_planner(entry.trajectory, "--planner" if planner is not None or idx is None
+                               else f"planners[{idx}].trajectory")
+    resolve_gaze_planner(entry.gaze, "--gaze" if gaze is not None or idx is None else f"planners[{idx}].gaze")
+    if v_max is None:
+        v = scenario.drone.v_max[0]
+    else:
+        if not isinstance(v_max, (int, float)) or not math.isfinite(v_max) or v_max <= 0:
+            raise ConfigError("--vmax", "must be a positive number", v_max)
+        v = float(v_max)
+    dims = scenario.world.dims
+    cands = scenario.task.candidates
+    s = _parse_point(start, "--start", dims) if isinstance(start, str) else (tuple(start) if start else cands[0])
+    g = _parse_point(goal, "--goal", dims) if isinstance(goal, str) else (tuple(goal) if goal else cands[-1])
+    r = scenario.drone.radius
+    for name, pt in (("--start", s), ("--goal", g)):
+        for k, x in enumerate(pt):
+            if not r <= x <= scenario.world.size[k] - r:
+                raise ConfigError(name, f"must lie inside the arena with the MAV's radius ({r:g} m) to spare",
+                                  ",".join(f"{c:g}" for c in pt))
+    return TrialSpec(scenario, map_spec, entry, v, tuple(map(float, s)), tuple(map(float, g)))
