@@ -18,7 +18,7 @@ from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, View
-from pbdyn.sim.contract import PlanViolation, check_plan
+from pbdyn.sim.contract import PlanViolation, check_plan, plan_violations
 from pbdyn.sim.env import Action
 from pbdyn.sim.spec import TrialSpec
 
@@ -84,7 +84,8 @@ class Decision:
 class Agent:
     """A trial's decision maker: its trajectory and gaze planners, the plan contract, braking and the MAV's
     planning state ("PLANNING" or "EXECUTING"). ``physical``: enforce the MAV's limits on every plan (the
-    default profile); False checks only a plan's form and continuity."""
+    default profile); False checks only a plan's form and continuity. ``violations``: every broken check of the
+    plan that ended the trial (empty while plans are valid)."""
 
     def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool = True):
         self.spec = spec
@@ -96,6 +97,7 @@ class Agent:
         self.state = "PLANNING"
         self.consecutive_failures = 0
         self.total_failures = 0
+        self.violations: list[PlanViolation] = []
 
     def act(self, view: View) -> Decision:
         """Steps (4)-(6) at view.t: replan if asked (checking the plan contract), the gaze yaw rate, and the MAV's
@@ -116,6 +118,9 @@ class Agent:
                 bad = check_plan(new, t=view.t, dt=view.dt, position=view.position, velocity=view.velocity,
                                  v_max=limits.v_max, a_max=limits.a_max, physical=self.physical)
                 if bad is not None:
+                    self.violations = plan_violations(new, t=view.t, dt=view.dt, position=view.position,
+                                                      velocity=view.velocity, v_max=limits.v_max,
+                                                      a_max=limits.a_max, physical=self.physical)
                     self.trajectory = None
                     return Decision(None, planned, False, bad, time.perf_counter() - c3, 0.0)
                 self.trajectory = new

@@ -1,0 +1,113 @@
+"""The plan contract: unit checks, cheating planners end as invalid_plan, check_planner, built-ins never breach."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pbdyn.planning.trajectory import Trajectory
+from pbdyn.sim.checker import check_planner
+from pbdyn.sim.contract import CHECKS, plan_violations
+from tests import cheating_planners as cheats
+from tests.helpers import first_map, handmade_rollout, open_scenario
+
+DT, VMAX, AMAX = 0.1, 4.0, 4.0
+
+
+def _violations(p, v, a, *, t0=0.0, dt=DT, pos=None, vel=None, **kw):
+    traj = Trajectory(t0, dt, np.asarray(p, float), np.asarray(v, float), np.asarray(a, float))
+    pos = traj.p[0] if pos is None else pos
+    vel = traj.v[0] if vel is None else vel
+    return [x.check for x in plan_violations(traj, t=0.0, dt=DT, position=pos, velocity=vel, v_max=VMAX,
+                                              a_max=AMAX, **kw)]
+
+
+def test_position_step_bound_is_exact():
+    """+a_max for half a step then -a_max reaches p0 + a_max dt^2 / 4 at unchanged velocity: allowed; 0.1% more is not."""
+    d = AMAX * DT * DT / 4.0
+    v0 = [1.0, 0.0]
+    ok = [[0.0, 0.0], [0.1 + d, 0.0]]
+    assert _violations(ok, [v0, v0], np.zeros((2, 2))) == []
+    assert _violations([[0.0, 0.0], [0.1 + 1.001 * d, 0.0]], [v0, v0], np.zeros((2, 2))) == ["position_step"]
+    diagonal = [[0.0, 0.0], [0.1 + d / np.sqrt(2) * 1.0000001, d / np.sqrt(2) * 1.0000001]]
+    assert _violations(diagonal, [v0, v0], np.zeros((2, 2))) == ["position_step"]
+
+
+def test_each_check_fires_alone():
+    z = np.zeros((3, 2))
+    line_v = np.array([[0.0, 0.0], [0.4, 0.0], [0.8, 0.0]])           # a = 4 m/s^2 exactly
+    line_p = np.array([[0.0, 0.0], [0.02, 0.0], [0.08, 0.0]])
+    line_a = np.array([[4.0, 0.0]] * 3)
+    assert _violations(line_p, line_v, line_a) == []
+    assert _violations(line_p, line_v * 1.01, line_a) == ["velocity_step"]
+    assert _violations(line_p, line_v, line_a * 1.01) == ["acceleration"]
+    fast = np.array([[4.1, 0.0]] * 3)
+    assert _violations(line_p * 0 + [[0, 0], [0.41, 0], [0.82, 0]], fast, z) == ["speed"]
+    assert _violations(line_p, line_v, line_a, t0=0.1) == ["t0"]
+    assert _violations(line_p, line_v, line_a, dt=0.05) == ["dt", "velocity_step", "position_step"]
+    assert _violations(line_p, line_v, line_a, pos=np.array([0.0, 2e-6])) == ["start_position"]
+    assert _violations(line_p, line_v, line_a, vel=np.array([2e-6, 0.0])) == ["start_velocity"]
+    assert _violations(line_p, line_v, line_a, pos=np.array([0.0, 5e-7])) == []
+    assert _violations(line_p * 1.0, line_v, line_a, physical=False) == []
+    assert _violations(line_p, line_v * 3, line_a * 3, physical=False) == []
+    nan = line_p.copy()
+    nan[2, 1] = np.nan
+    assert _violations(nan, line_v, line_a) == ["finite"]
+    assert _violations(line_p[:1], line_v[:1], line_a[:1]) == ["shape"]
+    assert set(CHECKS) >= {"type", "shape", "finite", "t0", "dt", "start_position", "start_velocity", "speed",
+                           "acceleration", "velocity_step", "position_step"}
+
+
+def _fly_cheat(cls, dims=2, **kw):
+    from dataclasses import replace
+
+    from pbdyn.config import PlannerEntry
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+
+    sc = open_scenario(dims)
+    z = [10.0] if dims == 3 else []
+    ro = handmade_rollout(sc, np.zeros((0, dims)), np.zeros((0, dims)), [])
+    spec = make_trial_spec(sc, first_map(sc), start=tuple([4.0, 25.0] + z), goal=tuple([46.0, 25.0] + z))
+    spec = replace(spec, planner=PlannerEntry(f"tests.cheating_planners:{cls.__name__}", "lookahead"))
+    return run_trial(spec, ro, trajectory_planner=cls, **kw)
+
+
+@pytest.mark.parametrize("cls, check, sample", [(cheats.OverSpeed, "speed", 1), (cheats.Teleport, "position_step", 1),
+                                                (cheats.WrongT0, "t0", None), (cheats.StartOff, "start_position", 0),
+                                                (cheats.NotATrajectory, "type", None)])
+@pytest.mark.parametrize("dims", [2, 3])
+def test_cheating_planner_ends_invalid_plan(tmp_path, cls, check, sample, dims):
+    trace = tmp_path / "t.npz"
+    res = _fly_cheat(cls, dims, trace_path=trace)
+    assert res.outcome == "invalid_plan"
+    assert f"plan broke {check}" in res.reason
+    if sample is not None:
+        assert f"at sample {sample}" in res.reason
+    assert res.flight_time_s == 0.0 and res.steps == 0
+    with np.load(trace) as z:
+        assert z["p"].shape[0] == 0 and str(z["outcome"]) == "invalid_plan"
+        assert np.allclose(z["final_p"], [4.0, 25.0] + ([10.0] if dims == 3 else []))
+
+
+def test_late_cheat_never_executes_the_bad_plan(tmp_path):
+    trace = tmp_path / "t.npz"
+    res = _fly_cheat(cheats.LateCheat, trace_path=trace)
+    assert res.outcome == "invalid_plan" and "position_step at sample 1" in res.reason
+    assert res.flight_time_s == pytest.approx(0.5) and res.steps == 5
+    with np.load(trace) as z:
+        assert z["p"].shape[0] == 5
+        assert np.linalg.norm(z["final_v"]) <= 1.0 + 1e-9          # 0.5 s at 2 m/s^2
+        assert z["final_p"][0] - 4.0 == pytest.approx(0.5 * 2.0 * 0.5 ** 2)
+
+
+def test_check_planner_reports_cheats_and_passes_builtins():
+    sc = open_scenario(2)
+    bad = check_planner(cheats.OverSpeed, sc, maps=1, pairs=3)
+    assert not bad.ok and bad.trials == 3 and bad.outcomes == {"invalid_plan": 3}
+    assert all(b.violations[0].check == "speed" for b in bad.breaches)
+    assert {v.check for v in bad.breaches[0].violations} == {"speed", "velocity_step", "position_step"}
+    assert "invalid plans" in str(bad) and "plan broke speed" in str(bad)
+    named = check_planner("tests.cheating_planners:Teleport", sc, maps=1, pairs=2)
+    assert named.planner == "tests.cheating_planners:Teleport" and named.outcomes == {"invalid_plan": 2}
+    good = check_planner("local_primitives", sc, maps=1, pairs=2)
+    assert good.ok and good.outcomes == {"success": 2} and "respected" in str(good)
