@@ -68,11 +68,13 @@ def bundled_scenario(name: str) -> Path | None:
 
 
 def find_scenario(path: str | Path) -> Path:
-    """The scenario file ``path`` names: an existing file always wins, else a bundled scenario of that name;
-    ConfigError naming it otherwise."""
+    """The scenario file ``path`` names: an existing file (``path``, or ``path`` + ".toml") always wins, else a
+    bundled scenario of that name; ConfigError naming it otherwise."""
     p = Path(path)
-    if p.is_file():
-        return p
+    local = [p] if p.suffix == ".toml" or not p.name else [p, p.with_name(p.name + ".toml")]
+    for cand in local:
+        if cand.is_file():
+            return cand
     bundled = bundled_scenario(str(path))
     if bundled is not None:
         return bundled
