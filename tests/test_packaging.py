@@ -180,7 +180,7 @@ def test_installed_wheel_flies_a_bundled_scenario_outside_the_checkout(tmp_path)
         return subprocess.run(list(args), capture_output=True, text=True, cwd=cwd, env=env, timeout=600)
 
     where = run(str(py), "-c", "import pbdyn.resources as r; print(r.models_dir()); print(r.scenarios_dir())")
-    assert where.returncode == 0, where.stderr
+    assert where.returncode == 0 and len(where.stdout.split()) == 2, where.stderr
     site = venv.resolve()
     for line in where.stdout.split():
         assert Path(line).resolve().is_relative_to(site) and not Path(line).resolve().is_relative_to(ROOT), line
