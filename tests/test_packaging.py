@@ -203,3 +203,26 @@ def test_installed_wheel_flies_a_bundled_scenario_outside_the_checkout(tmp_path)
 
     proc = run(str(pbdyn_exe), "run", "no_such_scenario")
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_editable_install_maps_the_data_packages(tmp_path):
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    py = venv / "bin" / "python"
+    extra = tmp_path / "build.cfg"
+    extra.write_text(f"[build]\nbuild_base = {tmp_path / 'build'}\n[egg_info]\negg_base = {tmp_path}\n")
+    install = subprocess.run([str(py), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-deps",
+                              "-e", str(ROOT)], capture_output=True, text=True, timeout=300,
+                             env={**os.environ, "DIST_EXTRA_CONFIG": str(extra)})
+    if install.returncode != 0 and any(h in install.stderr for h in PIP_OFFLINE_HINTS):
+        pytest.skip("pip cannot reach setuptools/wheel to build an editable install (offline)")
+    assert install.returncode == 0, install.stderr[-3000:]
+    code = ("import importlib.resources as r, pbdyn.resources as p; "
+            "print(r.files('pbdyn.models'), r.files('pbdyn.scenarios'), p.models_dir(), p.scenarios_dir())")
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    proc = subprocess.run([str(py), "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    models, scenarios, models2, scenarios2 = map(Path, proc.stdout.split())
+    assert models == models2 == ROOT / "urdf" and scenarios == scenarios2 == SCENARIOS
