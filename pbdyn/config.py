@@ -14,11 +14,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from pbdyn import resources
 from pbdyn.errors import ConfigError
 from pbdyn.world.rvo import RVOParams
 
-PACKAGE_ROOT = Path(__file__).resolve().parent
-URDF_DIR = PACKAGE_ROOT.parent / "urdf"
 DEFAULT_MAV_URDF = "quadrotor.urdf"
 
 MOTIONS = ("cvm", "rvo")
@@ -282,7 +281,7 @@ class Scenario:
 
     def resolve_path(self, name: str) -> Path:
         """Absolute path of a file named in the scenario: absolute as is; relative: the scenario's folder if the
-        file is there, else the bundled urdf/ folder."""
+        file is there, else the bundled models (pbdyn.resources.models_dir)."""
         p = Path(name)
         if p.is_absolute():
             return p
@@ -290,7 +289,7 @@ class Scenario:
             cand = Path(self.source).resolve().parent / p
             if cand.exists():
                 return cand
-        return URDF_DIR / p
+        return resources.models_dir() / p
 
     def to_dict(self) -> dict:
         """The resolved scenario as plain JSON-able data (no source path; "bodies" only for imported worlds)."""
@@ -703,10 +702,9 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Load and validate a TOML scenario file. Raises ConfigError (missing file, malformed TOML, invalid values)."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError("scenario", "file not found", str(path))
+    """Load and validate a TOML scenario file, or a bundled scenario named without a path ("quickstart"; an
+    existing file wins). Raises ConfigError (missing file, malformed TOML, invalid values)."""
+    p = resources.find_scenario(path)
     try:
         doc = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:

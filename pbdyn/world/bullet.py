@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pbdyn import resources
 from pbdyn.errors import ConfigError, check_positive
 from pbdyn.world.geometry import StaticBody
 
@@ -106,9 +107,6 @@ with _quiet_import():
     import pybullet
     from pybullet_utils import bullet_client
 
-URDF_DIR = Path(__file__).resolve().parents[2] / "urdf"
-"""The project's URDF models (quadrotor, pillar, box, sphere), unit size, scaled at load."""
-
 RAY_BATCH = 16383
 """Rays per rayTestBatch call (PyBullet refuses batches of 16384 or more)."""
 
@@ -127,8 +125,8 @@ _KIND_NAMES = ("none", "mav", "dynamic", "static", "wall")
 
 
 def urdf_path(name: str) -> str:
-    """Absolute path of one of the project's URDF models, e.g. ``urdf_path("pillar")``."""
-    return str(URDF_DIR / f"{name}.urdf")
+    """Absolute path of one of the project's URDF models (unit size, scaled at load), e.g. ``urdf_path("pillar")``."""
+    return str(resources.urdf_path(name))
 
 
 def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
