@@ -111,3 +111,52 @@ def test_check_planner_reports_cheats_and_passes_builtins():
     assert named.planner == "tests.cheating_planners:Teleport" and named.outcomes == {"invalid_plan": 2}
     good = check_planner("local_primitives", sc, maps=1, pairs=2)
     assert good.ok and good.outcomes == {"success": 2} and "respected" in str(good)
+
+
+def _dataset(name: str, time_limit: float):
+    import tomllib
+
+    from pbdyn.config import parse_scenario
+    from tests.conftest import SCENARIOS
+
+    doc = tomllib.loads((SCENARIOS / "datasets" / f"{name}.toml").read_text())
+    doc["world"]["time_limit"] = time_limit
+    return parse_scenario(doc)
+
+
+TRAJECTORY = ("local_primitives", "global_primitives", "mpc", "straight_line")
+GAZES = ("lookahead", "fullrange", "finean")
+MAPS = list(range(0, 540, 27))     # 20 maps over every (count, radius, speed) setup of the controlled datasets
+
+
+def _assert_no_breach(scenario, trajectory, gazes, v_max, maps=MAPS):
+    for k, gaze in enumerate(gazes):
+        chosen = maps if len(gazes) == 1 or len(maps) == len(MAPS) else maps[k::len(gazes)]
+        rep = check_planner(trajectory, scenario, maps=chosen, pairs=1, gaze=gaze, v_max=v_max)
+        assert rep.ok, str(rep)
+        assert rep.trials == len(chosen)
+
+
+@pytest.mark.parametrize("trajectory", TRAJECTORY)
+def test_builtins_never_breach_2d(trajectory):
+    """Every built-in trajectory planner x 3 gaze planners x 20 maps (2D, first 10 s of each trial)."""
+    _assert_no_breach(_dataset("controlled_2d", 10.0), trajectory, GAZES, 6.0)
+
+
+@pytest.mark.parametrize("trajectory", TRAJECTORY)
+def test_builtins_never_breach_3d(trajectory):
+    """Every built-in trajectory planner on 20 3D maps, the 3 gaze planners taking turns (first 6 s of each)."""
+    sc = _dataset("controlled_3d", 6.0)
+    for k, gaze in enumerate(GAZES):
+        rep = check_planner(trajectory, sc, maps=MAPS[k::3], pairs=1, gaze=gaze, v_max=4.0)
+        assert rep.ok, str(rep)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dims", [2, 3])
+@pytest.mark.parametrize("trajectory", TRAJECTORY)
+def test_builtins_never_breach_full(trajectory, dims):
+    """The full check: every built-in x 3 gaze planners x 20 maps x 3 MAV speeds, whole trials (80 s)."""
+    sc = _dataset(f"controlled_{dims}d", 80.0)
+    for v in (2.0, 4.0, 6.0):
+        _assert_no_breach(sc, trajectory, GAZES, v)
