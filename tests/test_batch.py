@@ -164,6 +164,71 @@ def test_kill_9_of_a_worker_is_survived(reference, tmp_path):
     assert rows_without_wall(out) == rows_without_wall(ref_out)
 
 
+def _descendants(pid: int) -> list[tuple[int, float]]:
+    """(pid, start time) of every descendant of ``pid`` (psutil if installed, else /proc)."""
+    try:
+        import psutil
+    except ImportError:
+        out, todo = [], [pid]
+        while todo:
+            for c in _children(todo.pop()):
+                out.append((c, float((Path(f"/proc/{c}/stat").read_text().rsplit(")", 1)[1].split()[19]))))
+                todo.append(c)
+        return out
+    return [(c.pid, c.create_time()) for c in psutil.Process(pid).children(recursive=True)]
+
+
+def _alive(pid: int, started: float) -> bool:
+    """Whether the process ``pid`` started at ``started`` still runs (zombies count as gone)."""
+    try:
+        import psutil
+    except ImportError:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return False
+        return fields[0] != "Z" and float(fields[19]) == started
+    try:
+        p = psutil.Process(pid)
+        return p.create_time() == started and p.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_sigterm_and_sigint_stop_the_workers_keep_committed_rows_and_resume_exactly(reference, tmp_path, sig, status):
+    sc, ref_out = reference
+    out = tmp_path / "signalled.sqlite"
+    args = [str(sc), "--out", str(out), "--workers", "2", "--no-metrics", "--limit", "40"]
+    proc = subprocess.Popen(pbdyn_cmd() + ["batch", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        _wait_rows(out, 2, proc)
+        kids = _descendants(proc.pid)
+        workers = [pid for pid, _ in kids if "spawn_main" in Path(f"/proc/{pid}/cmdline").read_text()]
+        assert len(workers) == 2, kids
+        os.kill(proc.pid, sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == status, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"pbdyn: batch stopped by {sig.name}: ") and "committed" in last
+    assert "Traceback" not in err
+    t0 = time.time()
+    while any(_alive(*k) for k in kids) and time.time() - t0 < 10:
+        time.sleep(0.1)
+    assert not [k for k in kids if _alive(*k)], "processes of the batch outlived it"
+    committed = _count(out)
+    assert 2 <= committed < 40 and f": {committed} trials committed" in last
+    res = batch(args + ["--json"])
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["already_stored"] == committed
+    rows, ref = rows_without_wall(out), rows_without_wall(ref_out)
+    assert len(rows) == 40 and rows == {k: ref[k] for k in rows}
+
+
 def test_dask_local_cluster_gives_the_process_pool_rows(reference, tmp_path):
     from dask.distributed import Client, LocalCluster
 
