@@ -239,7 +239,7 @@ class _Pool:
         """Shut down: wait for running tasks, or with ``terminate`` cancel them and end the local worker processes
         (SIGTERM, then SIGKILL after 5 s); a Dask cluster's workers are left running."""
         if self.dask:
-            self.executor.shutdown(wait=not terminate, cancel_futures=terminate)
+            self.executor.shutdown(wait=not terminate)     # wait=False cancels the running futures
         elif terminate:
             procs = list((getattr(self.executor, "_processes", None) or {}).values())
             for p in procs:
