@@ -90,6 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
     bat.add_argument("--extend", action="store_true",
                      help="accept a scenario that adds grid values, planners, MAV speeds or maps to the store's")
     bat.add_argument("--no-metrics", action="store_true", help="skip the maps' difficulty metrics")
+    bat.add_argument("--rerun-changed", action="store_true",
+                     help="re-fly the stored trials whose planner code changed since they were flown (else they stop "
+                          "the batch)")
+    bat.add_argument("--retry-errors", action="store_true", help="re-fly the stored trials whose outcome is error")
     bat.add_argument("--json", action="store_true", help="print a JSON summary")
 
     ev = sub.add_parser("evaluate", help="success rates and how well each metric ranks maps (table 4-5), figures")
@@ -212,15 +216,18 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if args.limit == 0:
         raise ConfigError("--limit", "must be >= 1", 0)
     opts = BatchOptions(workers=args.workers, scheduler=args.scheduler, limit=args.limit, extend=args.extend,
-                        metrics=not args.no_metrics)
+                        metrics=not args.no_metrics, rerun_changed=args.rerun_changed, retry_errors=args.retry_errors)
     s = run_batch(scenario, args.out, opts, command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
-    doc = {"results": str(args.out), "trials": s.total, "already_stored": s.skipped, "ran": s.ran,
-           "errors": s.errors, "maps_computed": s.maps_computed, "wall_time_s": s.wall_time_s}
+    doc = {"results": str(args.out), "trials": s.total, "already_stored": s.skipped, "ran": s.ran, "rerun": s.rerun,
+           "errors": s.errors, "stored_errors": s.stored_errors, "maps_computed": s.maps_computed,
+           "wall_time_s": s.wall_time_s}
     if args.json:
         sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
     else:
-        sys.stdout.write(f"{args.out}: {s.total} trials ({s.skipped} already stored, {s.ran} run now, {s.errors} "
-                         f"errors), {s.maps_computed} maps' metrics, {s.wall_time_s:.1f} s\n")
+        rerun = f" ({s.rerun} replacing stored rows)" if s.rerun else ""
+        sys.stdout.write(f"{args.out}: {s.total} trials ({s.skipped} already stored, {s.ran} run now{rerun}, "
+                         f"{s.errors} errors; {s.stored_errors} error rows in the store), {s.maps_computed} maps' "
+                         f"metrics, {s.wall_time_s:.1f} s\n")
     return 0
 
 
@@ -266,9 +273,9 @@ def main(argv: list[str] | None = None) -> int:
     except PbdynError as exc:
         sys.stderr.write(f"pbdyn: error: {exc}\n")
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        sys.stderr.write("pbdyn: interrupted\n")
-        return 130
+    except KeyboardInterrupt as exc:   # pbdyn batch: BatchInterrupted (SIGTERM 143, SIGINT 130)
+        sys.stderr.write(f"pbdyn: {str(exc) or 'interrupted'}\n")
+        return getattr(exc, "exit_status", 130)
     except Exception as exc:  # an internal failure: one line, details only on request
         if os.environ.get("PBDYN_DEBUG"):
             raise

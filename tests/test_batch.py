@@ -164,6 +164,71 @@ def test_kill_9_of_a_worker_is_survived(reference, tmp_path):
     assert rows_without_wall(out) == rows_without_wall(ref_out)
 
 
+def _descendants(pid: int) -> list[tuple[int, float]]:
+    """(pid, start time) of every descendant of ``pid`` (psutil if installed, else /proc)."""
+    try:
+        import psutil
+    except ImportError:
+        out, todo = [], [pid]
+        while todo:
+            for c in _children(todo.pop()):
+                out.append((c, float((Path(f"/proc/{c}/stat").read_text().rsplit(")", 1)[1].split()[19]))))
+                todo.append(c)
+        return out
+    return [(c.pid, c.create_time()) for c in psutil.Process(pid).children(recursive=True)]
+
+
+def _alive(pid: int, started: float) -> bool:
+    """Whether the process ``pid`` started at ``started`` still runs (zombies count as gone)."""
+    try:
+        import psutil
+    except ImportError:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return False
+        return fields[0] != "Z" and float(fields[19]) == started
+    try:
+        p = psutil.Process(pid)
+        return p.create_time() == started and p.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_sigterm_and_sigint_stop_the_workers_keep_committed_rows_and_resume_exactly(reference, tmp_path, sig, status):
+    sc, ref_out = reference
+    out = tmp_path / "signalled.sqlite"
+    args = [str(sc), "--out", str(out), "--workers", "2", "--no-metrics", "--limit", "40"]
+    proc = subprocess.Popen(pbdyn_cmd() + ["batch", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        _wait_rows(out, 2, proc)
+        kids = _descendants(proc.pid)
+        workers = [pid for pid, _ in kids if "spawn_main" in Path(f"/proc/{pid}/cmdline").read_text()]
+        assert len(workers) == 2, kids
+        os.kill(proc.pid, sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == status, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"pbdyn: batch stopped by {sig.name}: ") and "committed" in last
+    assert "Traceback" not in err
+    t0 = time.time()
+    while any(_alive(*k) for k in kids) and time.time() - t0 < 10:
+        time.sleep(0.1)
+    assert not [k for k in kids if _alive(*k)], "processes of the batch outlived it"
+    committed = _count(out)
+    assert 2 <= committed < 40 and f": {committed} trials committed" in last
+    res = batch(args + ["--json"])
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["already_stored"] == committed
+    rows, ref = rows_without_wall(out), rows_without_wall(ref_out)
+    assert len(rows) == 40 and rows == {k: ref[k] for k in rows}
+
+
 def test_dask_local_cluster_gives_the_process_pool_rows(reference, tmp_path):
     from dask.distributed import Client, LocalCluster
 
@@ -198,6 +263,17 @@ def test_a_planner_that_raises_gives_error_rows_and_the_batch_completes(tmp_path
     assert len(errs) == doc["errors"]
     assert all("start x > 40" in r["error"] and r["start"][0] > 40 for r in errs)
     assert all(r["outcome"] != "error" for r in rows if r["start"][0] < 40)
+    again = batch([str(sc), "--out", str(out), "--workers", "1", "--json", "--no-metrics"],
+                  env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    d2 = json.loads(again.stdout)
+    assert (d2["ran"], d2["errors"], d2["stored_errors"]) == (0, 0, doc["errors"])
+    before = rows_without_wall(out)
+    retry = batch([str(sc), "--out", str(out), "--workers", "1", "--json", "--no-metrics", "--retry-errors"],
+                  env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert retry.returncode == 0, retry.stderr
+    d3 = json.loads(retry.stdout)
+    assert (d3["ran"], d3["rerun"], d3["errors"], d3["stored_errors"]) == (doc["errors"],) * 4
+    assert rows_without_wall(out) == before                      # the same rows, once each
 
 
 def test_extend_accepts_additions_only(reference, tmp_path):
@@ -217,28 +293,178 @@ def test_extend_accepts_additions_only(reference, tmp_path):
     assert res.returncode == 2 and "obstacles.radius" in res.stderr
 
 
-def test_export_round_trips(reference, tmp_path):
-    import pyarrow.parquet as pq
+def test_export_round_trips_with_numeric_start_goal_metrics_and_umask(reference, tmp_path):
+    import pandas as pd
+    from pandas.api.types import is_float_dtype, is_integer_dtype
+
+    from pbdyn.experiments.export import trials_frame
 
     _, out = reference
+    src = tmp_path / "partial.sqlite"            # one map without metrics: its trials get NaN metric columns
+    src.write_bytes(out.read_bytes())
+    store = ResultsStore.open(src)
+    maps = store.maps()
+    store.close()
+    bare = sorted(maps)[0]
+    with sqlite3.connect(src) as c:
+        c.execute("UPDATE maps SET metrics_json = NULL WHERE map_id = ?", (bare,))
+    df = trials_frame(src)
+    assert len(df) == 80 and list(df.columns[:4]) == ["trial_key", "gaze", "planner", "motion_profile"]
+    assert "start" not in df and "goal" not in df
+    for col in ("start_x", "start_y", "goal_x", "goal_y", "mav_speed", "obstacle_radius", "metric_survivability"):
+        assert is_float_dtype(df[col]), col
+    assert is_integer_dtype(df["steps"]) and is_integer_dtype(df["map_index"])
+    rows = {r["trial_key"]: r for r in ResultsStore.open(src).results()}
+    for r in df.itertuples():
+        assert [r.start_x, r.start_y, r.goal_x, r.goal_y] == rows[r.trial_key]["start"] + rows[r.trial_key]["goal"]
+        if r.map_id == bare:
+            assert pd.isna(r.metric_survivability)
+        else:
+            assert r.metric_survivability == maps[r.map_id]["metrics"]["survivability"]
+    assert {f"metric_{m}" for m in maps[sorted(maps)[1]]["metrics"]} <= set(df.columns)
+    old = os.umask(0o022)
+    try:
+        for fmt in ("csv", "parquet"):
+            dest = tmp_path / f"trials.{fmt}"
+            res = subprocess.run(pbdyn_cmd() + ["export", str(src), f"--{fmt}", str(dest)], capture_output=True,
+                                 text=True, timeout=120)
+            assert res.returncode == 0, res.stderr
+            assert dest.stat().st_mode & 0o777 == 0o644
+            back = pd.read_csv(dest) if fmt == "csv" else pd.read_parquet(dest)
+            assert list(back.columns) == list(df.columns)
+            for col in ("start_x", "goal_y", "flight_time_s", "metric_density", "steps"):
+                assert back[col].dtype.kind in "if", (fmt, col)
+                assert back[col].tolist() == pytest.approx(df[col].tolist(), nan_ok=True, rel=0, abs=0), (fmt, col)
+            assert back["trial_key"].tolist() == df["trial_key"].tolist()
+    finally:
+        os.umask(old)
+    assert not list(tmp_path.glob(".export-*"))
+
+
+def test_store_columns_follow_the_trial_result_fields(reference):
+    from dataclasses import dataclass, fields
+
+    from pbdyn.experiments.store import SCHEMA_VERSION, TRIAL_COLUMNS, trial_columns
+    from pbdyn.sim.result import TrialResult
+
+    names = [f.name for f in fields(TrialResult) if f.name != "wall_timings"]
+    assert [n for n, _ in TRIAL_COLUMNS] == names
+    assert names.index("planner_fingerprint") == names.index("config_hash") + 1
+    types = dict(TRIAL_COLUMNS)
+    assert (types["steps"], types["mav_speed"], types["gaze"], types["start"], types["obstacle_radius"]) == \
+        ("INTEGER", "REAL", "TEXT", "JSON", "JSON")
+
+    @dataclass
+    class Row:
+        a: int
+        b: float
+        c: str
+        d: tuple[float, ...]
+        e: float | dict
+        wall_timings: dict
+
+    assert trial_columns(Row) == (("a", "INTEGER"), ("b", "REAL"), ("c", "TEXT"), ("d", "JSON"), ("e", "JSON"))
+    _, out = reference
+    with sqlite3.connect(f"file:{out}?mode=ro", uri=True) as c:
+        cols = [(r[1], r[2]) for r in c.execute("PRAGMA table_info(trials)")]
+        version = c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+    assert int(version) == SCHEMA_VERSION == 2
+    assert cols == [("trial_key", "TEXT")] + [(n, "TEXT" if t == "JSON" else t) for n, t in TRIAL_COLUMNS] + \
+        [("error", "TEXT"), ("result_json", "TEXT"), ("finished", "REAL")]
     store = ResultsStore.open(out)
+    rows = store.results()
+    store.close()
+    assert {r["planner_fingerprint"] for r in rows} == {"builtin:1+builtin:1"}
+
+
+def test_a_version_1_store_is_read_and_upgraded_and_its_rows_count_as_changed(reference, tmp_path):
+    sc, out = reference
+    v1 = tmp_path / "v1.sqlite"
+    v1.write_bytes(out.read_bytes())
+    with sqlite3.connect(v1) as c:
+        c.execute("ALTER TABLE trials DROP COLUMN planner_fingerprint")
+        c.execute("UPDATE meta SET value = '1' WHERE key = 'schema_version'")
+    store = ResultsStore.open(v1)
     names, rows = store.trial_rows()
     store.close()
-    assert names[:4] == ["trial_key", "gaze", "planner", "motion_profile"]
-    for fmt in ("csv", "parquet"):
-        dest = tmp_path / f"trials.{fmt}"
-        res = subprocess.run(pbdyn_cmd() + ["export", str(out), f"--{fmt}", str(dest)], capture_output=True,
-                             text=True, timeout=120)
-        assert res.returncode == 0, res.stderr
-        if fmt == "csv":
-            with open(dest, newline="") as fh:
-                back = list(csv.reader(fh))
-            assert back[0] == names
-            assert back[1:] == [["" if v is None else str(v) for v in r] for r in rows]
-        else:
-            table = pq.read_table(dest)
-            assert table.column_names == names
-            assert [tuple(r.values()) for r in table.to_pylist()] == rows
+    assert len(rows) == 80 and {r[names.index("planner_fingerprint")] for r in rows} == {None}
+    res = batch([str(sc), "--out", str(v1), "--workers", "1"])
+    assert res.returncode == 2, res.stderr
+    line = res.stderr.strip()
+    assert "\n" not in line and "--rerun-changed" in line and "planners[0] (lookahead+local_primitives)" in line
+    assert "80 stored trials" not in line and "40 stored trials flown with none" in line
+    with sqlite3.connect(f"file:{v1}?mode=ro", uri=True) as c:   # upgraded in place, nothing run
+        assert c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+        assert "planner_fingerprint" in {r[1] for r in c.execute("PRAGMA table_info(trials)")}
+        assert c.execute("SELECT COUNT(*) FROM runs").fetchone()[0] == \
+            sqlite3.connect(f"file:{out}?mode=ro", uri=True).execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+
+
+PLUGIN = """
+from pbdyn.planning.straight_line import StraightLine
+
+
+class Straight(StraightLine):
+    \"\"\"A plug-in whose source file the tests edit.\"\"\"
+"""
+
+
+def test_changed_planner_code_stops_the_batch_until_rerun_changed(tmp_path, monkeypatch):
+    from pbdyn.planning import registry
+
+    plug = tmp_path / "plug" / "fpplug_mod.py"
+    plug.parent.mkdir()
+    plug.write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(plug.parent))
+    entries = PLANNERS.split("[[planners]]")[1] + '[[planners]]\ntrajectory = "fpplug_mod:Straight"\n' \
+        'gaze = "lookahead"\n'
+    sc = small(tmp_path, "[[planners]]" + entries, **{
+        "[46.0, 46.0], [4.0, 46.0], [46.0, 4.0], [25.0, 25.0]": "[46.0, 46.0], [25.0, 25.0]"})
+    out = tmp_path / "fp.sqlite"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(plug.parent), str(ROOT)]))
+    args = [str(sc), "--out", str(out), "--workers", "1", "--no-metrics", "--limit", "12", "--json"]
+    res = batch(args, env=env)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["ran"] == 12
+    registry.planner_fingerprint.cache_clear()
+    fp_old = registry.pair_fingerprint("fpplug_mod:Straight", "lookahead")
+    assert registry.pair_fingerprint("local_primitives", "lookahead") == \
+        f"builtin:{registry.PLANNER_MODEL_VERSION}+builtin:{registry.PLANNER_MODEL_VERSION}"
+    before = rows_without_wall(out)
+    by_label = {lab: {r["planner_fingerprint"] for r in before.values() if r["planner_label"] == lab}
+                for lab in ("lookahead+local_primitives", "lookahead+fpplug_mod:Straight")}
+    assert by_label == {"lookahead+local_primitives": {"builtin:1+builtin:1"},
+                        "lookahead+fpplug_mod:Straight": {fp_old}}
+    with sqlite3.connect(out) as c:
+        finished = dict(c.execute("SELECT trial_key, finished FROM trials"))
+
+    plug.write_text(PLUGIN + "\n# an edit: the same behaviour, other code\n")
+    registry.planner_fingerprint.cache_clear()
+    fp_new = registry.pair_fingerprint("fpplug_mod:Straight", "lookahead")
+    assert fp_new != fp_old and fp_new.endswith("+builtin:1")
+    res = batch(args, env=env)
+    assert res.returncode == 2
+    line = res.stderr.strip()
+    assert "\n" not in line and "planners[1] (lookahead+fpplug_mod:Straight): 6 stored trials" in line
+    assert "--rerun-changed" in line and "planners[0]" not in line
+    assert rows_without_wall(out) == before                       # stopped before running anything
+
+    res = batch(args + ["--rerun-changed"], env=env)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert (doc["ran"], doc["rerun"], doc["already_stored"], doc["errors"]) == (6, 6, 6, 0)
+    after = rows_without_wall(out)
+    assert set(after) == set(before)                               # replaced in place: no duplicates
+    for key, row in after.items():
+        changed = row["planner_label"] == "lookahead+fpplug_mod:Straight"
+        assert row["planner_fingerprint"] == (fp_new if changed else "builtin:1+builtin:1")
+        assert {**row, "planner_fingerprint": None} == {**before[key], "planner_fingerprint": None}
+    with sqlite3.connect(out) as c:
+        now = dict(c.execute("SELECT trial_key, finished FROM trials"))
+    assert {k for k in now if now[k] != finished[k]} == \
+        {k for k, r in after.items() if r["planner_label"] == "lookahead+fpplug_mod:Straight"}
+    res = batch(args, env=env)
+    assert res.returncode == 0 and json.loads(res.stdout)["ran"] == 0
 
 
 def test_bad_store_inputs_are_one_line_errors(tmp_path, reference):

@@ -6,14 +6,23 @@ submits trials and map-metric tasks to a process pool (spawn: no worker is ever 
 PyBullet client) or to a Dask cluster through its concurrent.futures executor, and is the only writer of the
 store: rows are inserted with INSERT OR IGNORE and committed at least once a second, so killing the coordinator or
 a worker loses no committed trial and a re-run completes the rest. A trial that raises becomes an "error" row.
+
+Every row records its planner pair's fingerprint (pbdyn.planning.registry.pair_fingerprint). A store holding rows
+flown with other planner code stops the batch before anything runs, unless ``rerun_changed`` re-flies exactly those
+rows; ``retry_errors`` re-flies the "error" rows. Re-flown rows replace the old ones row by row (INSERT OR
+REPLACE). SIGTERM and SIGINT stop the batch: rows that have arrived are committed, the worker processes are
+terminated, and BatchInterrupted (a KeyboardInterrupt; exit status 128 + signal number) is raised.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import multiprocessing
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures.process import BrokenProcessPool
@@ -25,7 +34,7 @@ from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, PbdynError
 from pbdyn.experiments.store import ResultsStore
 from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialTask, enumerate_trials, run_map_task,
-                                     run_trial_task, trial_spec)
+                                     run_trial_task, trial_spec, worker_init)
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import default_horizon, rollout_file
 
@@ -39,7 +48,9 @@ class BatchOptions:
     """workers: local processes (default: CPU count); scheduler: a Dask scheduler address ("tcp://host:8786") or
     a dask.distributed Client; limit: fly only the first N trials of the enumeration; extend: accept a scenario
     that adds grid values, planners, MAV speeds or maps to the one in the store; metrics: compute each map's
-    metrics (METRIC_SET); progress: a progress line on stderr."""
+    metrics (METRIC_SET); progress: a progress line on stderr; rerun_changed: re-fly stored rows whose planner
+    fingerprint differs from the current code's (else such rows stop the batch); retry_errors: re-fly stored
+    "error" rows."""
 
     workers: int | None = None
     scheduler: object = None
@@ -47,11 +58,15 @@ class BatchOptions:
     extend: bool = False
     metrics: bool = True
     progress: bool = True
+    rerun_changed: bool = False
+    retry_errors: bool = False
 
 
 @dataclass(frozen=True)
 class BatchSummary:
-    """What a batch run did: trials in the experiment (after --limit), already stored, run now, error rows."""
+    """What a batch run did: trials in the experiment (after --limit), already stored (and kept), run now (rerun of
+    them replaced stored rows), this run's error rows, maps whose metrics were computed, and the error rows the
+    store holds after the run."""
 
     total: int
     skipped: int
@@ -59,6 +74,39 @@ class BatchSummary:
     errors: int
     maps_computed: int
     wall_time_s: float
+    rerun: int = 0
+    stored_errors: int = 0
+
+
+class BatchInterrupted(KeyboardInterrupt):
+    """SIGTERM or SIGINT stopped a batch; committed rows are kept. ``exit_status`` = 128 + the signal number."""
+
+    def __init__(self, signum: int, message: str = ""):
+        self.signum = signum
+        self.exit_status = 128 + signum
+        super().__init__(message or f"stopped by {signal.Signals(signum).name}")
+
+
+@contextlib.contextmanager
+def _stop_on_signals() -> Iterator[None]:
+    """Within the block, the first SIGTERM or SIGINT raises BatchInterrupted (later ones are ignored while the
+    batch cleans up); the previous handlers are restored after it. A no-op outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired: list[int] = []
+
+    def handler(signum, frame):
+        if not fired:
+            fired.append(signum)
+            raise BatchInterrupted(signum)
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 
 # ------------------------------------------------------------------------------------------------ --extend
@@ -168,7 +216,7 @@ class _Pool:
     def _start(self) -> None:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")
-        self.executor = cf.ProcessPoolExecutor(max_workers=self.workers,
+        self.executor = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=worker_init,
                                                mp_context=multiprocessing.get_context("spawn"))
 
     @property
@@ -187,9 +235,21 @@ class _Pool:
             self.scattered[key] = self.client.scatter(path.read_bytes(), broadcast=True)
         return self.executor.submit(fn, task, self.scattered[key])
 
-    def close(self) -> None:
+    def close(self, terminate: bool = False) -> None:
+        """Shut down: wait for running tasks, or with ``terminate`` cancel them and end the local worker processes
+        (SIGTERM, then SIGKILL after 5 s); a Dask cluster's workers are left running."""
         if self.dask:
-            self.executor.shutdown(wait=True)
+            self.executor.shutdown(wait=not terminate)     # wait=False cancels the running futures
+        elif terminate:
+            procs = list((getattr(self.executor, "_processes", None) or {}).values())
+            for p in procs:
+                p.terminate()
+            self.executor.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                p.join(5.0)
+                if p.is_alive():
+                    p.kill()
+                    p.join(1.0)
         else:
             self.executor.shutdown(wait=True, cancel_futures=True)
         if self.own_client:
@@ -232,9 +292,31 @@ def _default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+def changed_planners(store: ResultsStore, scenario: Scenario, states: dict | None = None) -> tuple[set[str],
+                                                                                                  list[str]]:
+    """(keys of stored rows whose planner fingerprint differs from the current code's for their entry, one note per
+    changed entry: "planners[i] (label): n stored trials flown with <old>, the code now gives <new>").
+    ``states``: store.trial_states() if already read."""
+    from pbdyn.planning.registry import pair_fingerprint
+
+    current = {e.label: (i, pair_fingerprint(e.trajectory, e.gaze)) for i, e in enumerate(scenario.planners)}
+    stale: set[str] = set()
+    seen: dict[str, tuple[int, set[str]]] = {}
+    for key, (label, fp, _) in (store.trial_states() if states is None else states).items():
+        if label in current and fp != current[label][1]:
+            stale.add(key)
+            n, fps = seen.get(label, (0, set()))
+            seen[label] = (n + 1, fps | {fp or "none"})
+    notes = [f"planners[{current[label][0]}] ({label}): {n} stored trials flown with {', '.join(sorted(fps))}, the "
+             f"code now gives {current[label][1]}" for label, (n, fps) in sorted(seen.items(),
+                                                                                 key=lambda kv: current[kv[0]][0])]
+    return stale, notes
+
+
 def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions(),
               command: str = "") -> BatchSummary:
-    """Run (or resume, or extend) the experiment of ``scenario`` into the results store ``out``."""
+    """Run (or resume, or extend) the experiment of ``scenario`` into the results store ``out``. SIGTERM/SIGINT
+    raise BatchInterrupted after committing what has arrived and stopping the workers."""
     t0 = time.perf_counter()
     workers = options.workers if options.workers is not None else _default_workers()
     if not isinstance(workers, int) or workers < 1:
@@ -252,45 +334,79 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
             return run_batch(scenario, out, replace(options, scheduler=client), command)
         finally:
             client.close()
-    store = ResultsStore.create(out)
-    try:
-        check_scenario(store, scenario, options.extend)
-        done = store.finished_keys()
-        pending = [t for t in trials if t[0] not in done]
-        used_maps = {t[1].map_id: t[1] for t in trials}
-        need_metrics = [m for mid, m in used_maps.items() if mid not in store.maps_with_metrics()] \
-            if options.metrics else []
-        run_id = store.start_run(__version__, canonical_json(scenario.to_dict()), command,
-                                 "dask" if options.scheduler is not None else str(workers))
-        if not pending and not need_metrics:
-            store.end_run(run_id)
-            return BatchSummary(len(trials), len(trials), 0, 0, 0, time.perf_counter() - t0)
+    with _stop_on_signals():
+        store = ResultsStore.create(out)
+        try:
+            return _run(store, scenario, trials, workers, options, command, t0)
+        except BatchInterrupted as exc:
+            store.commit()
+            raise BatchInterrupted(exc.signum, f"batch stopped by {signal.Signals(exc.signum).name}: {store.count()} "
+                                   f"trials committed to {out} (re-run the same command to resume)") from None
+        finally:
+            store.close()
+
+
+def _run(store: ResultsStore, scenario: Scenario, trials: list, workers: int, options: BatchOptions, command: str,
+         t0: float) -> BatchSummary:
+    states = store.trial_states()
+    stale, notes = changed_planners(store, scenario, states)
+    if stale and not options.rerun_changed:
+        raise ConfigError("; ".join(notes), "planner code changed since these rows were flown; pass "
+                          "--rerun-changed to re-fly them (or use a new --out file)", show_value=False)
+    check_scenario(store, scenario, options.extend)
+    redo = set(stale) if options.rerun_changed else set()
+    if options.retry_errors:
+        redo |= {k for k, (_, _, outcome) in states.items() if outcome == "error"}
+    pending = [t for t in trials if t[0] not in states or t[0] in redo]
+    replace_keys = {t[0] for t in pending if t[0] in states}
+    used_maps = {t[1].map_id: t[1] for t in trials}
+    need_metrics = [m for mid, m in used_maps.items() if mid not in store.maps_with_metrics()] \
+        if options.metrics else []
+    run_id = store.start_run(__version__, canonical_json(scenario.to_dict()), command,
+                             "dask" if options.scheduler is not None else str(workers))
+    ran = errors = maps_done = 0
+    if pending or need_metrics:
         horizon = default_horizon(scenario)
         files: dict[str, tuple[str, Path]] = {}
         for m in list({t[1].map_id: t[1] for t in pending}.values()) + need_metrics:
             if m.map_id not in files:
-                files[m.map_id] = rollout_file(scenario, m, horizon, fallback_dir=Path(out).parent)
-        ran, errors, maps_done = _execute(store, scenario, pending, need_metrics, files, workers, options)
-        store.end_run(run_id)
-        return BatchSummary(len(trials), len(trials) - len(pending), ran, errors, maps_done,
-                            time.perf_counter() - t0)
-    finally:
-        store.close()
+                files[m.map_id] = rollout_file(scenario, m, horizon, fallback_dir=store.path.parent)
+        ran, errors, maps_done = _execute(store, scenario, pending, need_metrics, files, workers, options,
+                                          replace_keys)
+    store.end_run(run_id)
+    return BatchSummary(len(trials), len(trials) - len(pending), ran, errors, maps_done, time.perf_counter() - t0,
+                        rerun=len(replace_keys), stored_errors=store.error_count())
 
 
 def _execute(store: ResultsStore, scenario: Scenario, pending: list, need_metrics: list, files: dict, workers: int,
-             options: BatchOptions) -> tuple[int, int, int]:
+             options: BatchOptions, replace_keys: set[str] = frozenset()) -> tuple[int, int, int]:
     pool = _Pool(workers, options.scheduler)
     progress = Progress(len(pending), options.progress)
-    ran = errors = maps_done = 0
+    counts = {"ran": 0, "errors": 0, "maps": 0}
     remaining_trials = {t[0]: t for t in pending}
     remaining_maps = {m.map_id: m for m in need_metrics}
+    in_flight: dict = {}
+
+    def take(kind: str, item, result) -> None:
+        if kind == "map":
+            store.add_map(result)
+            remaining_maps.pop(item.map_id, None)
+            counts["maps"] += 1
+        else:
+            key, row, err = result
+            store.add_trials([(key, row, err)], replace=key in replace_keys)
+            remaining_trials.pop(key, None)
+            counts["ran"] += 1
+            counts["errors"] += err is not None
+            progress.step()
+
     last_commit = time.perf_counter()
     restarts = 0
+    interrupted = False
     try:
         while remaining_trials or remaining_maps:
             queue = [("map", m) for m in remaining_maps.values()] + [("trial", t) for t in remaining_trials.values()]
-            in_flight: dict = {}
+            in_flight.clear()
             window = 4 * workers if not pool.dask else max(64, 8 * workers)
             it = iter(queue)
             try:
@@ -306,18 +422,7 @@ def _execute(store: ResultsStore, scenario: Scenario, pending: list, need_metric
                     finished, _ = cf.wait(list(in_flight), return_when=cf.FIRST_COMPLETED)
                     for fut in finished:
                         kind, item = in_flight.pop(fut)
-                        result = fut.result()
-                        if kind == "map":
-                            store.add_map(result)
-                            remaining_maps.pop(item.map_id, None)
-                            maps_done += 1
-                        else:
-                            key, row, err = result
-                            store.add_trials([(key, row, err)])
-                            remaining_trials.pop(key, None)
-                            ran += 1
-                            errors += err is not None
-                            progress.step()
+                        take(kind, item, fut.result())
                     now = time.perf_counter()
                     if now - last_commit >= COMMIT_INTERVAL_S:
                         store.commit()
@@ -332,10 +437,16 @@ def _execute(store: ResultsStore, scenario: Scenario, pending: list, need_metric
                                  f"{MAX_POOL_RESTARTS}) and resuming\n")
                 pool.restart()
         store.commit()
+    except KeyboardInterrupt:
+        interrupted = True
+        for fut, (kind, item) in list(in_flight.items()):   # keep what has arrived
+            if fut.done() and not fut.cancelled() and fut.exception() is None:
+                take(kind, item, fut.result())
+        raise
     finally:
         store.commit()
-        pool.close()
-    return ran, errors, maps_done
+        pool.close(terminate=interrupted)
+    return counts["ran"], counts["errors"], counts["maps"]
 
 
 def _submit(pool: _Pool, scenario: Scenario, item, files: dict):

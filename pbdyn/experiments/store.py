@@ -4,35 +4,53 @@ Tables:
     meta   (key, value)       schema version, the resolved scenario (canonical JSON) and its name
     runs   (id, started, ended, version, scenario_json, command, workers)   one row per `pbdyn batch` invocation
     maps   (map_id, ...)      each map's setup, seed, rollout key and its metrics (computed once, JSON)
-    trials (trial_key, ...)   one row per trial, unique key (the trial's config hash); INSERT OR IGNORE
+    trials (trial_key, ...)   one row per trial, unique key (the trial's config hash); INSERT OR IGNORE (OR REPLACE
+                              when a trial is re-flown: --rerun-changed, --retry-errors)
 
-A trial row holds the Table 2-2 columns as real columns (see TRIAL_COLUMNS) and the whole TrialResult as JSON.
-Keep the file on a local disk: SQLite's locking is unreliable on network file systems.
+A trial row holds every TrialResult field as a real column (TRIAL_COLUMNS, derived from the dataclass: int ->
+INTEGER, float -> REAL, str -> TEXT, anything else -> TEXT holding JSON; wall_timings only in result_json) and the
+whole TrialResult as JSON. Keep the file on a local disk: SQLite's locking is unreliable on network file systems.
+
+Schema versions: 2 added trials.planner_fingerprint. Older stores are read as they are (a column they lack reads as
+NULL) and upgraded in place when `pbdyn batch` writes to them (ResultsStore.create adds the missing columns); a
+store from a newer schema is refused.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sqlite3
 import time
+import typing
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from pbdyn.errors import ConfigError
+from pbdyn.sim.result import TrialResult
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
-TRIAL_COLUMNS = (
-    ("gaze", "TEXT"), ("planner", "TEXT"), ("motion_profile", "TEXT"), ("map_index", "INTEGER"),
-    ("map_id", "TEXT"), ("map_seed", "INTEGER"), ("obstacle_count", "INTEGER"), ("obstacle_radius", "TEXT"),
-    ("obstacle_speed", "TEXT"), ("mav_speed", "REAL"), ("start", "TEXT"), ("goal", "TEXT"),
-    ("flight_time_s", "REAL"), ("grid_discovered", "INTEGER"), ("obstacles_tracked", "INTEGER"),
-    ("tracked_time_s", "REAL"), ("outcome", "TEXT"), ("final_state", "TEXT"), ("reason", "TEXT"),
-    ("min_clearance_m", "REAL"), ("planning_failures", "INTEGER"), ("steps", "INTEGER"),
-    ("planner_label", "TEXT"), ("scenario", "TEXT"), ("map_key", "TEXT"), ("config_hash", "TEXT"),
-    ("wall_time_s", "REAL"),
-)
-"""Trial columns in Table 2-2 order (then pbdyn's own); JSON text for tuples and {min, max} ranges."""
+_SQL_TYPES = {bool: "INTEGER", int: "INTEGER", float: "REAL", str: "TEXT"}
+
+
+def trial_columns(result_type: type = TrialResult) -> tuple[tuple[str, str], ...]:
+    """(name, SQL type) of every field of ``result_type`` in field order, wall_timings excluded; fields that are
+    not int, float or str (tuples, dicts, unions) are "JSON" (stored as TEXT)."""
+    hints = typing.get_type_hints(result_type)
+    return tuple((f.name, _SQL_TYPES.get(hints[f.name], "JSON")) for f in dataclasses.fields(result_type)
+                 if f.name != "wall_timings")
+
+
+TRIAL_COLUMNS = trial_columns()
+"""Trial columns in TrialResult field order (Table 2-2 first, then pbdyn's own)."""
+
+_JSON_COLUMNS = frozenset(n for n, t in TRIAL_COLUMNS if t == "JSON")
+
+
+def _column_sql(name: str, sql_type: str) -> str:
+    return f"{name} {'TEXT' if sql_type == 'JSON' else sql_type}"
+
 
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -41,14 +59,14 @@ CREATE TABLE IF NOT EXISTS runs (id INTEGER PRIMARY KEY AUTOINCREMENT, started R
 CREATE TABLE IF NOT EXISTS maps (map_id TEXT PRIMARY KEY, map_index INTEGER, map_key TEXT, setup_json TEXT,
     seed INTEGER, rollout_key TEXT, dataset TEXT, mean_obstacle_speed REAL, mean_obstacle_radius REAL,
     metrics_json TEXT, metric_times_json TEXT, backend TEXT);
-CREATE TABLE IF NOT EXISTS trials (trial_key TEXT PRIMARY KEY, {", ".join(f"{n} {t}" for n, t in TRIAL_COLUMNS)},
+CREATE TABLE IF NOT EXISTS trials (trial_key TEXT PRIMARY KEY, {", ".join(_column_sql(*c) for c in TRIAL_COLUMNS)},
     error TEXT, result_json TEXT NOT NULL, finished REAL);
 CREATE INDEX IF NOT EXISTS trials_map ON trials (map_id);
 """
 
 
-def _cell(value):
-    if isinstance(value, (list, tuple, dict)):
+def _cell(value, as_json: bool = False):
+    if value is not None and (as_json or isinstance(value, (list, tuple, dict))):
         return json.dumps(value, sort_keys=True)
     return value
 
@@ -71,13 +89,17 @@ class ResultsStore:
         conn.execute("PRAGMA synchronous=NORMAL")
         store = cls(p, conn)
         version = store._schema_version()
-        if version is not None and version != SCHEMA_VERSION:
+        if version is not None and version > SCHEMA_VERSION:
             conn.close()
-            raise ConfigError("RESULTS", f"was written by schema version {version}; this pbdyn reads version "
+            raise ConfigError("RESULTS", f"was written by schema version {version}; this pbdyn reads versions up to "
                               f"{SCHEMA_VERSION} (use a newer pbdyn or a new --out file)", str(path))
         conn.executescript(_SCHEMA)
-        conn.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
-        conn.commit()
+        have = store._trial_table_columns()
+        with conn:   # upgrade an older store in one transaction: add the columns it lacks, then the version
+            for name, sql_type in TRIAL_COLUMNS:
+                if name not in have:
+                    conn.execute(f"ALTER TABLE trials ADD COLUMN {_column_sql(name, sql_type)}")
+            conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
         return store
 
     @classmethod
@@ -96,11 +118,14 @@ class ResultsStore:
         if version is None:
             conn.close()
             raise ConfigError("RESULTS", "is not a pbdyn results store (no schema version)", str(path))
-        if version != SCHEMA_VERSION:
+        if version > SCHEMA_VERSION:
             conn.close()
-            raise ConfigError("RESULTS", f"was written by schema version {version}; this pbdyn reads version "
+            raise ConfigError("RESULTS", f"was written by schema version {version}; this pbdyn reads versions up to "
                               f"{SCHEMA_VERSION}", str(path))
         return store
+
+    def _trial_table_columns(self) -> set[str]:
+        return {r[1] for r in self.conn.execute("PRAGMA table_info(trials)")}
 
     def _schema_version(self) -> int | None:
         try:
@@ -144,18 +169,29 @@ class ResultsStore:
         """Keys of every stored trial."""
         return {r[0] for r in self.conn.execute("SELECT trial_key FROM trials")}
 
+    def trial_states(self) -> dict[str, tuple[str | None, str | None, str | None]]:
+        """trial key -> (planner_label, planner_fingerprint, outcome) of every stored trial (None: not recorded)."""
+        fp = "planner_fingerprint" if "planner_fingerprint" in self._trial_table_columns() else "NULL"
+        return {r[0]: (r[1], r[2], r[3])
+                for r in self.conn.execute(f"SELECT trial_key, planner_label, {fp}, outcome FROM trials")}
+
+    def error_count(self) -> int:
+        """Number of stored trials whose outcome is "error"."""
+        return int(self.conn.execute("SELECT COUNT(*) FROM trials WHERE outcome = 'error'").fetchone()[0])
+
     def maps_with_metrics(self) -> set[str]:
         """Map ids whose metrics are stored."""
         return {r[0] for r in self.conn.execute("SELECT map_id FROM maps WHERE metrics_json IS NOT NULL")}
 
-    def add_trials(self, rows: Iterable[tuple[str, dict, str | None]]) -> int:
-        """Insert (trial_key, TrialResult dict, error message or None) rows, ignoring keys already stored; no
+    def add_trials(self, rows: Iterable[tuple[str, dict, str | None]], replace: bool = False) -> int:
+        """Insert (trial_key, TrialResult dict, error message or None) rows; keys already stored are kept
+        (INSERT OR IGNORE), or with ``replace`` replaced row by row (INSERT OR REPLACE: re-flown trials). No
         commit (the coordinator batches commits). Returns the number of rows given."""
         names = [n for n, _ in TRIAL_COLUMNS]
-        sql = (f"INSERT OR IGNORE INTO trials (trial_key, {', '.join(names)}, error, result_json, finished) "
-               f"VALUES ({', '.join('?' * (len(names) + 4))})")
-        batch = [(key, *[_cell(res.get(n)) for n in names], err, json.dumps(res, sort_keys=True), time.time())
-                 for key, res, err in rows]
+        sql = (f"INSERT OR {'REPLACE' if replace else 'IGNORE'} INTO trials (trial_key, {', '.join(names)}, error, "
+               f"result_json, finished) VALUES ({', '.join('?' * (len(names) + 4))})")
+        batch = [(key, *[_cell(res.get(n), n in _JSON_COLUMNS) for n in names], err,
+                  json.dumps(res, sort_keys=True), time.time()) for key, res, err in rows]
         self.conn.executemany(sql, batch)
         return len(batch)
 
@@ -171,9 +207,12 @@ class ResultsStore:
         self.conn.commit()
 
     def trial_rows(self, columns: Sequence[str] | None = None) -> tuple[list[str], list[tuple]]:
-        """(column names, rows) of the trials table, ordered by trial key (Table 2-2 columns first)."""
+        """(column names, rows) of the trials table, ordered by trial key (trial_key, TRIAL_COLUMNS, error by
+        default); a column an older store lacks reads as None."""
         names = list(columns) if columns else ["trial_key"] + [n for n, _ in TRIAL_COLUMNS] + ["error"]
-        rows = self.conn.execute(f"SELECT {', '.join(names)} FROM trials ORDER BY trial_key").fetchall()
+        have = self._trial_table_columns()
+        select = ", ".join(n if n in have else f"NULL AS {n}" for n in names)
+        rows = self.conn.execute(f"SELECT {select} FROM trials ORDER BY trial_key").fetchall()
         return names, rows
 
     def results(self) -> list[dict]:

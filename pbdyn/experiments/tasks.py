@@ -10,6 +10,7 @@ rollout and PyBullet world for the next trial of the same map, and one PyBullet 
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import os
 import traceback
@@ -124,12 +125,23 @@ def error_row(task: TrialTask, message: str) -> dict:
             "obstacle_count": int(m.setup.get("count", 0)), "obstacle_radius": m.setup.get("radius"),
             "obstacle_speed": m.setup.get("speed"), "start": list(s.start), "goal": list(s.goal),
             "outcome": "error", "reason": message, "planner_label": s.planner.label,
-            "scenario": s.scenario.name, "config_hash": task.key}
+            "scenario": s.scenario.name, "config_hash": task.key, "planner_fingerprint": _fingerprint(s.planner)}
+
+
+def _fingerprint(entry: PlannerEntry) -> str:
+    """The entry's planner fingerprint as this worker's code gives it ("" if it cannot be computed)."""
+    from pbdyn.planning.registry import pair_fingerprint
+
+    try:
+        return pair_fingerprint(entry.trajectory, entry.gaze)
+    except Exception:  # an error row is still written; its empty fingerprint makes `pbdyn batch` flag it
+        return ""
 
 
 def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dict, str | None]:
-    """Fly one trial in this worker: (trial key, TrialResult dict, None), or an "error" row and its message if the
-    trial raised (the batch goes on). ``data``: the rollout's .npz bytes (cluster workers), else task.rollout."""
+    """Fly one trial in this worker: (trial key, TrialResult dict with its planner_fingerprint, None), or an "error"
+    row and its message if the trial raised (the batch goes on). ``data``: the rollout's .npz bytes (cluster
+    workers), else task.rollout."""
     _limit_threads()
     from pbdyn.sim.trial import run_trial
 
@@ -142,6 +154,7 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
         except BaseException:
             _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state: rebuild it
             raise
+        res = dataclasses.replace(res, planner_fingerprint=_fingerprint(spec.planner))
         return task.key, res.to_dict(), None
     except Exception as exc:  # any failure of a trial is recorded as an "error" row, never stops the batch
         msg = one_line(exc)
@@ -172,3 +185,12 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
             "mean_obstacle_speed": float(speeds.mean()) if speeds.size else 0.0,
             "mean_obstacle_radius": float(ro.radii.mean()) if ro.n_obstacles else 0.0,
             "metrics_json": metrics, "metric_times_json": times, "backend": backend}
+
+
+def worker_init() -> None:
+    """Process-pool worker start: ignore SIGINT (a Ctrl-C reaches the whole process group; the coordinator stops
+    the workers itself) and limit BLAS/OpenMP threads."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _limit_threads()

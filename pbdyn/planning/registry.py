@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import importlib
 import inspect
+from pathlib import Path
 
 from pbdyn.errors import ConfigError, import_object, one_line
 from pbdyn.planning.gaze import FullRange, LookAhead, LookGoal, LookGoalUnexplored, Rotating
@@ -19,6 +23,11 @@ TRAJECTORY_PLANNERS: dict[str, type] = {"local_primitives": LocalPrimitives, "st
 GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange, "lookgoal": LookGoal,
                                   "lookgoal_unexplored": LookGoalUnexplored, "rotating": Rotating,
                                   "finean": Finean, "owl": Owl}
+
+PLANNER_MODEL_VERSION = "1"
+"""Version of the built-in planners' behaviour, recorded in every row's planner_fingerprint: bump it when a
+built-in planner's behaviour changes, so that stores flown with the old code stop `pbdyn batch` (DESIGN.md
+"Determinism": results never go stale silently)."""
 
 _TRAJECTORY_METHODS = ("replan_check", "plan")
 _GAZE_METHODS = ("yaw_rate",)
@@ -76,3 +85,30 @@ def build_planner(cls: type, context: PlannerContext, params: dict | None, field
         return cls(context, **params)
     except (TypeError, ValueError) as exc:
         raise ConfigError(field, f"invalid parameters for {name} ({one_line(exc)})", params) from None
+
+
+@functools.lru_cache(maxsize=None)
+def planner_fingerprint(name: str) -> str:
+    """What code a planner name runs: "builtin:<PLANNER_MODEL_VERSION>" for a registry name; for a plug-in
+    "package.module:Class", "sha256:" + the first 16 hex digits of the sha256 over the source files of the named
+    module and of the module that defines the object (cached per process). Unknown names raise ConfigError."""
+    if name in TRAJECTORY_PLANNERS or name in GAZE_PLANNERS:
+        return f"builtin:{PLANNER_MODEL_VERSION}"
+    if not isinstance(name, str) or ":" not in name:
+        raise ConfigError("planner", "unknown planner (a registry name or 'package.module:Class')", name)
+    obj = import_object(name, "planner")
+    modules = {name.partition(":")[0], getattr(obj, "__module__", None) or name.partition(":")[0]}
+    digest = hashlib.sha256()
+    for mod_name in sorted(modules):
+        module = importlib.import_module(mod_name)
+        try:
+            source = Path(inspect.getsourcefile(module) or module.__file__).read_bytes()
+        except (TypeError, OSError):   # no source file (a built-in or frozen module): its name stands for it
+            source = b""
+        digest.update(mod_name.encode() + b"\0" + hashlib.sha256(source).digest())
+    return "sha256:" + digest.hexdigest()[:16]
+
+
+def pair_fingerprint(trajectory: str, gaze: str) -> str:
+    """The planner fingerprint of a (trajectory, gaze) entry: "<trajectory's>+<gaze's>" (see planner_fingerprint)."""
+    return f"{planner_fingerprint(trajectory)}+{planner_fingerprint(gaze)}"

@@ -9,7 +9,8 @@ from dataclasses import asdict, dataclass, field
 class TrialResult:
     """One result row. Table 2-2 fields first; every timing field's name contains "wall".
 
-    Units: times in s, distances in m, speeds in m/s; start/goal in m (world frame).
+    Units: times in s, distances in m, speeds in m/s; start/goal in m (world frame). planner_fingerprint: what
+    code flew the trial (pbdyn.planning.registry.pair_fingerprint; "" where not recorded).
     """
 
     gaze: str
@@ -38,6 +39,7 @@ class TrialResult:
     scenario: str
     map_key: str
     config_hash: str
+    planner_fingerprint: str = ""
     wall_time_s: float = 0.0
     wall_timings: dict = field(default_factory=dict)
 
