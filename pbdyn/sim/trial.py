@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pbdyn.planning.registry import pair_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
 from pbdyn.sim.env import TrialEnv, make_world
 from pbdyn.sim.observers import SPLITS, GuiPacer, ProfileObserver, StepRecord, TraceObserver
@@ -105,4 +106,13 @@ def _result(spec: TrialSpec, rollout: Rollout, env: TrialEnv, agent: Agent, grid
         outcome=env.outcome.value, final_state=agent.state, reason=env.reason,
         min_clearance_m=float(env.min_clearance), planning_failures=agent.total_failures, steps=env.steps,
         planner_label=spec.planner.label, scenario=sc.name, map_key=ms.key, config_hash=spec.config_hash,
-        wall_time_s=wall, wall_timings=timings)
+        planner_fingerprint=_fingerprint(spec), wall_time_s=wall, wall_timings=timings)
+
+
+def _fingerprint(spec: TrialSpec) -> str:
+    """The planner pair's code fingerprint (pbdyn.planning.registry.pair_fingerprint); "" for a planner that
+    cannot be imported by its name (e.g. a class defined inside a function)."""
+    try:
+        return pair_fingerprint(spec.planner.trajectory, spec.planner.gaze)
+    except Exception:
+        return ""
