@@ -119,8 +119,10 @@ def test_readme_table_lists_every_scenario_key():
     assert not extra, f"README table rows with no dataclass field: {extra}"
 
 
-THREE_D = {("world", "size"): C.WorldConfig.SIZE_3D, ("sensor", "resolution_deg"): C.SensorConfig.RESOLUTION_3D_DEG,
-           ("sensor", "vfov_deg"): C.SensorConfig.VFOV_3D_DEG, ("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_3D}
+THREE_D = {("world", "size"): C.WorldConfig.SIZE_3D,
+           ("sensor", "resolution_deg"): C.SensorConfig.RESOLUTION_3D_DEG,
+           ("sensor", "vfov_deg"): C.SensorConfig.VFOV_3D_DEG,
+           ("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_3D}
 """Defaults that differ in 3D (README "(3D ...)"): ClassVars of the dataclass."""
 
 BY_DIMS = {("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_2D, ("sensor", "vfov_deg"): None}
