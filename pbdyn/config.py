@@ -1,7 +1,10 @@
 """Scenario files (TOML) validated into frozen dataclasses (DESIGN.md "Defaults", README "Scenario reference").
 
-Every omitted field takes the documented default; unknown keys and invalid values raise ConfigError naming the
-field and the value. The resolved scenario (``Scenario.to_dict()``) is stored next to every result.
+Every omitted field takes its default, written once: as the dataclass field's default (a ClassVar for a default
+that depends on world.dims or has no field); the parsers read it from there (``_defaults``) and the README's
+"Scenario reference" table is checked against it (tests/test_config_defaults.py). Unknown keys and invalid values
+raise ConfigError naming the field and the value. The resolved scenario (``Scenario.to_dict()``) is stored next to
+every result.
 """
 
 from __future__ import annotations
@@ -10,15 +13,13 @@ import itertools
 import json
 import math
 import tomllib
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 from pbdyn import resources
 from pbdyn.errors import ConfigError
-from pbdyn.world.rvo import RVOParams
 
-DEFAULT_MAV_URDF = "quadrotor.urdf"
 
 MOTIONS = ("cvm", "rvo")
 BODY_MOTIONS = ("static", "constant_velocity", "waypoints")
@@ -37,10 +38,10 @@ def _is_number(x: Any) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool)
 
 
-def _number(table: Mapping, key: str, where: str, default: float, *, lo: float | None = None,
+def _number(table: Mapping, key: str, where: str, default: float | None, *, lo: float | None = None,
             lo_open: bool = False, hi: float | None = None) -> float:
     if key not in table:
-        return float(default)
+        return default if default is None else float(default)
     return _check_number(table[key], _name(where, key), lo=lo, lo_open=lo_open, hi=hi)
 
 
@@ -58,9 +59,9 @@ def _check_number(value: Any, name: str, *, lo: float | None = None, lo_open: bo
     return v
 
 
-def _integer(table: Mapping, key: str, where: str, default: int, *, lo: int | None = None) -> int:
+def _integer(table: Mapping, key: str, where: str, default: int | None, *, lo: int | None = None) -> int | None:
     if key not in table:
-        return int(default)
+        return default if default is None else int(default)
     v = table[key]
     if not isinstance(v, int) or isinstance(v, bool):
         raise ConfigError(_name(where, key), "must be an integer", v)
@@ -122,6 +123,9 @@ GridValue = float | int | Range
 class WorldConfig:
     """World: dims (2|3), size (m per axis), dt (s), time_limit (s), grid_resolution (m), flight_height (m, 2D only)."""
 
+    SIZE_3D: ClassVar[tuple[float, ...]] = (50.0, 50.0, 20.0)
+    """Default size with dims = 3 (the field's default is the 2D one)."""
+
     dims: int = 2
     size: tuple[float, ...] = (50.0, 50.0)
     dt: float = 0.1
@@ -133,6 +137,24 @@ class WorldConfig:
     def n_steps(self) -> int:
         """Number of steps in the time limit."""
         return int(round(self.time_limit / self.dt))
+
+
+@dataclass(frozen=True)
+class RVOParams:
+    """ORCA parameters (``[obstacles.rvo]``, pbdyn.world.rvo): time_horizon tau (s) for neighbours, wall_time_horizon
+    tau_w (s; None = dt), candidate set n_headings (None: N_HEADINGS_2D / N_HEADINGS_3D) x n_speeds, neighbour_dist
+    (m, pairs farther apart than this between surfaces are ignored; None = tau * (v_i + v_j) + 1 m; not a scenario
+    key), contact_iterations (0 disables the last-resort contact step)."""
+
+    N_HEADINGS_2D: ClassVar[int] = 32
+    N_HEADINGS_3D: ClassVar[int] = 64
+
+    time_horizon: float = 2.0
+    wall_time_horizon: float | None = None
+    n_headings: int | None = None
+    n_speeds: int = 6
+    neighbour_dist: float | None = None
+    contact_iterations: int = 4
 
 
 @dataclass(frozen=True)
@@ -154,6 +176,9 @@ class ObstacleConfig:
 class StaticObstacleConfig:
     """A static obstacle: kind pillar|box, center [d] (m), radius (pillar, m), size [d] (box full extents, m), yaw_deg."""
 
+    KINDS: ClassVar[tuple[str, ...]] = ("pillar", "box")
+    DEFAULT_KIND: ClassVar[str] = "pillar"
+
     kind: str
     center: tuple[float, ...]
     radius: float = 0.0
@@ -173,6 +198,8 @@ class BodyConfig:
     "package.module:function" called as f(t, **params) -> position [3] or (position [3], quaternion xyzw [4]).
     Joints stay at their zero position.
     """
+
+    DEFAULT_NAME: ClassVar[str] = "body{index}"
 
     name: str
     urdf: str
@@ -195,7 +222,7 @@ class BodyConfig:
 class DroneConfig:
     """The MAV: urdf path, radius (m), a_max (m/s^2), v_max grid (m/s), yaw_rate_limit (rad/s)."""
 
-    urdf: str = DEFAULT_MAV_URDF
+    urdf: str = "quadrotor.urdf"
     radius: float = 1.0
     a_max: float = 4.0
     v_max: tuple[float, ...] = (2.0, 4.0, 6.0)
@@ -205,7 +232,10 @@ class DroneConfig:
 @dataclass(frozen=True)
 class SensorConfig:
     """Depth sensor: horizontal fov_deg, vertical vfov_deg (3D only), range (m), ray resolution_deg (both axes),
-    Gaussian position noise_std (m)."""
+    Gaussian position noise_std (m). 3D defaults: RESOLUTION_3D_DEG, VFOV_3D_DEG (vfov_deg is None in 2D)."""
+
+    RESOLUTION_3D_DEG: ClassVar[float] = 2.0
+    VFOV_3D_DEG: ClassVar[float] = 60.0
 
     fov_deg: float = 90.0
     range: float = 8.0
@@ -227,8 +257,8 @@ class TrackingConfig:
 
 @dataclass(frozen=True)
 class TaskConfig:
-    """Start/goal candidates [[x, y(, z)], ...] (m), goal_radius (m), spawn_clearance (m) around each candidate's MAV disc,
-    deadlock_steps (consecutive planning failures at rest)."""
+    """Start/goal candidates [[x, y(, z)], ...] (m; () = default_candidates(world)), goal_radius (m), spawn_clearance
+    (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest)."""
 
     candidates: tuple[tuple[float, ...], ...] = ()
     goal_radius: float = 1.0
@@ -243,10 +273,11 @@ class TaskConfig:
 
 @dataclass(frozen=True)
 class PlannerEntry:
-    """One (trajectory, gaze) planner pair with their parameter tables."""
+    """One (trajectory, gaze) planner pair with their parameter tables (a scenario without [[planners]] has one
+    entry of the defaults)."""
 
-    trajectory: str
-    gaze: str
+    trajectory: str = "local_primitives"
+    gaze: str = "lookahead"
     trajectory_params: Mapping[str, Any] = field(default_factory=dict)
     gaze_params: Mapping[str, Any] = field(default_factory=dict)
     name: str = ""
@@ -259,7 +290,9 @@ class PlannerEntry:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A whole validated scenario."""
+    """A whole validated scenario (name: the file's stem, else DEFAULT_NAME)."""
+
+    DEFAULT_NAME: ClassVar[str] = "scenario"
 
     name: str
     world: WorldConfig
@@ -312,6 +345,18 @@ class Scenario:
         return self.resolve_path(self.drone.urdf)
 
 
+def _defaults(cls: type) -> dict[str, Any]:
+    """Field name -> default of dataclass ``cls`` (the only place defaults are written); fields without one are
+    left out."""
+    out = {}
+    for f in fields(cls):
+        if f.default is not MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not MISSING:
+            out[f.name] = f.default_factory()
+    return out
+
+
 def _json_default(o: Any) -> Any:
     if isinstance(o, Range):
         return o.to_json()
@@ -331,22 +376,23 @@ def canonical_json(obj: Any) -> str:
 def _parse_world(doc: Mapping) -> WorldConfig:
     t = _table(doc, "world")
     _no_unknown(t, ("dims", "size", "dt", "time_limit", "grid_resolution", "flight_height"), "world")
-    dims = _integer(t, "dims", "world", 2)
+    d = _defaults(WorldConfig)
+    dims = _integer(t, "dims", "world", d["dims"])
     if dims not in (2, 3):
         raise ConfigError("world.dims", "must be 2 or 3", dims)
-    default_size = (50.0, 50.0) if dims == 2 else (50.0, 50.0, 20.0)
+    default_size = d["size"] if dims == 2 else WorldConfig.SIZE_3D
     size = _vector(t["size"], "world.size", dims) if "size" in t else default_size
     for i, s in enumerate(size):
         if s <= 0:
             raise ConfigError(f"world.size[{i}]", "must be > 0", s)
-    dt = _number(t, "dt", "world", 0.1, lo=0.0, lo_open=True, hi=1.0)
-    time_limit = _number(t, "time_limit", "world", 80.0, lo=0.0, lo_open=True)
+    dt = _number(t, "dt", "world", d["dt"], lo=0.0, lo_open=True, hi=1.0)
+    time_limit = _number(t, "time_limit", "world", d["time_limit"], lo=0.0, lo_open=True)
     if time_limit < dt:
         raise ConfigError("world.time_limit", f"must be >= world.dt ({dt:g})", time_limit)
-    res = _number(t, "grid_resolution", "world", 1.0, lo=0.0, lo_open=True)
+    res = _number(t, "grid_resolution", "world", d["grid_resolution"], lo=0.0, lo_open=True)
     if res > min(size) / 2:
         raise ConfigError("world.grid_resolution", "must be at most half the arena's smallest side", res)
-    h = _number(t, "flight_height", "world", 2.0, lo=0.0, lo_open=True)
+    h = _number(t, "flight_height", "world", d["flight_height"], lo=0.0, lo_open=True)
     return WorldConfig(dims, tuple(size), dt, time_limit, res, h)
 
 
@@ -386,31 +432,34 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
     keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo")
     _no_unknown(t, keys, "obstacles")
-    count = _grid_values(t.get("count", 10), "obstacles.count", integer=True, lo=0)
-    radius = _grid_values(t.get("radius", 1.0), "obstacles.radius")
-    speed = _grid_values(t.get("speed", 2.0), "obstacles.speed", lo=0.0, lo_open=False)
-    jitter = _number(t, "radius_jitter", "obstacles", 0.0, lo=0.0)
+    d = _defaults(ObstacleConfig)
+    count = _grid_values(t["count"], "obstacles.count", integer=True, lo=0) if "count" in t else d["count"]
+    radius = _grid_values(t["radius"], "obstacles.radius") if "radius" in t else d["radius"]
+    speed = (_grid_values(t["speed"], "obstacles.speed", lo=0.0, lo_open=False) if "speed" in t
+             else d["speed"])
+    jitter = _number(t, "radius_jitter", "obstacles", d["radius_jitter"], lo=0.0)
     for i, r in enumerate(radius):
         rmin = r.min if isinstance(r, Range) else r
         if rmin - jitter <= 0:
             raise ConfigError("obstacles.radius_jitter", f"must be < the smallest radius ({rmin:g})", jitter)
-    motion = _string(t, "motion", "obstacles", "cvm", MOTIONS)
-    maps = _integer(t, "maps_per_setup", "obstacles", 1, lo=1)
-    seed = _integer(t, "root_seed", "obstacles", 0, lo=0)
-    order = tuple(k for k in t if k in ("count", "radius", "speed"))
-    order += tuple(k for k in ("count", "radius", "speed") if k not in order)
+    motion = _string(t, "motion", "obstacles", d["motion"], MOTIONS)
+    maps = _integer(t, "maps_per_setup", "obstacles", d["maps_per_setup"], lo=1)
+    seed = _integer(t, "root_seed", "obstacles", d["root_seed"], lo=0)
+    order = tuple(k for k in t if k in d["grid_order"])
+    order += tuple(k for k in d["grid_order"] if k not in order)
     rt = _table(t, "rvo", "obstacles")
     if rt and motion != "rvo":
         raise ConfigError("obstacles.rvo", 'is only used with motion = "rvo"', dict(rt), show_value=False)
     _no_unknown(rt, ("time_horizon", "wall_time_horizon", "n_headings", "n_speeds", "contact_iterations"),
                 "obstacles.rvo")
+    rd = _defaults(RVOParams)
     rvo = RVOParams(
-        time_horizon=_number(rt, "time_horizon", "obstacles.rvo", 2.0, lo=0.0, lo_open=True),
-        wall_time_horizon=(_number(rt, "wall_time_horizon", "obstacles.rvo", 0.0, lo=0.0, lo_open=True)
-                           if "wall_time_horizon" in rt else None),
-        n_headings=_integer(rt, "n_headings", "obstacles.rvo", 0, lo=4) if "n_headings" in rt else None,
-        n_speeds=_integer(rt, "n_speeds", "obstacles.rvo", 6, lo=1),
-        contact_iterations=_integer(rt, "contact_iterations", "obstacles.rvo", 4, lo=0),
+        time_horizon=_number(rt, "time_horizon", "obstacles.rvo", rd["time_horizon"], lo=0.0, lo_open=True),
+        wall_time_horizon=_number(rt, "wall_time_horizon", "obstacles.rvo", rd["wall_time_horizon"], lo=0.0,
+                                  lo_open=True),
+        n_headings=_integer(rt, "n_headings", "obstacles.rvo", rd["n_headings"], lo=4),
+        n_speeds=_integer(rt, "n_speeds", "obstacles.rvo", rd["n_speeds"], lo=1),
+        contact_iterations=_integer(rt, "contact_iterations", "obstacles.rvo", rd["contact_iterations"], lo=0),
     )
     return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo)
 
@@ -419,27 +468,28 @@ def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfi
     items = doc.get("static_obstacles", [])
     if not isinstance(items, list):
         raise ConfigError("static_obstacles", "must be an array of tables ([[static_obstacles]])", items)
+    sd = _defaults(StaticObstacleConfig)
     out = []
     for i, t in enumerate(items):
         where = f"static_obstacles[{i}]"
         if not isinstance(t, Mapping):
             raise ConfigError(where, "must be a table", t)
         _no_unknown(t, ("kind", "center", "radius", "size", "yaw_deg"), where)
-        kind = _string(t, "kind", where, "pillar", ("pillar", "box"))
+        kind = _string(t, "kind", where, StaticObstacleConfig.DEFAULT_KIND, StaticObstacleConfig.KINDS)
         if "center" not in t:
             raise ConfigError(f"{where}.center", "is required", None, show_value=False)
         center = _vector(t["center"], f"{where}.center", world.dims)
         for k, c in enumerate(center):
             if not 0 <= c <= world.size[k]:
                 raise ConfigError(f"{where}.center[{k}]", f"must lie in the arena [0, {world.size[k]:g}]", c)
-        yaw = _number(t, "yaw_deg", where, 0.0)
+        yaw = _number(t, "yaw_deg", where, sd["yaw_deg"])
         if kind == "pillar":
             if "size" in t:
                 raise ConfigError(f"{where}.size", "is for boxes; a pillar has a radius", t["size"])
             if "radius" not in t:
                 raise ConfigError(f"{where}.radius", "is required for a pillar", None, show_value=False)
             radius = _check_number(t["radius"], f"{where}.radius", lo=0.0, lo_open=True)
-            out.append(StaticObstacleConfig(kind, center, radius, (), yaw))
+            out.append(StaticObstacleConfig(kind, center, radius, sd["size"], yaw))
         else:
             if "radius" in t:
                 raise ConfigError(f"{where}.radius", "is for pillars; a box has a size", t["radius"])
@@ -449,12 +499,13 @@ def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfi
             for k, s in enumerate(size):
                 if s <= 0:
                     raise ConfigError(f"{where}.size[{k}]", "must be > 0", s)
-            out.append(StaticObstacleConfig(kind, center, 0.0, size, yaw))
+            out.append(StaticObstacleConfig(kind, center, sd["radius"], size, yaw))
     return tuple(out)
 
 
 def _parse_motion(t: Mapping, where: str, world: WorldConfig) -> tuple[str, tuple, tuple, tuple, dict]:
-    motion = t.get("motion", "static")
+    bd = _defaults(BodyConfig)
+    motion = t.get("motion", bd["motion"])
     if not isinstance(motion, str) or not motion:
         raise ConfigError(f"{where}.motion", f"must be one of {', '.join(BODY_MOTIONS)} or 'package.module:function'",
                           motion)
@@ -463,7 +514,7 @@ def _parse_motion(t: Mapping, where: str, world: WorldConfig) -> tuple[str, tupl
         if not mod or not fn:
             raise ConfigError(f"{where}.motion",
                               f"must be one of {', '.join(BODY_MOTIONS)} or 'package.module:function'", motion)
-    velocity, waypoints, speed = (), (), ()
+    velocity, waypoints, speed = bd["velocity"], bd["waypoints"], bd["speed"]
     allowed = {"constant_velocity": ("velocity",), "waypoints": ("waypoints", "speed")}.get(motion, ())
     if motion not in BODY_MOTIONS:
         allowed = ("params",)
@@ -498,6 +549,7 @@ def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
     items = doc.get("bodies", [])
     if not isinstance(items, list):
         raise ConfigError("bodies", "must be an array of tables ([[bodies]])", items)
+    bd = _defaults(BodyConfig)
     out = []
     names = set()
     for i, t in enumerate(items):
@@ -506,21 +558,23 @@ def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
             raise ConfigError(where, "must be a table", t)
         _no_unknown(t, ("name", "urdf", "scale", "position", "rpy_deg", "motion", "velocity", "waypoints", "speed",
                         "params"), where)
-        name = _string(t, "name", where, f"body{i}")
+        name = _string(t, "name", where, BodyConfig.DEFAULT_NAME.format(index=i))
         if name in names:
             raise ConfigError(f"{where}.name", "is used by another body", name)
         names.add(name)
         if "urdf" not in t:
             raise ConfigError(f"{where}.urdf", "is required", None, show_value=False)
-        urdf = _string(t, "urdf", where, "")
+        urdf = _string(t, "urdf", where, None)
         if not urdf:
             raise ConfigError(f"{where}.urdf", "must be a file path", t["urdf"])
-        raw_scale = t.get("scale", 1.0)
-        scale = (_vector(raw_scale, f"{where}.scale", 3) if isinstance(raw_scale, list)
-                 else (_check_number(raw_scale, f"{where}.scale"),) * 3)
-        for k, v in enumerate(scale):
-            if v <= 0:
-                raise ConfigError(f"{where}.scale", "must be > 0", raw_scale)
+        scale = bd["scale"]
+        if "scale" in t:
+            raw_scale = t["scale"]
+            scale = (_vector(raw_scale, f"{where}.scale", 3) if isinstance(raw_scale, list)
+                     else (_check_number(raw_scale, f"{where}.scale"),) * 3)
+            for v in scale:
+                if v <= 0:
+                    raise ConfigError(f"{where}.scale", "must be > 0", raw_scale)
         motion, velocity, waypoints, speed, params = _parse_motion(t, where, world)
         if "position" in t:
             if motion == "waypoints":
@@ -538,8 +592,8 @@ def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
         elif motion in BODY_MOTIONS:
             raise ConfigError(f"{where}.position", "is required", None, show_value=False)
         else:
-            position = (0.0, 0.0, 0.0)   # a motion function gives every pose
-        rpy = _vector(t["rpy_deg"], f"{where}.rpy_deg", 3) if "rpy_deg" in t else (0.0, 0.0, 0.0)
+            position = bd["position"]   # a motion function gives every pose
+        rpy = _vector(t["rpy_deg"], f"{where}.rpy_deg", 3) if "rpy_deg" in t else bd["rpy_deg"]
         out.append(BodyConfig(name, urdf, tuple(scale), tuple(position), tuple(rpy), motion, velocity, waypoints,
                               speed, params))
     return tuple(out)
@@ -548,26 +602,29 @@ def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
 def _parse_drone(doc: Mapping) -> DroneConfig:
     t = _table(doc, "drone")
     _no_unknown(t, ("urdf", "radius", "a_max", "v_max", "yaw_rate_limit"), "drone")
-    urdf = _string(t, "urdf", "drone", DEFAULT_MAV_URDF)
-    radius = _number(t, "radius", "drone", 1.0, lo=0.0, lo_open=True)
-    a_max = _number(t, "a_max", "drone", 4.0, lo=0.0, lo_open=True)
-    v_max = _grid_values(t.get("v_max", [2.0, 4.0, 6.0]), "drone.v_max", allow_range=False)
-    yaw = _number(t, "yaw_rate_limit", "drone", 1.4, lo=0.0, lo_open=True)
+    d = _defaults(DroneConfig)
+    urdf = _string(t, "urdf", "drone", d["urdf"])
+    radius = _number(t, "radius", "drone", d["radius"], lo=0.0, lo_open=True)
+    a_max = _number(t, "a_max", "drone", d["a_max"], lo=0.0, lo_open=True)
+    v_max = _grid_values(t["v_max"], "drone.v_max", allow_range=False) if "v_max" in t else d["v_max"]
+    yaw = _number(t, "yaw_rate_limit", "drone", d["yaw_rate_limit"], lo=0.0, lo_open=True)
     return DroneConfig(urdf, radius, a_max, tuple(float(v) for v in v_max), yaw)
 
 
 def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
     t = _table(doc, "sensor")
     _no_unknown(t, ("fov_deg", "vfov_deg", "range", "resolution_deg", "noise_std"), "sensor")
-    fov = _number(t, "fov_deg", "sensor", 90.0, lo=0.0, lo_open=True, hi=360.0)
-    rng = _number(t, "range", "sensor", 8.0, lo=0.0, lo_open=True)
-    res = _number(t, "resolution_deg", "sensor", 1.0 if world.dims == 2 else 2.0, lo=0.0, lo_open=True)
+    d = _defaults(SensorConfig)
+    fov = _number(t, "fov_deg", "sensor", d["fov_deg"], lo=0.0, lo_open=True, hi=360.0)
+    rng = _number(t, "range", "sensor", d["range"], lo=0.0, lo_open=True)
+    res = _number(t, "resolution_deg", "sensor", d["resolution_deg"] if world.dims == 2
+                  else SensorConfig.RESOLUTION_3D_DEG, lo=0.0, lo_open=True)
     if res > fov:
         raise ConfigError("sensor.resolution_deg", f"must be <= sensor.fov_deg ({fov:g})", res)
-    noise = _number(t, "noise_std", "sensor", 0.0, lo=0.0)
-    vfov = None
+    noise = _number(t, "noise_std", "sensor", d["noise_std"], lo=0.0)
+    vfov = d["vfov_deg"]
     if world.dims == 3:
-        vfov = _number(t, "vfov_deg", "sensor", 60.0, lo=0.0, lo_open=True, hi=180.0)
+        vfov = _number(t, "vfov_deg", "sensor", SensorConfig.VFOV_3D_DEG, lo=0.0, lo_open=True, hi=180.0)
         if res > vfov:
             raise ConfigError("sensor.resolution_deg", f"must be <= sensor.vfov_deg ({vfov:g})", res)
     elif "vfov_deg" in t:
@@ -596,12 +653,13 @@ def _check_resolution(sensor: SensorConfig, obstacles: ObstacleConfig,
 def _parse_tracking(doc: Mapping) -> TrackingConfig:
     t = _table(doc, "tracking")
     _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var"), "tracking")
+    d = _defaults(TrackingConfig)
     return TrackingConfig(
-        q=_number(t, "q", "tracking", 1e-5, lo=0.0),
-        r=_number(t, "r", "tracking", 0.0, lo=0.0),
-        p0_pos=_number(t, "p0_pos", "tracking", 0.01, lo=0.0, lo_open=True),
-        p0_vel=_number(t, "p0_vel", "tracking", 0.1, lo=0.0, lo_open=True),
-        drop_pos_var=_number(t, "drop_pos_var", "tracking", 1.5, lo=0.0, lo_open=True),
+        q=_number(t, "q", "tracking", d["q"], lo=0.0),
+        r=_number(t, "r", "tracking", d["r"], lo=0.0),
+        p0_pos=_number(t, "p0_pos", "tracking", d["p0_pos"], lo=0.0, lo_open=True),
+        p0_vel=_number(t, "p0_vel", "tracking", d["p0_vel"], lo=0.0, lo_open=True),
+        drop_pos_var=_number(t, "drop_pos_var", "tracking", d["drop_pos_var"], lo=0.0, lo_open=True),
     )
 
 
@@ -617,13 +675,14 @@ def default_candidates(world: WorldConfig) -> tuple[tuple[float, ...], ...]:
 def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskConfig:
     t = _table(doc, "task")
     _no_unknown(t, ("candidates", "goal_radius", "spawn_clearance", "deadlock_steps"), "task")
+    d = _defaults(TaskConfig)
     if "candidates" in t:
         raw = t["candidates"]
         if not isinstance(raw, list) or len(raw) < 2:
             raise ConfigError("task.candidates", "must be a list of at least 2 points", raw)
         cands = tuple(_vector(c, f"task.candidates[{i}]", world.dims) for i, c in enumerate(raw))
     else:
-        cands = default_candidates(world)
+        cands = d["candidates"] or default_candidates(world)
     for i, c in enumerate(cands):
         for k, x in enumerate(c):
             if not drone.radius <= x <= world.size[k] - drone.radius:
@@ -632,27 +691,28 @@ def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskCon
                                   list(c))
     if len(set(cands)) != len(cands):
         raise ConfigError("task.candidates", "must be distinct points", [list(c) for c in cands])
-    goal_radius = _number(t, "goal_radius", "task", 1.0, lo=0.0, lo_open=True)
-    clearance = _number(t, "spawn_clearance", "task", 1.0, lo=0.0)
-    deadlock = _integer(t, "deadlock_steps", "task", 10, lo=1)
+    goal_radius = _number(t, "goal_radius", "task", d["goal_radius"], lo=0.0, lo_open=True)
+    clearance = _number(t, "spawn_clearance", "task", d["spawn_clearance"], lo=0.0)
+    deadlock = _integer(t, "deadlock_steps", "task", d["deadlock_steps"], lo=1)
     return TaskConfig(cands, goal_radius, clearance, deadlock)
 
 
 def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:
-    items = doc.get("planners", [{"trajectory": "local_primitives", "gaze": "lookahead"}])
+    items = doc.get("planners", [{}])      # one entry of PlannerEntry's defaults
     if not isinstance(items, list) or not items:
         raise ConfigError("planners", "must be a non-empty array of tables ([[planners]])", items)
+    d = _defaults(PlannerEntry)
     out = []
     for i, t in enumerate(items):
         where = f"planners[{i}]"
         if not isinstance(t, Mapping):
             raise ConfigError(where, "must be a table", t)
         _no_unknown(t, ("trajectory", "gaze", "trajectory_params", "gaze_params", "name"), where)
-        traj = _string(t, "trajectory", where, "local_primitives")
-        gaze = _string(t, "gaze", where, "lookahead")
+        traj = _string(t, "trajectory", where, d["trajectory"])
+        gaze = _string(t, "gaze", where, d["gaze"])
         tp = _table(t, "trajectory_params", where)
         gp = _table(t, "gaze_params", where)
-        name = _string(t, "name", where, "")
+        name = _string(t, "name", where, d["name"])
         out.append(PlannerEntry(traj, gaze, dict(tp), dict(gp), name))
     labels = [p.label for p in out]
     if len(set(labels)) != len(labels):
@@ -679,7 +739,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
         raise ConfigError("scenario", "must be a table", doc)
     _no_unknown(doc, ("name", "world", "obstacles", "static_obstacles", "drone", "sensor", "tracking", "task",
                       "planners", "collision_check", "bodies"), "")
-    name = _string(doc, "name", "", Path(source).stem if source else "scenario")
+    name = _string(doc, "name", "", Path(source).stem if source else Scenario.DEFAULT_NAME)
     world = _parse_world(doc)
     bodies = _parse_bodies(doc, world)
     if bodies:
@@ -697,7 +757,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     tracking = _parse_tracking(doc)
     task = _parse_task(doc, world, drone)
     planners = _parse_planners(doc)
-    check = _string(doc, "collision_check", "", "swept", COLLISION_CHECKS)
+    check = _string(doc, "collision_check", "", _defaults(Scenario)["collision_check"], COLLISION_CHECKS)
     return Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies)
 
 

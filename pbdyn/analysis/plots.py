@@ -16,6 +16,7 @@ from pbdyn.analysis.cv import LEVELS, difficulty_level, level_stats
 from pbdyn.analysis.regression import setup_features
 from pbdyn.analysis.report import difficulty_table
 from pbdyn.analysis.success import grouped_rate, success_table, trial_arrays
+from pbdyn.sim.outcome import Outcome
 
 _CENTRES = np.arange(LEVELS) + 0.5
 
@@ -121,7 +122,7 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
         _metric_figure(name, d[c], st.rate[c], st.pairs, out_dir / f"metric_{name}.png", out)
 
     on_c = c[ta.map_idx] & ta.flown
-    success = ta.is_outcome("success")
+    success = ta.is_outcome(Outcome.SUCCESS)
     band = (report.get("sigma_bands") or {}).get("metric")
     if band in diff:
         lev = np.where(c, difficulty_level(diff[band]), -1)[ta.map_idx]
@@ -131,7 +132,7 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
         a1.set_title("success rate per trajectory planner")
         g = np.where(on_c & (lev >= 0), ta.trajectory_idx * LEVELS + lev, -1)
         ps, _, n = grouped_rate(g, success, nt * LEVELS)
-        pdl, _, _ = grouped_rate(g, ta.is_outcome("deadlock"), nt * LEVELS)
+        pdl, _, _ = grouped_rate(g, ta.is_outcome(Outcome.DEADLOCK), nt * LEVELS)
         ps, pdl, n = (a.reshape(nt, LEVELS) for a in (ps, pdl, n))
         width = 0.8 / max(nt, 1)
         for i, (lab, col) in enumerate(zip(ta.trajectories, _colours(nt))):

@@ -32,15 +32,17 @@ from pbdyn.analysis.srcc import bootstrap_mean_srcc, mean_std, pair_srcc, percen
 from pbdyn.analysis.success import (OUTCOMES, SuccessTable, rate_and_se, success_table, trial_arrays,
                                    within_setup_reliability)
 from pbdyn.errors import ConfigError
+from pbdyn.metrics.catalog import INFO, TABLE_ORDER
+from pbdyn.sim.outcome import Outcome
 
-METRIC_ORDER = ("density", "traversability", "dynamic_traversability", "survivability", "survivability_dense",
-                "global_survivability", "vo_feasibility", "vo_feasibility_dense")
-"""Row order of table 4-5; other metrics found in the maps follow in name order, then SETUP_MODEL."""
+METRIC_ORDER = TABLE_ORDER
+"""Row order of table 4-5 (pbdyn.metrics.catalog); other metrics found in the maps follow in name order, then
+SETUP_MODEL."""
 
 SETUP_MODEL = "setup_model"
 """Name of the setup-only baseline row (eq. 5-1 of (n, r, v) fitted to success)."""
 
-BAND_METRICS = ("survivability", "survivability_dense")
+BAND_METRICS = ("survivability", INFO["survivability"].dense)
 """Metrics tried in order for the sigma bands (tables 4-6..4-8), the regression (table 5-4) and figs 5-9/5-10."""
 
 SIGN_CONVENTION = ("srcc = -Srcc(difficulty, SR) = Srcc(10 - difficulty, SR): positive when the metric ranks maps "
@@ -215,7 +217,7 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         "datasets": {str(n): int(k) for n, k in zip(*np.unique(datasets, return_counts=True))},
         "pairs": list(st.pairs),
         "n_trials": len(trials),
-        "n_error_trials": int(outcome_counts[OUTCOMES.index("error")]),
+        "n_error_trials": int(outcome_counts[OUTCOMES.index(Outcome.ERROR.value)]),
         "outcomes": dict(zip(OUTCOMES, outcome_counts.tolist())),
         "n_boot": n_boot, "seed": int(seed),
         "metrics": rows,

@@ -11,9 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbdyn.errors import ConfigError
-
-OUTCOMES = ("success", "static_collision", "dynamic_collision", "freezing", "deadlock", "error")
-"""Trial outcomes as stored; "error" marks a trial that raised."""
+from pbdyn.sim.outcome import OUTCOMES, Outcome  # OUTCOMES: outcome names as stored; "error" marks a trial that raised
 
 
 @dataclass(frozen=True)
@@ -34,11 +32,11 @@ class TrialArrays:
     @property
     def flown(self) -> np.ndarray:
         """Mask [T] of trials that ended with a real outcome (not "error")."""
-        return self.outcome_idx != OUTCOMES.index("error")
+        return self.outcome_idx != OUTCOMES.index(Outcome.ERROR.value)
 
-    def is_outcome(self, name: str) -> np.ndarray:
-        """Mask [T] of trials with outcome ``name``."""
-        return self.outcome_idx == OUTCOMES.index(name)
+    def is_outcome(self, name: str | Outcome) -> np.ndarray:
+        """Mask [T] of trials with outcome ``name`` (an Outcome or its value)."""
+        return self.outcome_idx == OUTCOMES.index(Outcome(name).value)
 
 
 def _codes(values: list) -> tuple[tuple[str, ...], np.ndarray]:
@@ -108,10 +106,11 @@ def success_table(ta: TrialArrays) -> SuccessTable:
     m, p = len(ta.map_ids), len(ta.pairs)
     flown = ta.flown
     cell = np.where(flown, ta.map_idx * p + ta.pair_idx, -1)
-    _, _, n = grouped_rate(cell, ta.is_outcome("success"), m * p)
-    k = np.bincount(cell[flown], weights=ta.is_outcome("success")[flown].astype(float), minlength=m * p)
+    success = ta.is_outcome(Outcome.SUCCESS)
+    _, _, n = grouped_rate(cell, success, m * p)
+    k = np.bincount(cell[flown], weights=success[flown].astype(float), minlength=m * p)
     rate, se = rate_and_se(k, n)
-    pr, pse, pn = grouped_rate(np.where(flown, ta.map_idx, -1), ta.is_outcome("success"), m)
+    pr, pse, pn = grouped_rate(np.where(flown, ta.map_idx, -1), success, m)
     return SuccessTable(ta.map_ids, ta.pairs, n.reshape(m, p), k.reshape(m, p).astype(np.int64),
                         rate.reshape(m, p), se.reshape(m, p), pn, pr, pse)
 

@@ -20,11 +20,12 @@ import numpy as np
 
 from pbdyn.config import PlannerEntry, Scenario
 from pbdyn.errors import one_line
+from pbdyn.metrics.catalog import BATCH
+from pbdyn.sim.outcome import Outcome
 from pbdyn.world.maps import MapSpec
 
-METRIC_SET = ("density", "traversability", "dynamic_traversability", "vo_feasibility", "vo_feasibility_dense",
-              "survivability", "survivability_dense", "global_survivability")
-"""The metrics of the thesis' table 4-5, computed once per map."""
+METRIC_SET = BATCH
+"""The metrics of the thesis' table 4-5, computed once per map (pbdyn.metrics.catalog)."""
 
 
 @dataclass(frozen=True)
@@ -124,7 +125,7 @@ def error_row(task: TrialTask, message: str) -> dict:
             "map_id": m.map_id, "map_seed": m.seed, "map_key": m.key, "mav_speed": s.v_max,
             "obstacle_count": int(m.setup.get("count", 0)), "obstacle_radius": m.setup.get("radius"),
             "obstacle_speed": m.setup.get("speed"), "start": list(s.start), "goal": list(s.goal),
-            "outcome": "error", "reason": message, "planner_label": s.planner.label,
+            "outcome": Outcome.ERROR.value, "reason": message, "planner_label": s.planner.label,
             "scenario": s.scenario.name, "config_hash": task.key, "planner_fingerprint": _fingerprint(s.planner)}
 
 

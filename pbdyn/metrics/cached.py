@@ -11,27 +11,21 @@ from pathlib import Path
 
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError
+from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, NAMES, SPARSE
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
 
 METRICS_VERSION = "metrics-1"
-SPARSE = ("density", "traversability", "dynamic_traversability", "vo_feasibility", "survivability",
-          "global_survivability")
-DENSE = {"traversability": "traversability_dense", "vo_feasibility": "vo_feasibility_dense",
-         "survivability": "survivability_dense"}
-BACKEND_METRICS = ("survivability", "survivability_dense", "global_survivability")
 
 
 def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
     """The metrics to compute: the requested names (default: every sparse metric), swapped for their dense variant
     with ``dense``; unknown names raise ConfigError naming --metric."""
-    from pbdyn.metrics.registry import METRICS
-
     names = list(requested) if requested else list(SPARSE)
     out = []
     for name in names:
-        if name not in METRICS:
-            raise ConfigError("--metric", f"unknown metric (known: {', '.join(sorted(METRICS))})", name)
+        if name not in NAMES:
+            raise ConfigError("--metric", f"unknown metric (known: {', '.join(sorted(NAMES))})", name)
         name = DENSE.get(name, name) if dense else name
         if name not in out:
             out.append(name)

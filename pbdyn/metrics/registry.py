@@ -1,28 +1,19 @@
-"""Metric names -> functions, and one entry point that validates a metric's name and parameters."""
+"""Metric names -> functions (from the one table, pbdyn.metrics.catalog), and one entry point that validates a
+metric's name and parameters."""
 
 from __future__ import annotations
 
+import importlib
 import inspect
 from typing import Callable
 
 from pbdyn.errors import ConfigError
-from pbdyn.metrics.density import density
+from pbdyn.metrics.catalog import INFO, METRIC_TABLE, MetricInfo  # noqa: F401  (re-exported)
 from pbdyn.metrics.result import MetricResult
-from pbdyn.metrics.survivability import global_survivability, survivability, survivability_dense
-from pbdyn.metrics.traversability import dynamic_traversability, traversability, traversability_dense
-from pbdyn.metrics.vo import vo_feasibility, vo_feasibility_dense
 
 METRICS: dict[str, Callable[..., MetricResult]] = {
-    "density": density,
-    "traversability": traversability,
-    "traversability_dense": traversability_dense,
-    "dynamic_traversability": dynamic_traversability,
-    "vo_feasibility": vo_feasibility,
-    "vo_feasibility_dense": vo_feasibility_dense,
-    "survivability": survivability,
-    "survivability_dense": survivability_dense,
-    "global_survivability": global_survivability,
-}
+    m.name: getattr(importlib.import_module(m.module), m.name) for m in METRIC_TABLE}
+"""Name -> function ``f(rollout, **params) -> MetricResult``, in METRIC_TABLE order."""
 
 _INTERNAL = ("name",)  # keywords the sparse functions use to label their dense variants; not user parameters
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pbdyn.planning.view import Tracks
+from pbdyn.perception.tracks import Tracks
 
 
 class KalmanTracks:

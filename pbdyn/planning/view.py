@@ -11,58 +11,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pbdyn.perception.tracks import Tracks, readonly  # Tracks: re-exported for planners
 from pbdyn.planning.trajectory import Trajectory
 
 if TYPE_CHECKING:  # pragma: no cover
     from pbdyn.perception.grid import OccupancyGrid
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a, dtype=float)
-    a.setflags(write=False)
-    return a
-
-
-@dataclass(frozen=True)
-class Tracks:
-    """Active Kalman tracks of dynamic obstacles (thesis 2-4-2).
-
-    Attributes:
-        ids: obstacle index of each track [M] (int; the index into the rollout's obstacles).
-        position: estimated centres [M, d] (m, world frame) at the view's time.
-        velocity: estimated velocities [M, d] (m/s).
-        covariance: state covariances [M, 2d, 2d] over [p, v] (m^2, m^2/s, m^2/s^2).
-        radius: obstacle radii [M] (m).
-    """
-
-    ids: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-    covariance: np.ndarray
-    radius: np.ndarray
-
-    def __post_init__(self) -> None:
-        ids = np.asarray(self.ids, dtype=np.int64)
-        ids.setflags(write=False)
-        object.__setattr__(self, "ids", ids)
-        for name in ("position", "velocity", "covariance", "radius"):
-            object.__setattr__(self, name, _readonly(getattr(self, name)))
-
-    @classmethod
-    def empty(cls, dims: int) -> "Tracks":
-        """No tracks, in d dimensions."""
-        return cls(np.zeros(0, np.int64), np.zeros((0, dims)), np.zeros((0, dims)),
-                   np.zeros((0, 2 * dims, 2 * dims)), np.zeros(0))
-
-    def __len__(self) -> int:
-        return int(self.ids.shape[0])
-
-    def predict(self, dt_ahead: np.ndarray | float) -> np.ndarray:
-        """Constant-velocity predictions of the centres: [M, d] for a scalar, [K, M, d] for times [K] (s ahead)."""
-        tau = np.asarray(dt_ahead, dtype=float)
-        if tau.ndim == 0:
-            return self.position + tau * self.velocity
-        return self.position[None, :, :] + tau[:, None, None] * self.velocity[None, :, :]
 
 
 @dataclass(frozen=True)
@@ -115,7 +68,7 @@ class View:
 
     def __post_init__(self) -> None:
         for name in ("position", "velocity", "acceleration", "goal", "bounds_lo", "bounds_hi"):
-            object.__setattr__(self, name, _readonly(np.array(getattr(self, name), dtype=float)))
+            object.__setattr__(self, name, readonly(np.array(getattr(self, name), dtype=float)))
 
     @property
     def dims(self) -> int:

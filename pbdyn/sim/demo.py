@@ -7,6 +7,7 @@ import time
 from collections import Counter
 
 from pbdyn.config import Scenario
+from pbdyn.sim.outcome import OUTCOMES
 from pbdyn.sim.trial import make_trial_spec, run_trial
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import get_rollout
@@ -51,8 +52,6 @@ def run_demo(scenario: Scenario, *, n_maps: int = 4, n_pairs: int = 3, json_out:
     counts = Counter((r["planner_label"], r["outcome"]) for r in rows)
     out.write(f"\n{len(rows)} trials in {time.perf_counter() - t0:.1f} s. Outcomes per planner pair:\n")
     for entry in scenario.planners:
-        parts = [f"{o}={counts[(entry.label, o)]}" for o in
-                 ("success", "static_collision", "dynamic_collision", "freezing", "deadlock")
-                 if counts[(entry.label, o)]]
+        parts = [f"{o}={counts[(entry.label, o)]}" for o in OUTCOMES if counts[(entry.label, o)]]
         out.write(f"  {entry.label:<32} {' '.join(parts)}\n")
     return rows

@@ -1,4 +1,8 @@
-"""How a trial ends (thesis 2-5): an enum with readable reasons."""
+"""How a trial ends (thesis 2-5): an enum with readable reasons; the only list of outcome names.
+
+Consumers (analysis, store rows, demo, tools) iterate over Outcome / OUTCOMES rather than writing names, so a new
+outcome needs only a member and its reason here.
+"""
 
 from __future__ import annotations
 
@@ -21,6 +25,12 @@ class Outcome(str, Enum):
         """A readable explanation of the outcome."""
         return _REASONS[self]
 
+
+OUTCOMES: tuple[str, ...] = tuple(o.value for o in Outcome)
+"""Every outcome name as stored in results, in enum order."""
+
+FAILURES: tuple[Outcome, ...] = tuple(o for o in Outcome if o not in (Outcome.SUCCESS, Outcome.ERROR))
+"""Outcomes of a flown trial that did not reach the goal ("error" marks a trial that raised, not a flight)."""
 
 _REASONS = {
     Outcome.SUCCESS: "reached the goal ball",

@@ -25,23 +25,9 @@ its CVM path; it is available as a parameter.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-
-@dataclass(frozen=True)
-class RVOParams:
-    """ORCA parameters: time_horizon tau (s) for neighbours, wall_time_horizon tau_w (s; None = dt), candidate set
-    n_headings x n_speeds, neighbour_dist (m, pairs farther apart than this between surfaces are ignored;
-    None = tau * (v_i + v_j) + 1 m), contact_iterations (0 disables the last-resort contact step)."""
-
-    time_horizon: float = 2.0
-    wall_time_horizon: float | None = None
-    n_headings: int | None = None
-    n_speeds: int = 6
-    neighbour_dist: float | None = None
-    contact_iterations: int = 4
+from pbdyn.config import RVOParams  # the parameters live with the scenario's dataclasses
 
 
 def candidate_directions(dims: int, n: int) -> np.ndarray:
@@ -186,7 +172,7 @@ def rvo_rollout(p0: np.ndarray, v0: np.ndarray, radii: np.ndarray, size: np.ndar
     pref = np.array(v0, dtype=float)
     vel = pref.copy()
     speed = np.linalg.norm(pref, axis=1)
-    n_head = params.n_headings or (32 if d == 2 else 64)
+    n_head = params.n_headings or (params.N_HEADINGS_2D if d == 2 else params.N_HEADINGS_3D)
     dirs = candidate_directions(d, n_head)
     fracs = np.arange(1, params.n_speeds + 1) / params.n_speeds
     unit_cands = (fracs[None, :, None] * dirs[:, None, :]).reshape(-1, d)          # [Mu, d], times each speed

@@ -31,6 +31,7 @@ from pbdyn.config import load_scenario, parse_scenario  # noqa: E402
 from pbdyn.planning import registry  # noqa: E402
 from pbdyn.planning.global_primitives import GlobalPrimitives  # noqa: E402
 from pbdyn.sim.demo import demo_pairs  # noqa: E402
+from pbdyn.sim.outcome import OUTCOMES  # noqa: E402
 from pbdyn.sim.trial import SPLITS, make_trial_spec, run_trial  # noqa: E402
 from pbdyn.world.maps import enumerate_maps  # noqa: E402
 from pbdyn.world.rollout import build_rollout  # noqa: E402
@@ -87,8 +88,7 @@ def run_set(sc, maps, pairs, v_maxes) -> dict:
 
 
 def _outcome_text(c: Counter) -> str:
-    return " ".join(f"{k}={c[k]}" for k in ("success", "dynamic_collision", "static_collision", "deadlock",
-                                              "freezing") if c[k])
+    return " ".join(f"{k}={c[k]}" for k in OUTCOMES if c[k])
 
 
 def main() -> int:

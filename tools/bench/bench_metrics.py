@@ -30,6 +30,7 @@ import numpy as np
 from bench_common import machine  # noqa: E402
 
 from pbdyn.config import load_scenario  # noqa: E402
+from pbdyn.metrics.catalog import BACKEND_METRICS, METRIC_TABLE, TABLE_ORDER  # noqa: E402
 from pbdyn.metrics.registry import compute  # noqa: E402
 from pbdyn.world.maps import enumerate_maps  # noqa: E402
 from pbdyn.world.rollout import build_rollout  # noqa: E402
@@ -37,21 +38,13 @@ from pbdyn.world.rollout import build_rollout  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "scenarios"
 
-# metric -> (thesis table 4-5 time per map in s, public program on this machine in s as "lo-hi" text)
-THESIS = {
-    "density": (2.0, "0.2-0.5"),
-    "traversability": (7.0, "0.2-0.7"),
-    "traversability_dense": (None, "-"),
-    "dynamic_traversability": (30.0, "0.4-0.9"),
-    "vo_feasibility": (7.0, "8-22"),
-    "vo_feasibility_dense": (15.0, "33-90"),
-    "survivability": (20.0, "45-62"),
-    "survivability_dense": (90.0, "-"),
-    "global_survivability": (20.0, "115-277"),
-}
-EIGHT = ("density", "traversability", "dynamic_traversability", "survivability", "survivability_dense",
-         "global_survivability", "vo_feasibility", "vo_feasibility_dense")
-BACKEND_METRICS = ("survivability", "survivability_dense", "global_survivability")
+# the thesis' public program measured on this machine, s as "lo-hi" text (implementation-facts.md "Measured speed")
+PROGRAM = {"density": "0.2-0.5", "traversability": "0.2-0.7", "dynamic_traversability": "0.4-0.9",
+           "vo_feasibility": "8-22", "vo_feasibility_dense": "33-90", "survivability": "45-62",
+           "global_survivability": "115-277"}
+# metric -> (thesis table 4-5 time per map in s, public program time), every metric in the catalog's order
+THESIS = {m.name: (m.thesis_time_s, PROGRAM.get(m.name, "-")) for m in METRIC_TABLE}
+EIGHT = TABLE_ORDER
 WORLDS = (("warehouse_2d", "warehouse_2d"), ("mixed_3d", "mixed_3d"))
 CONFIGS = (("2D n=10", "controlled_2d.toml", 10), ("2D n=30", "controlled_2d.toml", 30),
            ("3D n=30", "controlled_3d.toml", 30))
