@@ -52,7 +52,7 @@ def test_derived_lists_are_unchanged():
     assert report.BAND_METRICS == ("survivability", "survivability_dense")
     assert cached.BACKEND_METRICS == ("survivability", "survivability_dense", "global_survivability")
     assert success.OUTCOMES == OUTCOMES == ("success", "static_collision", "dynamic_collision", "freezing",
-                                            "deadlock", "error")
+                                            "deadlock", "invalid_plan", "error")
     assert set(FAILURES) == set(Outcome) - {Outcome.SUCCESS, Outcome.ERROR}
 
 
