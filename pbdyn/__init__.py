@@ -1,3 +1,29 @@
-"""pbdyn: a PyBullet testbed for MAV dynamic obstacle avoidance and environment difficulty."""
+"""pbdyn: a PyBullet testbed for MAV dynamic obstacle avoidance and environment difficulty.
+
+The public Python API (pbdyn.api, README "Python API"): load_scenario, rollout, run_trial, compute_metrics,
+run_batch, open_results, check_planner; the errors they raise (ConfigError, PbdynError); TrialResult and Outcome.
+Names are imported on first use, so ``import pbdyn`` stays fast.
+"""
 
 __version__ = "0.1.0"
+
+_API = ("load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "open_results",
+        "Results", "export_results", "evaluate", "check_planner", "run_demo")
+_OTHER = {"ConfigError": "pbdyn.errors", "PbdynError": "pbdyn.errors", "TrialResult": "pbdyn.sim.result",
+          "Outcome": "pbdyn.sim.outcome", "Scenario": "pbdyn.config"}
+
+__all__ = ["__version__", *_API, *_OTHER]
+
+
+def __getattr__(name: str):
+    import importlib
+
+    if name in _API:
+        return getattr(importlib.import_module("pbdyn.api"), name)
+    if name in _OTHER:
+        return getattr(importlib.import_module(_OTHER[name]), name)
+    raise AttributeError(f"module 'pbdyn' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)

@@ -13,6 +13,7 @@ import os
 import sys
 from pathlib import Path
 
+from pbdyn import api
 from pbdyn.errors import ConfigError, PbdynError
 
 EXIT_USAGE = 2
@@ -116,25 +117,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _load(path: str):
-    from pbdyn.config import load_scenario
-    return load_scenario(path)
+FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
+         "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
+         "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "out": "--out", "plots": "--plots",
+         "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
+"""Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from pbdyn.sim.trial import make_trial_spec, run_trial
-    from pbdyn.world.maps import get_map
-    from pbdyn.world.rollout import get_rollout
-
-    scenario = _load(args.scenario)
-    spec_map = get_map(scenario, args.map)
-    spec = make_trial_spec(scenario, spec_map, planner=args.planner, gaze=args.gaze, v_max=args.vmax,
-                           start=args.start, goal=args.goal)
-    if args.trace is not None and not str(args.trace).endswith(".npz"):
-        raise ConfigError("--trace", "must name an .npz file", args.trace)
-    rollout = get_rollout(scenario, spec_map)
-    result = run_trial(spec, rollout, gui=args.gui, trace_path=args.trace,
-                       gui_sleep=scenario.world.dt if args.gui else 0.0)
+    result = api.run_trial(args.scenario, planner=args.planner, gaze=args.gaze, map=args.map, start=args.start,
+                           goal=args.goal, v_max=args.vmax, trace=args.trace, gui=args.gui)
     if args.json:
         sys.stdout.write(json.dumps(result.to_dict(), sort_keys=True) + "\n")
     else:
@@ -144,40 +136,33 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_rollout(args: argparse.Namespace) -> int:
-    from pbdyn.world.maps import get_map
-    from pbdyn.world.rollout import build_rollout
-
-    scenario = _load(args.scenario)
     out = Path(args.out)
     if out.suffix != ".npz":
         raise ConfigError("--out", "must name an .npz file", args.out)
     if out.parent and not out.parent.exists():
         raise ConfigError("--out", "folder does not exist", str(out.parent))
-    spec_map = get_map(scenario, args.map)
-    ro = build_rollout(scenario, spec_map, args.horizon)
+    scenario = api.load_scenario(args.scenario)
+    m = api.map_info(scenario, args.map)
+    ro = api.rollout(scenario, args.map, horizon=args.horizon)
     ro.save(out)
-    summary = {"out": str(out), "map_index": spec_map.index, "map_id": spec_map.map_id, "setup": spec_map.setup,
-               "replicate": spec_map.replicate, "seed": spec_map.seed, "steps": ro.n_steps,
+    summary = {"out": str(out), "map_index": args.map, "map_id": m["map_id"], "setup": m["setup"],
+               "replicate": m["replicate"], "seed": m["seed"], "steps": ro.n_steps,
                "obstacles": ro.n_obstacles, "horizon_s": ro.horizon}
     if args.json:
         sys.stdout.write(json.dumps(summary, sort_keys=True) + "\n")
     else:
-        sys.stdout.write(f"wrote {out}: map {spec_map.index} ({spec_map.map_id}) {spec_map.setup} replicate "
-                         f"{spec_map.replicate}, {ro.n_obstacles} obstacles x {ro.n_steps} steps\n")
+        sys.stdout.write(f"wrote {out}: map {args.map} ({summary['map_id']}) {summary['setup']} replicate "
+                         f"{summary['replicate']}, {ro.n_obstacles} obstacles x {ro.n_steps} steps\n")
     return 0
 
 
 def cmd_metrics(args: argparse.Namespace) -> int:
-    from pbdyn.metrics.cached import map_metrics, metric_names, resolve_backend
-    from pbdyn.world.maps import get_map
-
-    scenario = _load(args.scenario)
-    names = metric_names(args.metric, args.dense)
-    backend = resolve_backend(scenario, args.backend)
-    spec_map = get_map(scenario, args.map)
-    values = map_metrics(scenario, spec_map, names, backend=backend)
-    doc = {"scenario": scenario.name, "map_index": spec_map.index, "map_id": spec_map.map_id,
-           "setup": spec_map.setup, "replicate": spec_map.replicate, "backend": backend, "metrics": values}
+    scenario = api.load_scenario(args.scenario)
+    backend = api.metric_backend(scenario, args.backend)
+    values = api.compute_metrics(scenario, args.map, metrics=args.metric, dense=args.dense, backend=backend)
+    ro_meta = api.map_info(scenario, args.map)
+    doc = {"scenario": scenario.name, "map_index": args.map, "map_id": ro_meta["map_id"],
+           "setup": ro_meta["setup"], "replicate": ro_meta["replicate"], "backend": backend, "metrics": values}
     if scenario.is_world:
         doc["bodies"] = [{"name": b.name, "motion": b.motion} for b in scenario.bodies]
         del doc["setup"], doc["replicate"]
@@ -188,7 +173,7 @@ def cmd_metrics(args: argparse.Namespace) -> int:
         moving = sum(b.moving for b in scenario.bodies)
         sys.stdout.write(f"world {scenario.name}: {len(scenario.bodies)} bodies ({moving} moving), backend {backend}\n")
     else:
-        sys.stdout.write(f"map {spec_map.index} ({spec_map.map_id}) {spec_map.setup} replicate {spec_map.replicate}, "
+        sys.stdout.write(f"map {args.map} ({doc['map_id']}) {doc['setup']} replicate {doc['replicate']}, "
                          f"backend {backend}\n")
     for name, v in values.items():
         err = f" +- {v['stderr']:.3f}" if v.get("stderr") is not None else ""
@@ -198,26 +183,20 @@ def cmd_metrics(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from pbdyn.sim.demo import run_demo
-
-    scenario = _load(args.scenario)
-    rows = run_demo(scenario, n_maps=args.maps, n_pairs=args.pairs, json_out=args.json)
+    rows = api.run_demo(args.scenario, n_maps=args.maps, n_pairs=args.pairs, json_out=args.json)
     if args.json:
         sys.stdout.write(json.dumps(rows, sort_keys=True) + "\n")
     return 0
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    from pbdyn.experiments.runner import BatchOptions, run_batch
-
-    scenario = _load(args.scenario)
     if args.workers == 0:
         raise ConfigError("--workers", "must be >= 1", 0)
     if args.limit == 0:
         raise ConfigError("--limit", "must be >= 1", 0)
-    opts = BatchOptions(workers=args.workers, scheduler=args.scheduler, limit=args.limit, extend=args.extend,
-                        metrics=not args.no_metrics, rerun_changed=args.rerun_changed, retry_errors=args.retry_errors)
-    s = run_batch(scenario, args.out, opts, command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
+    s = api.run_batch(args.scenario, args.out, workers=args.workers, scheduler=args.scheduler, limit=args.limit,
+                      extend=args.extend, metrics=not args.no_metrics, rerun_changed=args.rerun_changed,
+                      retry_errors=args.retry_errors, command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
     doc = {"results": str(args.out), "trials": s.total, "already_stored": s.skipped, "ran": s.ran, "rerun": s.rerun,
            "errors": s.errors, "stored_errors": s.stored_errors, "maps_computed": s.maps_computed,
            "wall_time_s": s.wall_time_s}
@@ -232,22 +211,14 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from pbdyn.experiments.export import export_csv, export_parquet
-    from pbdyn.experiments.store import ResultsStore
-
-    store = ResultsStore.open(args.results)
-    try:
-        n = export_csv(store, args.csv) if args.csv else export_parquet(store, args.parquet)
-    finally:
-        store.close()
-    sys.stderr.write(f"pbdyn export: {n} trials -> {args.csv or args.parquet}\n")
+    target = args.csv or args.parquet
+    n = api.export_results(args.results, target, format="csv" if args.csv else "parquet")
+    sys.stderr.write(f"pbdyn export: {n} trials -> {target}\n")
     return 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from pbdyn.experiments.evaluate import evaluate_stores
-
-    report, table, figures = evaluate_stores(args.results, plots=args.plots, n_boot=args.bootstrap)
+    report, table, figures = api.evaluate(args.results, plots=args.plots, n_boot=args.bootstrap)
     if args.json:
         sys.stdout.write(json.dumps(report, sort_keys=True, allow_nan=False) + "\n")
     else:
@@ -270,6 +241,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return COMMANDS[args.command](args)
+    except ConfigError as exc:
+        flag = FLAGS.get(exc.field)
+        sys.stderr.write(f"pbdyn: error: {exc.renamed(flag) if flag else exc}\n")
+        return EXIT_USAGE
     except PbdynError as exc:
         sys.stderr.write(f"pbdyn: error: {exc}\n")
         return EXIT_USAGE

@@ -18,10 +18,15 @@ class ConfigError(PbdynError, ValueError):
         self.field = field
         self.problem = problem
         self.value = value
+        self.show_value = show_value
         text = f"{field}: {problem}"
         if show_value:
             text += f" (got {value!r})"
         super().__init__(text)
+
+    def renamed(self, field: str) -> "ConfigError":
+        """The same error naming ``field`` instead (the CLI names its flags where the library names parameters)."""
+        return ConfigError(field, self.problem, self.value, show_value=self.show_value)
 
 
 class HorizonError(PbdynError, IndexError):

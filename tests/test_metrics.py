@@ -323,16 +323,16 @@ def test_registry_names_parameters_and_errors(map30):
     assert compute(map30, "traversability_dense").n_samples == 81
     with pytest.raises(ConfigError) as e:
         compute(map30, "survivabilty")
-    assert e.value.field == "--metric" and e.value.value == "survivabilty" and "survivabilty" in str(e.value)
+    assert e.value.field == "metric" and e.value.value == "survivabilty" and "survivabilty" in str(e.value)
     with pytest.raises(ConfigError) as e:
         compute(map30, "density", spacing=3.0)
-    assert e.value.field == "--metric" and "spacing" in str(e.value)
+    assert e.value.field == "metric" and "spacing" in str(e.value)
     with pytest.raises(ConfigError) as e:
         compute(map30, "survivability", backend="mesh2")
-    assert e.value.field == "--backend" and e.value.value == "mesh2"
+    assert e.value.field == "backend" and e.value.value == "mesh2"
     with pytest.raises(ConfigError) as e:
         compute(map30, "global_survivability", backend="bullet", mode="exact")
-    assert e.value.field == "--backend"
+    assert e.value.field == "backend"
     with pytest.raises(ConfigError) as e:
         survivability(map30, mode="swept")
     assert e.value.field == "mode"

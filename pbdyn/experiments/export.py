@@ -116,7 +116,7 @@ def export_parquet(store: ResultsStore, path: str | Path) -> int:
     try:
         import pyarrow  # noqa: F401
     except ImportError:  # pragma: no cover - pyarrow is a dependency
-        raise ConfigError("--parquet", "needs pyarrow (pip install pyarrow)", str(path)) from None
+        raise ConfigError("parquet", "needs pyarrow (pip install pyarrow)", str(path)) from None
     df = trials_frame(store)
     _atomic(Path(path), lambda tmp: df.to_parquet(tmp, index=False, engine="pyarrow"))
     return len(df)

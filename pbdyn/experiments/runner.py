@@ -284,7 +284,7 @@ def connect(address: str):
     try:
         return Client(address, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError, ValueError) as exc:
-        raise ConfigError("--scheduler", "cannot reach a Dask scheduler there "
+        raise ConfigError("scheduler", "cannot reach a Dask scheduler there "
                           f"({type(exc).__name__}: {' '.join(str(exc).split())[:160]})", address) from None
 
 
@@ -320,9 +320,9 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
     t0 = time.perf_counter()
     workers = options.workers if options.workers is not None else _default_workers()
     if not isinstance(workers, int) or workers < 1:
-        raise ConfigError("--workers", "must be an integer >= 1", workers)
+        raise ConfigError("workers", "must be an integer >= 1", workers)
     if options.limit is not None and (not isinstance(options.limit, int) or options.limit < 1):
-        raise ConfigError("--limit", "must be an integer >= 1", options.limit)
+        raise ConfigError("limit", "must be an integer >= 1", options.limit)
     check_planners(scenario)
     maps = enumerate_maps(scenario)
     trials = enumerate_trials(scenario, maps)

@@ -25,7 +25,7 @@ def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
     out = []
     for name in names:
         if name not in NAMES:
-            raise ConfigError("--metric", f"unknown metric (known: {', '.join(sorted(NAMES))})", name)
+            raise ConfigError("metric", f"unknown metric (known: {', '.join(sorted(NAMES))})", name)
         name = DENSE.get(name, name) if dense else name
         if name not in out:
             out.append(name)
@@ -53,9 +53,9 @@ def resolve_backend(scenario: Scenario, backend: str) -> str:
     if backend == "auto":
         return "bullet" if any(b.moving for b in scenario.bodies) else "analytic"
     if backend not in BACKENDS:
-        raise ConfigError("--backend", f"unknown backend (known: auto, {', '.join(BACKENDS)})", backend)
+        raise ConfigError("backend", f"unknown backend (known: auto, {', '.join(BACKENDS)})", backend)
     if backend == "mesh" and not scenario.is_world:
-        raise ConfigError("--backend", "the mesh backend works on imported worlds ([[bodies]]); generated "
+        raise ConfigError("backend", "the mesh backend works on imported worlds ([[bodies]]); generated "
                           "obstacles are discs/balls: use analytic or bullet", backend)
     return backend
 

@@ -30,7 +30,7 @@ def survival_times_mesh(rollout, points, *, mav_radius: float = 1.0, t_max: floa
     ``analytic``); HorizonError past the rollout's horizon."""
     bodies = getattr(rollout, "bodies", None)
     if bodies is None:
-        raise ConfigError("--backend", "the mesh backend works on imported worlds ([[bodies]]); generated "
+        raise ConfigError("backend", "the mesh backend works on imported worlds ([[bodies]]); generated "
                           "obstacles are discs/balls: use analytic or bullet", "mesh")
     mav_radius = check_positive("mav_radius", mav_radius)
     k0, n_steps = step_window(rollout, start_time, t_max)

@@ -22,7 +22,7 @@ def parameters(name: str) -> tuple[str, ...]:
     """The keyword parameters metric ``name`` accepts; ConfigError for an unknown name."""
     fn = METRICS.get(name)
     if fn is None:
-        raise ConfigError("--metric", f"unknown metric (known: {', '.join(sorted(METRICS))})", name)
+        raise ConfigError("metric", f"unknown metric (known: {', '.join(sorted(METRICS))})", name)
     return tuple(p.name for p in inspect.signature(fn).parameters.values()
                  if p.kind is inspect.Parameter.KEYWORD_ONLY and p.name not in _INTERNAL)
 
@@ -30,11 +30,11 @@ def parameters(name: str) -> tuple[str, ...]:
 def compute(rollout, name: str, **params) -> MetricResult:
     """Metric ``name`` of a rollout with the given keyword parameters (every other one at its default).
 
-    ConfigError naming "--metric" for an unknown metric or parameter; the metric's own ConfigError / HorizonError
-    for bad values (e.g. "--backend" for an unknown survivability backend).
+    ConfigError naming "metric" for an unknown metric or parameter; the metric's own ConfigError / HorizonError
+    for bad values (e.g. "backend" for an unknown survivability backend).
     """
     allowed = parameters(name)
     for key in params:
         if key not in allowed:
-            raise ConfigError("--metric", f"{name} has no parameter {key!r} (allowed: {', '.join(allowed)})", key)
+            raise ConfigError("metric", f"{name} has no parameter {key!r} (allowed: {', '.join(allowed)})", key)
     return METRICS[name](rollout, **params)

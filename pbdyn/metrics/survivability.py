@@ -176,13 +176,13 @@ def _kernel(backend: str, mode: str):
     """The per-sample survival function of ``backend``: analytic survival_times or the bullet backend's
     survival_times_bullet (imported lazily; "sampled" mode only)."""
     if backend not in BACKENDS:
-        raise ConfigError("--backend", f"unknown backend (known: {', '.join(BACKENDS)})", backend)
+        raise ConfigError("backend", f"unknown backend (known: {', '.join(BACKENDS)})", backend)
     if mode not in MODES:
         raise ConfigError("mode", f"must be one of {', '.join(MODES)}", mode)
     if backend == "analytic":
         return lambda ro, pts, **kw: survival_times(ro, pts, mode=mode, **kw)
     if mode != "sampled":
-        raise ConfigError("--backend", f'the {backend} backend supports mode "sampled" only (got mode "{mode}")',
+        raise ConfigError("backend", f'the {backend} backend supports mode "sampled" only (got mode "{mode}")',
                           backend)
     if backend == "mesh":
         from pbdyn.metrics import mesh_backend

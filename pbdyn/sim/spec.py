@@ -91,21 +91,21 @@ def make_trial_spec(scenario: Scenario, map_spec: MapSpec, *, planner: str | Non
     if gaze is not None and entry.gaze != gaze:
         entry = PlannerEntry(entry.trajectory, gaze, entry.trajectory_params, {}, "")
     idx = next((i for i, e in enumerate(entries) if e == entry), None)
-    resolve_trajectory_planner(entry.trajectory, "--planner" if planner is not None or idx is None
+    resolve_trajectory_planner(entry.trajectory, "planner" if planner is not None or idx is None
                                else f"planners[{idx}].trajectory")
-    resolve_gaze_planner(entry.gaze, "--gaze" if gaze is not None or idx is None else f"planners[{idx}].gaze")
+    resolve_gaze_planner(entry.gaze, "gaze" if gaze is not None or idx is None else f"planners[{idx}].gaze")
     if v_max is None:
         v = scenario.drone.v_max[0]
     else:
         if not isinstance(v_max, (int, float)) or not math.isfinite(v_max) or v_max <= 0:
-            raise ConfigError("--vmax", "must be a positive number", v_max)
+            raise ConfigError("v_max", "must be a positive number", v_max)
         v = float(v_max)
     dims = scenario.world.dims
     cands = scenario.task.candidates
-    s = _parse_point(start, "--start", dims) if isinstance(start, str) else (tuple(start) if start else cands[0])
-    g = _parse_point(goal, "--goal", dims) if isinstance(goal, str) else (tuple(goal) if goal else cands[-1])
+    s = _parse_point(start, "start", dims) if isinstance(start, str) else (tuple(start) if start else cands[0])
+    g = _parse_point(goal, "goal", dims) if isinstance(goal, str) else (tuple(goal) if goal else cands[-1])
     r = scenario.drone.radius
-    for name, pt in (("--start", s), ("--goal", g)):
+    for name, pt in (("start", s), ("goal", g)):
         for k, x in enumerate(pt):
             if not r <= x <= scenario.world.size[k] - r:
                 raise ConfigError(name, f"must lie inside the arena with the MAV's radius ({r:g} m) to spare",

@@ -69,7 +69,7 @@ def get_map(scenario: Scenario, index: int) -> MapSpec:
     """The map with enumeration index ``index``; ConfigError if out of range."""
     maps = enumerate_maps(scenario)
     if not isinstance(index, int) or not 0 <= index < len(maps):
-        raise ConfigError("--map", f"must be an index in [0, {len(maps) - 1}]", index)
+        raise ConfigError("map", f"must be an index in [0, {len(maps) - 1}]", index)
     return maps[index]
 
 

@@ -1,0 +1,281 @@
+"""The public Python API: the one door to pbdyn for notebooks, scripts, the CLI and the tools (README "Python API").
+
+    import pbdyn
+    result = pbdyn.run_trial("quickstart", planner="local_primitives", gaze="lookahead")
+    metrics = pbdyn.compute_metrics("quickstart", map=0)
+    with pbdyn.open_results("results/quickstart.sqlite") as results:
+        trials = results.trials()
+
+Scenarios are given as a path, a bundled scenario's name ("quickstart", "datasets/controlled_2d"), a dict shaped
+like the TOML file, or a loaded Scenario. Bad values raise pbdyn.ConfigError naming the parameter and the value.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import inspect
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import replace
+from pathlib import Path
+
+from typing import TYPE_CHECKING
+
+from pbdyn.config import PlannerEntry, Scenario, parse_scenario
+from pbdyn.config import load_scenario as _load_file
+from pbdyn.errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover - the heavy modules load on first use
+    from pbdyn.sim.checker import PlannerCheck
+    from pbdyn.sim.result import TrialResult
+    from pbdyn.world.rollout import Rollout
+
+__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "open_results",
+           "Results", "export_results", "evaluate", "check_planner", "run_demo"]
+
+
+def load_scenario(scenario) -> Scenario:
+    """A validated Scenario from a path, a bundled scenario's name, a dict shaped like the TOML file, or a
+    Scenario (returned as it is). Omitted fields take the README's defaults."""
+    if isinstance(scenario, Scenario):
+        return scenario
+    if isinstance(scenario, Mapping):
+        return parse_scenario(scenario)
+    if isinstance(scenario, (str, Path)):
+        return _load_file(scenario)
+    raise ConfigError("scenario", "must be a path, a bundled scenario name, a dict or a Scenario", scenario)
+
+
+def _map(sc: Scenario, index):
+    from pbdyn.world.maps import get_map
+
+    if not isinstance(index, int) or isinstance(index, bool):
+        raise ConfigError("map", "must be a map index (an integer)", index)
+    return get_map(sc, index)
+
+
+def map_info(scenario, map: int = 0) -> dict:
+    """The map's identity: map_index, map_id, setup (the grid values), replicate and seed."""
+    ms = _map(load_scenario(scenario), map)
+    return {"map_index": ms.index, "map_id": ms.map_id, "setup": ms.setup, "replicate": ms.replicate,
+            "seed": ms.seed}
+
+
+def rollout(scenario, map: int = 0, *, horizon: float | None = None) -> Rollout:
+    """The map's rollout: every obstacle's position and velocity at every step (cached on disk). ``horizon``
+    (s): the time to cover (default: the trial time limit plus one step; given: computed afresh, not cached)."""
+    from pbdyn.world.rollout import build_rollout, get_rollout
+
+    sc = load_scenario(scenario)
+    ms = _map(sc, map)
+    if horizon is None:
+        return get_rollout(sc, ms)
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, float)) or not math.isfinite(horizon) \
+            or horizon <= 0:
+        raise ConfigError("horizon", "must be a positive number of seconds", horizon)
+    return build_rollout(sc, ms, float(horizon))
+
+
+def _planner_name(obj, kind: str) -> str | None:
+    """None for None, the string itself, or "module:QualName" for a class or instance with the needed methods."""
+    if obj is None or isinstance(obj, str):
+        return obj
+    methods = ("replan_check", "plan") if kind == "planner" else ("yaw_rate",)
+    missing = [m for m in methods if not callable(getattr(obj, m, None))]
+    if missing:
+        what = "trajectory" if kind == "planner" else "gaze"
+        raise ConfigError(kind, f"is not a {what} planner: missing method(s) {', '.join(missing)}",
+                          obj if inspect.isclass(obj) else type(obj))
+    from pbdyn.sim.checker import plugin_name
+
+    return plugin_name(obj)
+
+
+def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, start=None, goal=None,
+              v_max: float | None = None, trace: str | Path | None = None, gui: bool = False,
+              observers: list | None = None) -> TrialResult:
+    """Fly one trial and return its TrialResult (``result.outcome``, ``result.to_dict()``).
+
+    planner: a trajectory planner — a registry name ("local_primitives", "global_primitives", "mpc",
+        "straight_line"), a scenario entry's label, "package.module:Class", a class or an instance (default: the
+        scenario's first [[planners]] entry). gaze: a gaze planner, likewise (default: the entry's).
+    map: the map index; start, goal: (x, y[, z]) in m (default: the first and the last candidate); v_max: the MAV's
+    speed limit (m/s; default: the first drone.v_max); trace: write per-step arrays to this .npz file; gui: show
+    the PyBullet GUI in real time; observers: extra step observers (pbdyn.sim.observers.Observer).
+    """
+    from pbdyn.sim.spec import make_trial_spec
+    from pbdyn.sim.trial import run_trial as fly
+
+    sc = load_scenario(scenario)
+    ms = _map(sc, map)
+    tname, gname = _planner_name(planner, "planner"), _planner_name(gaze, "gaze")
+    tobj = None if planner is None or isinstance(planner, str) else planner
+    gobj = None if gaze is None or isinstance(gaze, str) else gaze
+    if trace is not None and not str(trace).endswith(".npz"):
+        raise ConfigError("trace", "must name an .npz file", str(trace))
+    if trace is not None and not Path(trace).resolve().parent.is_dir():
+        raise ConfigError("trace", "folder does not exist", str(Path(trace).parent))
+    spec = make_trial_spec(sc, ms, planner=None if tobj is not None else tname,
+                           gaze=None if gobj is not None else gname, v_max=v_max,
+                           start=_point(start, "start"), goal=_point(goal, "goal"))
+    if tobj is not None or gobj is not None:
+        e = spec.planner
+        spec = replace(spec, planner=PlannerEntry(tname if tobj is not None else e.trajectory,
+                                                  gname if gobj is not None else e.gaze,
+                                                  {} if tobj is not None else e.trajectory_params,
+                                                  {} if gobj is not None else e.gaze_params))
+    from pbdyn.world.rollout import get_rollout
+
+    return fly(spec, get_rollout(sc, ms), gui=gui, trace_path=trace, gui_sleep=sc.world.dt if gui else 0.0,
+               trajectory_planner=tobj, gaze_planner=gobj, observers=observers)
+
+
+def _point(value, name: str):
+    if value is None or isinstance(value, str):
+        return value
+    try:
+        return tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise ConfigError(name, "must be a sequence of numbers like (4, 25)", value) from None
+
+
+def compute_metrics(scenario, map: int = 0, *, metrics=None, dense: bool = False, backend: str = "auto") -> dict:
+    """The difficulty metrics of one map (thesis chapter 3): {name: {"value", "stderr", "n_samples",
+    "n_excluded", "wall_time_s", "cached"}}. metrics: names (default: every sparse metric); dense: use the dense
+    sample grids; backend: survivability backend "analytic", "bullet", "mesh" or "auto" (bullet for imported
+    worlds with moving bodies, else analytic)."""
+    from pbdyn.metrics.cached import map_metrics, metric_names, resolve_backend
+
+    sc = load_scenario(scenario)
+    if isinstance(metrics, str):
+        metrics = [metrics]
+    names = metric_names(metrics, dense)
+    chosen = resolve_backend(sc, backend)
+    return map_metrics(sc, _map(sc, map), names, backend=chosen)
+
+
+def metric_backend(scenario, backend: str = "auto") -> str:
+    """The survivability backend compute_metrics uses for ``backend`` on this scenario ("auto": bullet for imported
+    worlds with moving bodies, else analytic)."""
+    from pbdyn.metrics.cached import resolve_backend
+
+    return resolve_backend(load_scenario(scenario), backend)
+
+
+def run_batch(scenario, out: str | Path, *, workers: int | None = None, scheduler=None, limit: int | None = None,
+              extend: bool = False, metrics: bool = True, rerun_changed: bool = False, retry_errors: bool = False,
+              progress: bool = True, command: str = ""):
+    """Run (or resume) every trial and map metric of ``scenario`` into the results store ``out`` (SQLite) and
+    return a BatchSummary (total, skipped, ran, errors, stored_errors, rerun, maps_computed, wall_time_s).
+
+    workers: local processes (default: CPU count); scheduler: a Dask scheduler address or Client; limit: only the
+    first N trials; extend: accept added grid values, planners, MAV speeds or maps; metrics: compute each map's
+    metrics; rerun_changed: re-fly rows whose planner code changed; retry_errors: re-fly stored error rows.
+    Planners must be given by name in the scenario (workers import them)."""
+    from pbdyn.experiments.runner import BatchOptions
+    from pbdyn.experiments.runner import run_batch as batch
+
+    sc = load_scenario(scenario)
+    opts = BatchOptions(workers=workers, scheduler=scheduler, limit=limit, extend=extend, metrics=metrics,
+                        progress=progress, rerun_changed=rerun_changed, retry_errors=retry_errors)
+    return batch(sc, out, opts, command=command)
+
+
+class Results:
+    """A read-only results store: ``trials()`` (one row per trial, map metrics joined as metric_<name>, start and
+    goal as start_x/start_y[/start_z] and goal_x/...), ``maps()`` (one row per map), ``scenario`` (the resolved
+    scenario the store was made with, a dict) and ``count``."""
+
+    def __init__(self, store):
+        self._store = store
+
+    def trials(self):
+        """Every trial as a pandas DataFrame, Table 2-2 columns first."""
+        from pbdyn.experiments.export import trials_frame
+
+        return trials_frame(self._store)
+
+    def maps(self):
+        """Every map with its setup, seed and metrics as a pandas DataFrame (index: map_id)."""
+        import pandas as pd
+
+        rows = []
+        for map_id, m in self._store.maps().items():
+            row = {"map_id": map_id, "map_index": m["map_index"], "seed": m["seed"], "dataset": m["dataset"],
+                   "mean_obstacle_speed": m["mean_obstacle_speed"], "mean_obstacle_radius": m["mean_obstacle_radius"],
+                   "backend": m["backend"]}
+            row.update({f"setup_{k}": v for k, v in m["setup"].items()})
+            row.update({f"metric_{k}": v for k, v in m["metrics"].items()})
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("map_id") if rows else pd.DataFrame()
+
+    @property
+    def scenario(self) -> dict:
+        """The resolved scenario stored with the results."""
+        import json
+
+        text = self._store.get_meta("scenario")
+        return json.loads(text) if text else {}
+
+    @property
+    def count(self) -> int:
+        """Number of stored trials."""
+        return self._store.count()
+
+
+@contextlib.contextmanager
+def open_results(path: str | Path) -> Iterator[Results]:
+    """Open a results store read-only for the ``with`` block: ``with open_results(p) as r: df = r.trials()``."""
+    from pbdyn.experiments.store import ResultsStore
+
+    store = ResultsStore.open(path)
+    try:
+        yield Results(store)
+    finally:
+        store.close()
+
+
+def check_planner(planner, scenario="quickstart", *, maps=3, pairs: int = 4, gaze: str | None = None,
+                  v_max: float | None = None) -> PlannerCheck:
+    """Fly ``planner`` (a name, "package.module:Class", a class or an instance) on a few maps of ``scenario`` and
+    report every plan that broke the plan contract (``report.ok``, ``print(report)``): the analogue of Gymnasium's
+    check_env for trajectory planners. maps: the first N maps or a list of indices; pairs: start/goal pairs per
+    map; gaze: the gaze planner (default: the scenario's first entry's); v_max: the MAV speed (m/s)."""
+    from pbdyn.sim.checker import check_planner as check
+
+    if not isinstance(planner, str):
+        _planner_name(planner, "planner")
+    return check(planner, load_scenario(scenario), maps=maps, pairs=pairs, gaze=gaze, v_max=v_max)
+
+
+def export_results(results: str | Path, path: str | Path, *, format: str | None = None) -> int:
+    """Write a store's trials (the table of Results.trials()) to ``path`` as CSV or Parquet (format "csv" or
+    "parquet"; default: from the suffix); written atomically with the user's umask. Returns the row count."""
+    from pbdyn.experiments.export import export_csv, export_parquet
+    from pbdyn.experiments.store import ResultsStore
+
+    fmt = format or Path(path).suffix.lstrip(".").lower()
+    if fmt not in ("csv", "parquet"):
+        raise ConfigError("format", 'must be "csv" or "parquet" (or a path ending in .csv / .parquet)', format or str(path))
+    store = ResultsStore.open(results)
+    try:
+        return export_csv(store, path) if fmt == "csv" else export_parquet(store, path)
+    finally:
+        store.close()
+
+
+def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000):
+    """How well each metric ranks maps like the planners' success (thesis table 4-5) for one or more stores (the
+    first is the reference set): (report dict, text table, written figure paths)."""
+    from pbdyn.experiments.evaluate import evaluate_stores
+
+    paths = [results] if isinstance(results, (str, Path)) else list(results)
+    return evaluate_stores([str(p) for p in paths], plots=plots, n_boot=n_boot)
+
+
+def run_demo(scenario, *, n_maps: int = 4, n_pairs: int = 3, json_out: bool = False) -> list[dict]:
+    """Fly every planner pair of ``scenario`` over a few maps and start/goal pairs; prints a table (stdout, or
+    stderr with json_out) and returns the rows."""
+    from pbdyn.sim.demo import run_demo as demo
+
+    return demo(load_scenario(scenario), n_maps=n_maps, n_pairs=n_pairs, json_out=json_out)
