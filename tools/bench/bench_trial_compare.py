@@ -1,0 +1,106 @@
+"""Old vs new trial loop, measured interleaved in one run: median ms per simulated step of each configuration.
+
+Runs the same workload (bench_trial.py's planner pairs on a 10- and a 30-obstacle 2D map and a 10-obstacle 3D
+map, N start/goal pairs each) alternately with the code of a git revision (default 145e667, main before the
+steppable core) and with this checkout, each round in fresh processes, and prints per configuration the median over
+rounds of (trial wall time / steps) for both and the ratio old/new (> 1: the new code is faster).
+
+    .venv/bin/python tools/bench/bench_trial_compare.py [--ref REV] [--rounds R] [--pairs N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+
+WORKLOAD = r'''
+import json, os, sys, time
+sys.path.insert(0, sys.argv[1])
+import pbdyn
+assert pbdyn.__file__.startswith(sys.argv[1]), pbdyn.__file__
+from pbdyn.config import parse_scenario
+from pbdyn.sim.demo import demo_pairs
+from pbdyn.sim.trial import make_trial_spec, run_trial
+from pbdyn.world.maps import enumerate_maps
+from pbdyn.world.rollout import build_rollout
+pairs = int(sys.argv[2])
+PAIRS = (("straight_line", "lookahead"), ("local_primitives", "lookahead"), ("local_primitives", "fullrange"),
+         ("global_primitives", "lookahead"), ("mpc", "lookahead"))
+out = {}
+for dims, count in ((2, 10), (2, 30), (3, 10)):
+    sc = parse_scenario({"name": "cmp", "world": {"time_limit": 40.0, "dims": dims},
+                         "obstacles": {"count": count, "radius": 1.0, "speed": 4.0, "radius_jitter": 0.2,
+                                       "root_seed": 11},
+                         "drone": {"v_max": 4.0}, "sensor": {"fov_deg": 90.0},
+                         "planners": [{"trajectory": t, "gaze": g} for t, g in PAIRS]})
+    m = enumerate_maps(sc)[0]
+    ro = build_rollout(sc, m)
+    cands = sc.task.candidates
+    for e in sc.planners:
+        wall = steps = 0
+        for i, j in demo_pairs(sc, pairs):
+            spec = make_trial_spec(sc, m, planner=e.label, start=cands[i], goal=cands[j])
+            t0 = time.perf_counter()
+            res = run_trial(spec, ro)
+            wall += time.perf_counter() - t0
+            steps += res.steps
+        out[f"{e.label} {dims}D n={count}"] = (wall, steps)
+print(json.dumps(out))
+'''
+
+
+def run(tree: Path, pairs: int) -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")
+    env["PBDYN_CACHE"] = env.get("PBDYN_CACHE") or tempfile.mkdtemp(prefix="pbdyn-bench-cache-")
+    text = subprocess.run([sys.executable, "-c", WORKLOAD, str(tree), str(pairs)], capture_output=True, text=True,
+                          check=True, cwd=tempfile.gettempdir(), env=env).stdout
+    return json.loads(text.strip().splitlines()[-1])
+
+
+def main() -> int:
+    sys.path.insert(0, str(HERE))
+    from bench_common import machine
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ref", default="145e667", help="git revision of the old code (default 145e667)")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--pairs", type=int, default=4)
+    args = ap.parse_args()
+    print(machine())
+    with tempfile.TemporaryDirectory(prefix="pbdyn-old-") as tmp:
+        old_tree = Path(tmp) / "old"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(old_tree), args.ref],
+                       check=True)
+        try:
+            per = {"old": [], "new": []}
+            for r in range(args.rounds):
+                order = ("old", "new") if r % 2 == 0 else ("new", "old")
+                for which in order:
+                    per[which].append(run(old_tree if which == "old" else ROOT, args.pairs))
+                print(f"round {r + 1}/{args.rounds} done", file=sys.stderr)
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old_tree)], check=False)
+    print(f"{'configuration':<36} {'old ms/step':>11} {'new ms/step':>11} {'old/new':>8}   (median of {args.rounds} "
+          f"interleaved rounds, {args.pairs} start/goal pairs each)")
+    ratios = []
+    for key in per["old"][0]:
+        old = np.median([1000 * d[key][0] / d[key][1] for d in per["old"]])
+        new = np.median([1000 * d[key][0] / d[key][1] for d in per["new"]])
+        ratios.append(old / new)
+        print(f"{key:<36} {old:11.4f} {new:11.4f} {old / new:8.3f}")
+    print(f"{'median ratio old/new':<36} {'':>11} {'':>11} {np.median(ratios):8.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
