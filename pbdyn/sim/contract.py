@@ -121,7 +121,44 @@ def plan_violations(traj, *, t: float, dt: float, position: np.ndarray, velocity
     return found
 
 
-def check_plan(traj, **kwargs) -> PlanViolation | None:
-    """The first violation of the plan contract (see plan_violations for the arguments), or None."""
-    found = plan_violations(traj, first_only=True, **kwargs)
+def _clearly_valid(traj, t, dt, position, velocity, v_max, a_max, physical) -> bool:
+    """A fast screen of the common case: True only if every check passes with a margin (squared norms against
+    slightly shrunk bounds, so rounding can never pass what plan_violations would refuse); False sends the plan
+    to plan_violations, which decides."""
+    from pbdyn.planning.trajectory import Trajectory
+
+    if type(traj) is not Trajectory:
+        return False
+    p, v, a = traj.p, traj.v, traj.a
+    if p.shape[1] != position.shape[0] or p.shape[0] < 2:
+        return False
+    if not (abs(traj.t0 - t) <= TIME_TOL * max(1.0, abs(t)) and abs(traj.dt - dt) <= TIME_TOL * max(1.0, dt)):
+        return False
+    dp, dv = p[0] - position, v[0] - velocity
+    shrink = 1.0 - 1e-12
+    if not (dp @ dp <= START_TOL * START_TOL * shrink and dv @ dv <= START_TOL * START_TOL * shrink):
+        return False
+    if not physical:
+        return bool(np.isfinite(p.sum() + v.sum() + a.sum()))
+    step = traj.dt
+    vs = v[1:] - v[:-1]
+    gap = p[1:] - p[:-1] - 0.5 * (v[:-1] + v[1:]) * step
+    vmax2 = (v_max * (1.0 + REL_TOL)) ** 2 * shrink
+    amax2 = (a_max * (1.0 + REL_TOL)) ** 2 * shrink
+    dvmax2 = (a_max * step * (1.0 + REL_TOL)) ** 2 * shrink
+    gapmax2 = (a_max * step * step / 4.0 * (1.0 + REL_TOL)) ** 2 * shrink
+    return bool(np.einsum("ij,ij->i", v, v).max() <= vmax2 and np.einsum("ij,ij->i", a, a).max() <= amax2
+                and np.einsum("ij,ij->i", vs, vs).max() <= dvmax2
+                and np.einsum("ij,ij->i", gap, gap).max() <= gapmax2)
+
+
+def check_plan(traj, *, t: float, dt: float, position: np.ndarray, velocity: np.ndarray, v_max: float,
+               a_max: float, physical: bool = True) -> PlanViolation | None:
+    """The first violation of the plan contract (arguments as plan_violations), or None."""
+    position = np.asarray(position, dtype=float)
+    velocity = np.asarray(velocity, dtype=float)
+    if _clearly_valid(traj, t, dt, position, velocity, v_max, a_max, physical):
+        return None
+    found = plan_violations(traj, t=t, dt=dt, position=position, velocity=velocity, v_max=v_max, a_max=a_max,
+                            physical=physical, first_only=True)
     return found[0] if found else None
