@@ -3,7 +3,9 @@
 Runs the same workload (bench_trial.py's planner pairs on a 10- and a 30-obstacle 2D map and a 10-obstacle 3D
 map, N start/goal pairs each) alternately with the code of a git revision (default 145e667, main before the
 steppable core) and with this checkout, each round in fresh processes, and prints per configuration the median over
-rounds of (trial wall time / steps) for both and the ratio old/new (> 1: the new code is faster).
+rounds of the loop time per step (the steps' wall-time splits, what bench_trial.py reports) and of the whole
+trial's wall time per step (including building the trial's PyBullet world), old and new, and the ratios old/new
+(> 1: the new code is faster).
 
     .venv/bin/python tools/bench/bench_trial_compare.py [--ref REV] [--rounds R] [--pairs N]
 """
@@ -47,14 +49,15 @@ for dims, count in ((2, 10), (2, 30), (3, 10)):
     ro = build_rollout(sc, m)
     cands = sc.task.candidates
     for e in sc.planners:
-        wall = steps = 0
+        wall = steps = loop = 0.0
         for i, j in demo_pairs(sc, pairs):
             spec = make_trial_spec(sc, m, planner=e.label, start=cands[i], goal=cands[j])
             t0 = time.perf_counter()
             res = run_trial(spec, ro)
             wall += time.perf_counter() - t0
             steps += res.steps
-        out[f"{e.label} {dims}D n={count}"] = (wall, steps)
+            loop += res.wall_timings["wall_step_mean_s"] * res.steps
+        out[f"{e.label} {dims}D n={count}"] = (wall, steps, loop, pairs)
 print(json.dumps(out))
 '''
 
@@ -90,15 +93,17 @@ def main() -> int:
                 print(f"round {r + 1}/{args.rounds} done", file=sys.stderr)
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old_tree)], check=False)
-    print(f"{'configuration':<36} {'old ms/step':>11} {'new ms/step':>11} {'old/new':>8}   (median of {args.rounds} "
-          f"interleaved rounds, {args.pairs} start/goal pairs each)")
-    ratios = []
+    print(f"{'configuration':<36} {'loop ms/step old':>16} {'new':>7} {'old/new':>7}   {'trial ms/step old':>17} "
+          f"{'new':>7} {'old/new':>7}   (median of {args.rounds} interleaved rounds, {args.pairs} pairs each)")
+    loops, totals = [], []
     for key in per["old"][0]:
-        old = np.median([1000 * d[key][0] / d[key][1] for d in per["old"]])
-        new = np.median([1000 * d[key][0] / d[key][1] for d in per["new"]])
-        ratios.append(old / new)
-        print(f"{key:<36} {old:11.4f} {new:11.4f} {old / new:8.3f}")
-    print(f"{'median ratio old/new':<36} {'':>11} {'':>11} {np.median(ratios):8.3f}")
+        lo, ln = (np.median([1000 * d[key][2] / d[key][1] for d in per[w]]) for w in ("old", "new"))
+        to, tn = (np.median([1000 * d[key][0] / d[key][1] for d in per[w]]) for w in ("old", "new"))
+        loops.append(lo / ln)
+        totals.append(to / tn)
+        print(f"{key:<36} {lo:16.4f} {ln:7.4f} {lo / ln:7.3f}   {to:17.4f} {tn:7.4f} {to / tn:7.3f}")
+    print(f"{'median ratio old/new':<36} {'':>16} {'':>7} {np.median(loops):7.3f}   {'':>17} {'':>7} "
+          f"{np.median(totals):7.3f}")
     return 0
 
 
