@@ -122,3 +122,24 @@ def test_trace_contents(tmp_path):
         assert np.allclose(z["p"][0], [4.0, 4.0])
         assert np.isfinite(z["plan"][0]).any()
         assert z["seen"].any() == (res.obstacles_tracked > 0)
+
+
+def test_the_config_hash_is_computed_once_per_trial(monkeypatch):
+    """The spec is resolved once: run_trial hashes the resolved trial spec a single time (imported worlds pay ~7 ms
+    per hash for their bodies' fingerprints)."""
+    from pbdyn.sim.spec import TrialSpec
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+    from pbdyn.world.rollout import get_rollout
+    from tests.conftest import SCENARIOS
+
+    from pbdyn.config import load_scenario
+    from pbdyn.world.maps import get_map
+
+    calls = []
+    original = TrialSpec.resolved
+    monkeypatch.setattr(TrialSpec, "resolved", lambda self: calls.append(1) or original(self))
+    sc = load_scenario(SCENARIOS / "worlds" / "warehouse_2d.toml")
+    ms = get_map(sc, 0)
+    spec = make_trial_spec(sc, ms)
+    res = run_trial(spec, get_rollout(sc, ms))
+    assert res.config_hash == spec.config_hash and len(calls) == 1
