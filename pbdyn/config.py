@@ -823,9 +823,14 @@ def _check_static_candidates(static: tuple[StaticObstacleConfig, ...], task: Tas
 def _check_urdfs(scenario: "Scenario") -> None:
     """Every URDF the scenario names passes pbdyn.urdf.check_urdf (drone.urdf, bodies[i].urdf), at its scale."""
     r = scenario.drone.radius
-    check_urdf(scenario.mav_urdf_path(), "drone.urdf", (r, r, r))
-    for i, body in enumerate(scenario.bodies):
-        check_urdf(scenario.resolve_path(body.urdf), f"bodies[{i}].urdf", body.scale)
+    named = [("drone.urdf", scenario.drone.urdf, (r, r, r))]
+    named += [(f"bodies[{i}].urdf", b.urdf, b.scale) for i, b in enumerate(scenario.bodies)]
+    for field_name, name, scale in named:
+        path = scenario.resolve_path(name)
+        if not path.is_file():
+            raise ConfigError(field_name, "file not found" + ("" if Path(name).is_absolute() else
+                              " (relative paths: the scenario's folder, then the bundled urdf/)"), name)
+        check_urdf(path, field_name, scale)
 
 
 def _check_rollout_size(world: WorldConfig, obstacles: ObstacleConfig, bodies: tuple) -> None:

@@ -7,7 +7,10 @@ import unicodedata
 
 
 class PbdynError(Exception):
-    """Base class of every error pbdyn reports as a one-line message."""
+    """Base class of every error pbdyn reports as a one-line message (str() escapes control characters)."""
+
+    def __str__(self) -> str:
+        return one_line_text(super().__str__())
 
 
 class ConfigError(PbdynError, ValueError):

@@ -5,21 +5,19 @@ of 2**63, a step of a microsecond, an arena of a million metres at a 1 m grid, t
 file is refused when it is loaded, before anything is allocated, with a ConfigError naming the field, its value
 and the limit. The limits are generous: every bundled scenario and dataset uses a small fraction of each.
 
-| constant                 | value            | what it bounds                                                          |
-|--------------------------|------------------|-------------------------------------------------------------------------|
-| MAX_MAPS_PER_SETUP       | 100 000          | obstacles.maps_per_setup                                                |
-| MAX_SETUPS               | 100 000          | setups = product of the grid fields' lengths (count x radius x speed)   |
-| MAX_OBSTACLES            | 2 000            | every obstacles.count value; [[bodies]] and [[static_obstacles]] entries |
-| MAX_STEPS                | 1 000 000        | steps of a rollout: (max(time_limit, 44 s) + dt) / dt                    |
-| MAX_ROLLOUT_BYTES        | 2 GiB            | a rollout's arrays: steps x obstacles x d x 8 bytes x 2 (positions and   |
-|                          |                  | velocities; an imported world adds steps x bodies x 7 x 8 bytes)         |
-| MAX_GRID_CELLS           | 100 000 000      | occupancy-grid cells: prod(world.size / world.grid_resolution)           |
-| MAX_SENSOR_RAYS          | 100 000          | rays of one scan at 360 deg (a gaze planner may widen the fov to 360)    |
-| MAX_RVO_CANDIDATES       | 100 000          | obstacles.rvo n_headings x n_speeds                                      |
-| MAX_RVO_CONTACT_ITERATIONS | 1 000          | obstacles.rvo.contact_iterations                                         |
-| MAX_NESTING              | 32               | levels of tables / arrays in a scenario document                         |
-| MAX_METRIC_SAMPLES       | 10 000 000       | sample points or cells of a metric's grid over the arena (checked when   |
-|                          |                  | the metric runs: its spacing / cell is a metric parameter)               |
+- MAX_MAPS_PER_SETUP = 100 000: obstacles.maps_per_setup.
+- MAX_SETUPS = 100 000: setups, the product of the grid fields' lengths (count x radius x speed).
+- MAX_OBSTACLES = 2 000: every obstacles.count value; the number of [[bodies]] and of [[static_obstacles]].
+- MAX_STEPS = 1 000 000: steps of a rollout, (max(world.time_limit, METRICS_HORIZON_S) + dt) / dt.
+- MAX_ROLLOUT_BYTES = 2 GiB: a rollout's arrays, steps x obstacles x d x 8 bytes x 2 (positions, velocities);
+  an imported world adds steps x bodies x 7 x 8 bytes (poses).
+- MAX_GRID_CELLS = 100 000 000: occupancy-grid cells, prod(world.size / world.grid_resolution + 2).
+- MAX_SENSOR_RAYS = 100 000: rays of one scan at 360 deg (a gaze planner may widen the fov to 360 deg).
+- MAX_RVO_CANDIDATES = 100 000: obstacles.rvo n_headings x n_speeds.
+- MAX_RVO_CONTACT_ITERATIONS = 1 000: obstacles.rvo.contact_iterations.
+- MAX_NESTING = 32: levels of tables and arrays in a scenario document.
+- MAX_METRIC_SAMPLES = 10 000 000: points or cells of a metric's sample grid over the arena (checked when the metric
+  runs: its spacing / cell is a metric parameter, named in the error).
 
 The number of trials a batch would fly (setups x maps_per_setup x ordered start/goal pairs x v_max values x
 planner entries) is not limited: a batch is resumable and may be sharded; ``Scenario.n_trials()`` reports it.

@@ -71,7 +71,7 @@ def test_registry_parameters_and_defaults():
                 {"max_expansions": 0}, {"margin": -0.1}):
         with pytest.raises(ConfigError, match=r"^planners\[0\]\.params: invalid parameters for GlobalPrimitives"):
             registry.build_planner(GlobalPrimitives, ctx, bad, "planners[0].params")
-    with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.horizon_s: must be finite"):   # the registry's check
+    with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.horizon_s: must be finite"):   # the registry's
         registry.build_planner(GlobalPrimitives, ctx, {"horizon_s": float("nan")}, "planners[0].params")
     with pytest.raises(ValueError, match=r"^horizon_s must be a finite number > 0"):         # the planner's own
         GlobalPrimitives(ctx, horizon_s=float("nan"))

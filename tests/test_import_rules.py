@@ -4,9 +4,10 @@ RULES says which pbdyn sub-packages (or top-level modules) each one may import; 
 Every import in every pbdyn module is checked with ``ast`` - module level, inside functions (lazy imports),
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
-Layers, bottom to top: errors, limits (resource limits), urdf (URDF validation), resources, config | world | perception | planning | metrics (beside perception and
-planning: it sees rollouts only) | sim | analysis | experiments (evaluate feeds stored results to analysis) | api
-(the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py, which re-exports the api.
+Layers, bottom to top: errors, limits (resource limits), urdf (URDF validation), resources, config | world |
+perception | planning | metrics (beside perception and planning: it sees rollouts only) | sim | analysis |
+experiments (evaluate feeds stored results to analysis) | api (the one door) | cli, gym, __main__, and the package
+root pbdyn/__init__.py, which re-exports the api.
 """
 
 from __future__ import annotations

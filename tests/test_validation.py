@@ -253,7 +253,8 @@ def test_deeply_nested_toml_is_one_line_exit_2(write_scenario):
     with pytest.raises(ConfigError, match=r"^scenario: nested too deeply"):
         load_scenario(path)
     proc = _cli(["metrics", path])
-    assert proc.returncode == 2 and proc.stderr.startswith("pbdyn: error: SCENARIO: nested too deeply")  # CLI: the argument
+    # the CLI names its SCENARIO argument
+    assert proc.returncode == 2 and proc.stderr.startswith("pbdyn: error: SCENARIO: nested too deeply")
     assert "Traceback" not in proc.stderr
 
 

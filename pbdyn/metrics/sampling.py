@@ -23,7 +23,8 @@ def axis_samples(length: float, spacing: float, margin: float = 2.0, first: floa
 def grid_samples(size, spacing: float, margin: float = 2.0, first: float | None = None,
                  offset=None) -> np.ndarray:
     """All grid points [n, d] of axis_samples on every axis of an arena of extents ``size`` (rows in
-    itertools.product order: x slowest, the last axis fastest); ``offset`` [d] shifts the whole grid (jittered grids)."""
+    itertools.product order: x slowest, the last axis fastest); ``offset`` [d] shifts the whole grid (jittered
+    grids). ConfigError naming ``spacing`` above limits.MAX_METRIC_SAMPLES points."""
     axes = [axis_samples(float(L), spacing, margin, first) for L in size]
     limits.check_limit("spacing", "sample points (the arena's extents / spacing, per axis)",
                        float(np.prod([float(a.shape[0]) for a in axes])), limits.MAX_METRIC_SAMPLES, spacing)
