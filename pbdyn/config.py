@@ -17,8 +17,9 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
 
-from pbdyn import resources
-from pbdyn.errors import ConfigError
+from pbdyn import limits, resources
+from pbdyn.errors import ConfigError, check_finite_params
+from pbdyn.urdf import check_urdf
 
 
 MOTIONS = ("cvm", "rvo")
@@ -248,6 +249,10 @@ class SensorConfig:
 class TrackingConfig:
     """Kalman filter (thesis eq. 2-1..2-9): Q = q I, R = r I, P0 = diag(p0_pos, p0_vel), drop above drop_pos_var m^2."""
 
+    MIN_VARIANCE: ClassVar[float] = 1e-12
+    """Smallest positive q, r, p0_pos, p0_vel (0 is allowed for q or r, not both): below it a float64 covariance
+    underflows and the filter produces NaN."""
+
     q: float = 1e-5
     r: float = 0.0
     p0_pos: float = 0.01
@@ -340,6 +345,13 @@ class Scenario:
             out.append({k: _json_default(v) if isinstance(v, Range) else v for k, v in zip(grids, combo)})
         return out
 
+    def n_trials(self) -> int:
+        """Trials a batch of this scenario flies: maps (setups x maps_per_setup) x ordered start/goal pairs x v_max
+        values x planner entries (not limited; see pbdyn.limits)."""
+        n = len(self.task.candidates)
+        return (math.prod(len(getattr(self.obstacles, k)) for k in self.obstacles.grid_order)
+                * self.obstacles.maps_per_setup * n * (n - 1) * len(self.drone.v_max) * len(self.planners))
+
     def mav_urdf_path(self) -> Path:
         """Absolute path of the MAV URDF (relative paths: the scenario's folder, then the bundled urdf/)."""
         return self.resolve_path(self.drone.urdf)
@@ -393,6 +405,14 @@ def _parse_world(doc: Mapping) -> WorldConfig:
     if res > min(size) / 2:
         raise ConfigError("world.grid_resolution", "must be at most half the arena's smallest side", res)
     h = _number(t, "flight_height", "world", d["flight_height"], lo=0.0, lo_open=True)
+    steps = (max(time_limit, limits.METRICS_HORIZON_S) + dt) / dt
+    limits.check_limit("world.dt" if "dt" in t else "world.time_limit",
+                       f"rollout steps ((max(world.time_limit, {limits.METRICS_HORIZON_S:g} s) + dt) / dt)", steps,
+                       limits.MAX_STEPS, dt if "dt" in t else time_limit)
+    cells = math.prod(float(math.ceil(s / res - 1e-9) + 2) for s in size)
+    limits.check_limit("world.grid_resolution" if "grid_resolution" in t else "world.size",
+                       "occupancy-grid cells (world.size / world.grid_resolution)", cells, limits.MAX_GRID_CELLS,
+                       res if "grid_resolution" in t else list(size))
     return WorldConfig(dims, tuple(size), dt, time_limit, res, h)
 
 
@@ -443,7 +463,14 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
         if rmin - jitter <= 0:
             raise ConfigError("obstacles.radius_jitter", f"must be < the smallest radius ({rmin:g})", jitter)
     motion = _string(t, "motion", "obstacles", d["motion"], MOTIONS)
+    for i, n in enumerate(count):
+        limits.check_limit(f"obstacles.count[{i}]" if isinstance(t.get("count"), list) else "obstacles.count",
+                           "obstacles", n, limits.MAX_OBSTACLES, n)
     maps = _integer(t, "maps_per_setup", "obstacles", d["maps_per_setup"], lo=1)
+    limits.check_limit("obstacles.maps_per_setup", "maps per setup", maps, limits.MAX_MAPS_PER_SETUP, maps)
+    limits.check_limit("obstacles", "setups (the product of the lengths of count, radius and speed)",
+                       len(count) * len(radius) * len(speed), limits.MAX_SETUPS,
+                       {"count": len(count), "radius": len(radius), "speed": len(speed)})
     seed = _integer(t, "root_seed", "obstacles", d["root_seed"], lo=0)
     order = tuple(k for k in t if k in d["grid_order"])
     order += tuple(k for k in d["grid_order"] if k not in order)
@@ -461,6 +488,12 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
         n_speeds=_integer(rt, "n_speeds", "obstacles.rvo", rd["n_speeds"], lo=1),
         contact_iterations=_integer(rt, "contact_iterations", "obstacles.rvo", rd["contact_iterations"], lo=0),
     )
+    n_head = rvo.n_headings or max(RVOParams.N_HEADINGS_2D, RVOParams.N_HEADINGS_3D)
+    limits.check_limit("obstacles.rvo.n_headings" if "n_headings" in rt else "obstacles.rvo.n_speeds",
+                       "candidate velocities per obstacle (n_headings x n_speeds)", n_head * rvo.n_speeds,
+                       limits.MAX_RVO_CANDIDATES, rvo.n_headings if "n_headings" in rt else rvo.n_speeds)
+    limits.check_limit("obstacles.rvo.contact_iterations", "contact iterations", rvo.contact_iterations,
+                       limits.MAX_RVO_CONTACT_ITERATIONS, rvo.contact_iterations)
     return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo)
 
 
@@ -468,6 +501,7 @@ def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfi
     items = doc.get("static_obstacles", [])
     if not isinstance(items, list):
         raise ConfigError("static_obstacles", "must be an array of tables ([[static_obstacles]])", items)
+    limits.check_limit("static_obstacles", "static obstacles", len(items), limits.MAX_OBSTACLES, len(items))
     sd = _defaults(StaticObstacleConfig)
     out = []
     for i, t in enumerate(items):
@@ -549,6 +583,7 @@ def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
     items = doc.get("bodies", [])
     if not isinstance(items, list):
         raise ConfigError("bodies", "must be an array of tables ([[bodies]])", items)
+    limits.check_limit("bodies", "bodies", len(items), limits.MAX_OBSTACLES, len(items))
     bd = _defaults(BodyConfig)
     out = []
     names = set()
@@ -629,6 +664,9 @@ def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
             raise ConfigError("sensor.resolution_deg", f"must be <= sensor.vfov_deg ({vfov:g})", res)
     elif "vfov_deg" in t:
         raise ConfigError("sensor.vfov_deg", "is only used in 3D worlds (world.dims = 3)", t["vfov_deg"])
+    rays = (360.0 / res + 1) * ((vfov / res + 1) if vfov is not None else 1)
+    limits.check_limit("sensor.resolution_deg", "rays per scan (at 360 deg: a gaze planner may widen the fov)", rays,
+                       limits.MAX_SENSOR_RAYS, res)
     return SensorConfig(fov, rng, res, noise, vfov)
 
 
@@ -654,13 +692,22 @@ def _parse_tracking(doc: Mapping) -> TrackingConfig:
     t = _table(doc, "tracking")
     _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var"), "tracking")
     d = _defaults(TrackingConfig)
-    return TrackingConfig(
+    out = TrackingConfig(
         q=_number(t, "q", "tracking", d["q"], lo=0.0),
         r=_number(t, "r", "tracking", d["r"], lo=0.0),
-        p0_pos=_number(t, "p0_pos", "tracking", d["p0_pos"], lo=0.0, lo_open=True),
-        p0_vel=_number(t, "p0_vel", "tracking", d["p0_vel"], lo=0.0, lo_open=True),
+        p0_pos=_number(t, "p0_pos", "tracking", d["p0_pos"], lo=TrackingConfig.MIN_VARIANCE),
+        p0_vel=_number(t, "p0_vel", "tracking", d["p0_vel"], lo=TrackingConfig.MIN_VARIANCE),
         drop_pos_var=_number(t, "drop_pos_var", "tracking", d["drop_pos_var"], lo=0.0, lo_open=True),
     )
+    tiny = TrackingConfig.MIN_VARIANCE
+    for key in ("q", "r"):
+        v = getattr(out, key)
+        if 0.0 < v < tiny:
+            raise ConfigError(f"tracking.{key}", f"must be 0 or >= {tiny:g} (smaller variances underflow)", v)
+    if out.q == 0.0 and out.r == 0.0:
+        raise ConfigError("tracking.q", "must be > 0 when tracking.r = 0 (with no process and no measurement noise "
+                          "the Kalman innovation covariance becomes singular)", t.get("q", out.q))
+    return out
 
 
 def default_candidates(world: WorldConfig) -> tuple[tuple[float, ...], ...]:
@@ -712,6 +759,8 @@ def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:
         gaze = _string(t, "gaze", where, d["gaze"])
         tp = _table(t, "trajectory_params", where)
         gp = _table(t, "gaze_params", where)
+        check_finite_params(tp, f"{where}.trajectory_params")
+        check_finite_params(gp, f"{where}.gaze_params")
         name = _string(t, "name", where, d["name"])
         out.append(PlannerEntry(traj, gaze, dict(tp), dict(gp), name))
     labels = [p.label for p in out]
@@ -733,10 +782,72 @@ def _check_fit(obstacles: ObstacleConfig, world: WorldConfig) -> None:
                 raise ConfigError("obstacles.radius", "an obstacle must fit in the arena", rmax)
 
 
+def _check_nesting(doc: Any) -> None:
+    """ConfigError if tables / arrays nest deeper than limits.MAX_NESTING (iterative: never a RecursionError)."""
+    stack = [(doc, 0)]
+    while stack:
+        node, depth = stack.pop()
+        if depth > limits.MAX_NESTING:
+            raise ConfigError("scenario", f"nested too deeply (more than {limits.MAX_NESTING} levels of tables and "
+                              "arrays)", None, show_value=False)
+        if isinstance(node, Mapping):
+            stack.extend((v, depth + 1) for v in node.values())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((v, depth + 1) for v in node)
+
+
+def _static_distance(s: StaticObstacleConfig, point: tuple[float, ...]) -> float:
+    """Signed distance (m) from a point [d] to a static obstacle's surface (negative inside): a pillar is a vertical
+    cylinder (distance in x-y), a box a rectangle (2D) or cuboid (3D) turned by yaw_deg about z (the same geometry
+    as pbdyn.world.geometry.StaticBody.footprint_distance)."""
+    if s.kind == "pillar":
+        return math.hypot(point[0] - s.center[0], point[1] - s.center[1]) - s.radius
+    rel = [p - c for p, c in zip(point, s.center)]
+    yaw = math.radians(s.yaw_deg)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rel[0], rel[1] = cy * rel[0] + sy * rel[1], -sy * rel[0] + cy * rel[1]
+    q = [abs(x) - h / 2.0 for x, h in zip(rel, s.size)]
+    return math.sqrt(sum(max(x, 0.0) ** 2 for x in q)) + min(max(q), 0.0)
+
+
+def _check_static_candidates(static: tuple[StaticObstacleConfig, ...], task: TaskConfig, drone: DroneConfig) -> None:
+    """ConfigError if a start/goal candidate's MAV overlaps a static obstacle (no trial could start or end there;
+    imported worlds refuse the same, pbdyn.world.imported.check_candidates)."""
+    for i, s in enumerate(static):
+        for j, c in enumerate(task.candidates):
+            if _static_distance(s, c) < drone.radius:
+                raise ConfigError(f"static_obstacles[{i}]", f"the MAV at start/goal candidate task.candidates[{j}] "
+                                  f"{list(c)} would overlap it", {"kind": s.kind, "center": list(s.center)})
+
+
+def _check_urdfs(scenario: "Scenario") -> None:
+    """Every URDF the scenario names passes pbdyn.urdf.check_urdf (drone.urdf, bodies[i].urdf), at its scale."""
+    r = scenario.drone.radius
+    named = [("drone.urdf", scenario.drone.urdf, (r, r, r))]
+    named += [(f"bodies[{i}].urdf", b.urdf, b.scale) for i, b in enumerate(scenario.bodies)]
+    for field_name, name, scale in named:
+        path = scenario.resolve_path(name)
+        if not path.is_file():
+            raise ConfigError(field_name, "file not found" + ("" if Path(name).is_absolute() else
+                              " (relative paths: the scenario's folder, then the bundled urdf/)"), name)
+        check_urdf(path, field_name, scale)
+
+
+def _check_rollout_size(world: WorldConfig, obstacles: ObstacleConfig, bodies: tuple) -> None:
+    """A map's rollout (default horizon) must fit limits.MAX_ROLLOUT_BYTES: positions and velocities of every
+    obstacle (steps x N x d x 8 bytes x 2), plus an imported world's body poses (steps x B x 7 x 8 bytes)."""
+    steps = (max(world.time_limit, limits.METRICS_HORIZON_S) + world.dt) / world.dt + 1
+    n = max(max(obstacles.count), len(bodies))
+    nbytes = steps * (n * world.dims * 8 * 2 + len(bodies) * 7 * 8)
+    limits.check_limit("world.dt", f"bytes for a rollout of {steps:.0f} steps x {n} obstacles", nbytes,
+                       limits.MAX_ROLLOUT_BYTES, world.dt)
+
+
 def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     """Validate a parsed TOML document into a Scenario."""
     if not isinstance(doc, Mapping):
         raise ConfigError("scenario", "must be a table", doc)
+    _check_nesting(doc)
     _no_unknown(doc, ("name", "world", "obstacles", "static_obstacles", "drone", "sensor", "tracking", "task",
                       "planners", "collision_check", "bodies"), "")
     name = _string(doc, "name", "", Path(source).stem if source else Scenario.DEFAULT_NAME)
@@ -756,9 +867,13 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     _check_resolution(sensor, obstacles, static)
     tracking = _parse_tracking(doc)
     task = _parse_task(doc, world, drone)
+    _check_static_candidates(static, task, drone)
     planners = _parse_planners(doc)
     check = _string(doc, "collision_check", "", _defaults(Scenario)["collision_check"], COLLISION_CHECKS)
-    return Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies)
+    _check_rollout_size(world, obstacles, bodies)
+    scenario = Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies)
+    _check_urdfs(scenario)
+    return scenario
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -769,6 +884,11 @@ def load_scenario(path: str | Path) -> Scenario:
         doc = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("scenario", f"malformed TOML in {p.name}: {exc}", None, show_value=False) from None
-    except UnicodeDecodeError:
+    except UnicodeError:
         raise ConfigError("scenario", f"{p.name} is not UTF-8 text", None, show_value=False) from None
+    except RecursionError:
+        raise ConfigError("scenario", f"nested too deeply ({p.name})", None, show_value=False) from None
+    except OSError as exc:
+        raise ConfigError("scenario", f"cannot read {p.name} ({exc.strerror or type(exc).__name__})", str(p),
+                          ) from None
     return parse_scenario(doc, str(p))

@@ -68,9 +68,13 @@ def test_registry_parameters_and_defaults():
     assert (d.T, d.n_accel, d.rho, d.horizon_s, d.max_expansions, d.margin) == (1.0, 7, 10.0, 5.0, 20000, 0.5)
     assert d.n_horizon == 5 and d.steps_per_primitive == 10
     for bad in ({"n_accel": 6}, {"n_accel": 1}, {"duration_s": 0.0}, {"rho": -1.0}, {"epsilon": 0.5},
-                {"max_expansions": 0}, {"horizon_s": float("nan")}, {"margin": -0.1}):
+                {"max_expansions": 0}, {"margin": -0.1}):
         with pytest.raises(ConfigError, match=r"^planners\[0\]\.params: invalid parameters for GlobalPrimitives"):
             registry.build_planner(GlobalPrimitives, ctx, bad, "planners[0].params")
+    with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.horizon_s: must be finite"):   # the registry's
+        registry.build_planner(GlobalPrimitives, ctx, {"horizon_s": float("nan")}, "planners[0].params")
+    with pytest.raises(ValueError, match=r"^horizon_s must be a finite number > 0"):         # the planner's own
+        GlobalPrimitives(ctx, horizon_s=float("nan"))
 
 
 @pytest.mark.parametrize("dims,n_accel,count", [(2, 7, 29), (2, 5, 13), (3, 7, 123), (3, 5, 33)])

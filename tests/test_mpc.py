@@ -100,7 +100,8 @@ def test_mpc_bends_around_an_obstacle_on_the_goal_line(kind, tmp_path):
         rollout = handmade_rollout(sc, [[25.0, 25.0]], [[0.0, 0.0]], [radius])
     else:                                 # static geometry: half-planes from the occupied cells
         radius = 2.0
-        sc = _scenario(static_obstacles=[{"kind": "pillar", "center": [25.0, 25.0], "radius": radius}])
+        sc = _scenario(static_obstacles=[{"kind": "pillar", "center": [25.0, 25.0], "radius": radius}],
+                       task={"candidates": [list(start), list(goal)]})   # no candidate on the pillar
         rollout = build_rollout(sc, first_map(sc))
     assert fly(sc, rollout, "lookahead+straight_line", start, goal).outcome != "success"
     trace = tmp_path / "trace.npz"

@@ -72,7 +72,8 @@ def test_executed_states_respect_norm_limits(tmp_path):
 
 
 def test_static_collision_with_a_pillar():
-    sc = _scenario(static_obstacles=[{"kind": "pillar", "center": [25.0, 25.0], "radius": 2.0}])
+    sc = _scenario(static_obstacles=[{"kind": "pillar", "center": [25.0, 25.0], "radius": 2.0}],
+                   task={"candidates": [[4.0, 25.0], [46.0, 25.0]]})   # no candidate on the pillar
     rollout = build_rollout(sc, first_map(sc))
     res = _fly(sc, rollout, "lookahead+straight_line", (4.0, 25.0), (46.0, 25.0))
     assert res.outcome == "static_collision"

@@ -6,6 +6,7 @@ import itertools
 
 import numpy as np
 
+from pbdyn import limits
 from pbdyn.errors import HorizonError, check_positive
 from pbdyn.world.geometry import StaticBody
 
@@ -13,15 +14,20 @@ from pbdyn.world.geometry import StaticBody
 def axis_samples(length: float, spacing: float, margin: float = 2.0, first: float | None = None) -> np.ndarray:
     """Points first + k * spacing (first defaults to margin) for k >= 0 while <= length - margin (m)."""
     start = margin if first is None else first
-    n = int(np.floor((length - margin - start) / spacing + 1e-9)) + 1
+    n = (length - margin - start) / spacing + 1e-9
+    limits.check_limit("spacing", "sample points per axis", n, limits.MAX_METRIC_SAMPLES, spacing)
+    n = int(np.floor(n)) + 1
     return start + spacing * np.arange(max(n, 0))
 
 
 def grid_samples(size, spacing: float, margin: float = 2.0, first: float | None = None,
                  offset=None) -> np.ndarray:
     """All grid points [n, d] of axis_samples on every axis of an arena of extents ``size`` (rows in
-    itertools.product order: x slowest, the last axis fastest); ``offset`` [d] shifts the whole grid (jittered grids)."""
+    itertools.product order: x slowest, the last axis fastest); ``offset`` [d] shifts the whole grid (jittered
+    grids). ConfigError naming ``spacing`` above limits.MAX_METRIC_SAMPLES points."""
     axes = [axis_samples(float(L), spacing, margin, first) for L in size]
+    limits.check_limit("spacing", "sample points (the arena's extents / spacing, per axis)",
+                       float(np.prod([float(a.shape[0]) for a in axes])), limits.MAX_METRIC_SAMPLES, spacing)
     pts = np.array(list(itertools.product(*axes)), dtype=float).reshape(-1, len(axes))
     if offset is not None:
         pts = pts + np.asarray(offset, dtype=float)[None, :]

@@ -21,6 +21,7 @@ import time as _time
 
 import numpy as np
 
+from pbdyn import limits
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.sampling import grid_samples, outside_geometry, plane_points
@@ -208,6 +209,8 @@ def shape_distances(rollout, k: int, starts: np.ndarray, dirs: np.ndarray, infla
 def blocked_cells(rollout, k: int, cell: float, include_static: bool = True) -> np.ndarray:
     """Boolean grid (shape ceil(L / cell) per axis): True where the cell centre lies inside an obstacle at step k
     (distance < r_i), inside a static body, or outside the arena."""
+    limits.check_limit("cell", "grid cells (the arena's extents / cell)", limits.grid_count(rollout.arena_size, cell),
+                       limits.MAX_METRIC_SAMPLES, cell)
     shape = tuple(int(np.ceil(L / cell - 1e-9)) for L in rollout.arena_size)
     axes = [(np.arange(n) + 0.5) * cell for n in shape]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, rollout.dims)

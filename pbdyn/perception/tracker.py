@@ -27,9 +27,12 @@ class KalmanTracks:
                  bounds_lo, bounds_hi):
         if dims not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {dims}")
-        if n_obstacles < 0 or dt <= 0 or q < 0 or r < 0 or p0_pos <= 0 or p0_vel < 0 or drop_pos_var <= 0:
-            raise ValueError("KalmanTracks needs n_obstacles >= 0, dt > 0, q >= 0, r >= 0, p0_pos > 0, "
-                             "p0_vel >= 0, drop_pos_var > 0")
+        values = (dt, q, r, p0_pos, p0_vel, drop_pos_var)
+        if not (n_obstacles >= 0 and dt > 0 and q >= 0 and r >= 0 and p0_pos > 0 and p0_vel >= 0
+                and drop_pos_var > 0 and (q > 0 or r > 0) and all(np.isfinite(values))):
+            raise ValueError("KalmanTracks needs n_obstacles >= 0, dt > 0, q >= 0, r >= 0, q + r > 0, p0_pos > 0, "
+                             f"p0_vel >= 0, drop_pos_var > 0, all finite (got dt, q, r, p0_pos, p0_vel, drop_pos_var "
+                             f"= {values})")
         self.n = int(n_obstacles)
         self.dims = d = int(dims)
         self.dt = float(dt)

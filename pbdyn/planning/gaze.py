@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from pbdyn.perception.grid import UNKNOWN
+from pbdyn.planning import params
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
@@ -38,8 +39,8 @@ class LookAhead:
     """
 
     def __init__(self, context: PlannerContext, *, gain: float | None = None):
-        if gain is not None and gain <= 0:
-            raise ValueError(f"gain must be > 0, got {gain}")
+        if gain is not None:
+            gain = params.positive("gain", gain)
         self.limit = float(context.limits.yaw_rate)
         self.gain = 1.0 / float(context.dt) if gain is None else float(gain)
 
@@ -79,8 +80,7 @@ class FullRange:
 def rate_candidates(limit: float, n: int, include_zero: bool = True) -> np.ndarray:
     """Candidate yaw rates (rad/s): n evenly spaced values in [-limit, +limit] (both limits included), plus 0 when
     ``include_zero`` and n is even; sorted ascending. n >= 2."""
-    if int(n) != n or n < 2:
-        raise ValueError(f"the number of candidate rates must be an integer >= 2, got {n}")
+    n = params.integer("the number of candidate rates", n, lo=2)
     rates = np.linspace(-float(limit), float(limit), int(n))
     if include_zero and not np.any(rates == 0.0):
         rates = np.sort(np.append(rates, 0.0))
@@ -138,8 +138,7 @@ class Rotating:
     """
 
     def __init__(self, context: PlannerContext, *, rate_fraction: float = 1.0):
-        if not (isinstance(rate_fraction, (int, float)) and -1.0 <= float(rate_fraction) <= 1.0):
-            raise ValueError(f"rate_fraction must be a number in [-1, 1], got {rate_fraction!r}")
+        rate_fraction = params.number("rate_fraction", rate_fraction, lo=-1.0, hi=1.0)
         self.rate = float(rate_fraction) * float(context.limits.yaw_rate)
 
     def yaw_rate(self, view: View, trajectory: Trajectory | None) -> float:

@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 
+from pbdyn.planning import params
 from pbdyn.planning.astar_heuristic import lqmt_lower_bound
 from pbdyn.planning.astar_static import StaticScreen
 from pbdyn.planning.checks import WALL_MARGIN_CAP
@@ -124,8 +125,7 @@ class GlobalPrimitives:
             raise ValueError(f"epsilon must be a finite number >= 1, got {epsilon!r}")
         if not (math.isfinite(float(margin)) and float(margin) >= 0):
             raise ValueError(f"margin must be a finite number >= 0, got {margin!r}")
-        if int(max_expansions) < 1:
-            raise ValueError(f"max_expansions must be >= 1, got {max_expansions!r}")
+        max_expansions = params.integer("max_expansions", max_expansions, lo=1)
         self.dims = d
         self.dt = float(context.dt)
         self.limits = lim = context.limits

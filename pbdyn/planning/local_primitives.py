@@ -23,6 +23,7 @@ import math
 import numpy as np
 import ruckig
 
+from pbdyn.planning import params
 from pbdyn.planning.checks import static_clear, trajectory_clear
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
@@ -86,16 +87,17 @@ class LocalPrimitives:
                  step_m: float = 3.0,
                  end_speed_frac: float = 0.5, jerk_max: float = 20.0, margin: float = 0.5,
                  min_duration: float | None = None):
-        if int(n_candidates) < 1 or step_m <= 0 or not 0 <= end_speed_frac <= 1 or jerk_max <= 0 or margin < 0:
-            raise ValueError("local_primitives needs n_candidates >= 1, step_m > 0, 0 <= end_speed_frac <= 1, "
-                             "jerk_max > 0, margin >= 0")
-        if min_duration is not None and min_duration < 0:
-            raise ValueError(f"min_duration must be >= 0, got {min_duration}")
+        n_candidates = params.integer("n_candidates", n_candidates, lo=1)
+        step_m = params.positive("step_m", step_m)
+        end_speed_frac = params.number("end_speed_frac", end_speed_frac, lo=0.0, hi=1.0)
+        jerk_max = params.positive("jerk_max", jerk_max)
+        margin = params.non_negative("margin", margin)
+        if min_duration is not None:
+            min_duration = params.non_negative("min_duration", min_duration)
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
         self.limits = context.limits
-        if not 0 < sphere_spacing_deg <= 90:
-            raise ValueError(f"sphere_spacing_deg must be in (0, 90], got {sphere_spacing_deg}")
+        sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.0, lo_open=True, hi=90.0)
         self.sphere_spacing_deg = float(sphere_spacing_deg)
         self.n_candidates = int(n_candidates)
         self.step_m = float(step_m)

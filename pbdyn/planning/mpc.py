@@ -43,6 +43,7 @@ import time
 import numpy as np
 
 from pbdyn.perception.grid import OCCUPIED
+from pbdyn.planning import params
 from pbdyn.planning.checks import WALL_MARGIN_CAP
 from pbdyn.planning.mpc_problem import (INACTIVE_RHS, ClarabelMPC, CvxpyMPC, MPCData, MPCShape, MPCSolution,
                                         MPCWeights)
@@ -126,22 +127,20 @@ class MPC:
                  ref_dist: float | None = None, bias_deg: float = 15.0,
                  max_slack: float = 0.05, slack_window_s: float = 1.0, relinearise: int = 0,
                  limit_eps: float = 1.0e-6, backend: str = "clarabel"):
-        if int(horizon) != horizon or horizon < 2:
-            raise ValueError(f"horizon must be an integer >= 2, got {horizon}")
-        if int(n_tracks) != n_tracks or n_tracks < 0 or int(n_cells) != n_cells or n_cells < 0:
-            raise ValueError(f"n_tracks and n_cells must be integers >= 0, got {n_tracks}, {n_cells}")
-        if wall_margin < 0 or max_slack < 0 or slack_window_s < 0:
-            raise ValueError("wall_margin, max_slack and slack_window_s must be >= 0")
-        if not 0 <= hard_margin <= margin:
-            raise ValueError(f"need 0 <= hard_margin <= margin, got {hard_margin}, {margin}")
-        if w_goal <= 0 or w_acc <= 0 or w_slack <= 0 or w_band <= 0:
-            raise ValueError(f"w_goal, w_acc, w_slack, w_band must be > 0, got {w_goal}, {w_acc}, {w_slack}, {w_band}")
-        if ref_dist is not None and ref_dist <= 0:
-            raise ValueError(f"ref_dist must be > 0, got {ref_dist}")
-        if not 0 <= bias_deg < 90:
-            raise ValueError(f"bias_deg must be in [0, 90), got {bias_deg}")
-        if not 0 <= limit_eps < 0.1:
-            raise ValueError(f"limit_eps must be in [0, 0.1), got {limit_eps}")
+        horizon = params.integer("horizon", horizon, lo=2)
+        n_tracks = params.integer("n_tracks", n_tracks, lo=0)
+        n_cells = params.integer("n_cells", n_cells, lo=0)
+        wall_margin = params.non_negative("wall_margin", wall_margin)
+        max_slack = params.non_negative("max_slack", max_slack)
+        slack_window_s = params.non_negative("slack_window_s", slack_window_s)
+        margin = params.non_negative("margin", margin)
+        hard_margin = params.number("hard_margin", hard_margin, lo=0.0, hi=margin)
+        w_goal, w_acc = params.positive("w_goal", w_goal), params.positive("w_acc", w_acc)
+        w_slack, w_band = params.positive("w_slack", w_slack), params.positive("w_band", w_band)
+        if ref_dist is not None:
+            ref_dist = params.positive("ref_dist", ref_dist)
+        bias_deg = params.number("bias_deg", bias_deg, lo=0.0, hi=90.0, hi_open=True)
+        limit_eps = params.number("limit_eps", limit_eps, lo=0.0, hi=0.1, hi_open=True)
         if backend not in ("clarabel", "cvxpy"):
             raise ValueError(f"backend must be 'clarabel' or 'cvxpy', got {backend!r}")
         self.dims = d = int(context.dims)
@@ -158,8 +157,7 @@ class MPC:
         self.ref_dist = float(ref_dist) if ref_dist is not None else 2.0 * lim.v_max * self.horizon * self.dt
         self.bias_deg = float(bias_deg)
         self.max_slack = float(max_slack)
-        if int(relinearise) != relinearise or relinearise < 0:
-            raise ValueError(f"relinearise must be an integer >= 0, got {relinearise}")
+        relinearise = params.integer("relinearise", relinearise, lo=0)
         self.relinearise = int(relinearise)
         self.last_relinearisations = 0
         self.slack_steps = int(math.floor(slack_window_s / self.dt + 1e-9))

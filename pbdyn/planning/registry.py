@@ -8,7 +8,7 @@ import importlib
 import inspect
 from pathlib import Path
 
-from pbdyn.errors import ConfigError, import_object, one_line
+from pbdyn.errors import ConfigError, check_finite_params, import_object, one_line
 from pbdyn.planning.gaze import FullRange, LookAhead, LookGoal, LookGoalUnexplored, Rotating
 from pbdyn.planning.gaze_finean import Finean
 from pbdyn.planning.gaze_owl import Owl
@@ -64,7 +64,9 @@ def resolve_gaze_planner(name: str, field: str = "gaze") -> type:
 
 
 def build_planner(cls: type, context: PlannerContext, params: dict | None, field: str):
-    """Instantiate ``cls(context, **params)``; unknown or invalid params raise ConfigError naming ``field``."""
+    """Instantiate ``cls(context, **params)``; unknown or invalid params raise ConfigError naming ``field``: an
+    unknown key, a non-finite float (NaN, +-inf, also inside lists, tuples and tables; named ``field``.<key>), or
+    any exception the constructor raises (built-in planners check their own ranges)."""
     params = dict(params or {})
     name = getattr(cls, "__name__", repr(cls))
     try:
@@ -81,9 +83,12 @@ def build_planner(cls: type, context: PlannerContext, params: dict | None, field
                     hint = ", ".join(accepted) if accepted else "none"
                     raise ConfigError(f"{field}.{key}", f"unknown parameter of {name} (accepted: {hint})",
                                       params[key])
+    check_finite_params(params, field)
     try:
         return cls(context, **params)
-    except (TypeError, ValueError) as exc:
+    except ConfigError:
+        raise
+    except Exception as exc:  # any failure of a planner's constructor (built-in or user code) is a bad entry
         raise ConfigError(field, f"invalid parameters for {name} ({one_line(exc)})", params) from None
 
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from pbdyn.planning import params
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
@@ -28,8 +29,7 @@ class StraightLine:
     """
 
     def __init__(self, context: PlannerContext, *, horizon_s: float = 1.0):
-        if horizon_s <= 0:
-            raise ValueError(f"horizon_s must be > 0, got {horizon_s}")
+        horizon_s = params.positive("horizon_s", horizon_s)
         self.dims = int(context.dims)
         self.limits = context.limits
         self.horizon_s = float(horizon_s)

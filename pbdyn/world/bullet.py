@@ -37,6 +37,7 @@ import numpy as np
 
 from pbdyn import resources
 from pbdyn.errors import ConfigError, check_positive
+from pbdyn.urdf import check_urdf
 from pbdyn.world.geometry import StaticBody
 
 
@@ -196,6 +197,7 @@ def scale_urdf_text(text: str, scale_xyz: Sequence[float], base_dir: str | Path 
 
 @functools.lru_cache(maxsize=256)
 def _scaled_text(path: str, scale: tuple[float, float, float], cylinders_as_spheres: bool) -> str:
+    check_urdf(path, "urdf", scale)   # scenarios' URDFs were checked at load time naming their field: a backstop
     text = Path(path).read_text()
     return scale_urdf_text(text, scale, Path(path).parent, cylinders_as_spheres=cylinders_as_spheres)
 

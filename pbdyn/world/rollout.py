@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pbdyn import limits
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
@@ -148,7 +149,7 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
 
 
-METRICS_HORIZON = 44.0
+METRICS_HORIZON = limits.METRICS_HORIZON_S
 """Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s)."""
 
 
@@ -161,9 +162,13 @@ def default_horizon(scenario: Scenario) -> float:
 def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None) -> Rollout:
     """Compute a map's rollout from (scenario, map spec) over [0, horizon] s."""
     horizon = default_horizon(scenario) if horizon is None else float(horizon)
-    if horizon <= 0:
-        raise ConfigError("horizon", "must be > 0", horizon)
+    if not 0 < horizon < float("inf"):
+        raise ConfigError("horizon", "must be a finite number > 0", horizon)
     dt = scenario.world.dt
+    limits.check_limit("horizon", "rollout steps", horizon / dt, limits.MAX_STEPS, horizon)
+    n = int(spec.setup.get("count", 0)) if not scenario.is_world else len(scenario.bodies)
+    limits.check_limit("horizon", "bytes", (horizon / dt + 1) * n * (scenario.world.dims * 16 + 56),
+                       limits.MAX_ROLLOUT_BYTES, horizon)
     n_t = int(round(horizon / dt)) + 1
     times = np.arange(n_t) * dt
     size = np.asarray(scenario.world.size, dtype=float)

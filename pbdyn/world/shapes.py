@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn.errors import ConfigError
+from pbdyn.urdf import check_urdf
 
 PRIMITIVES = ("box", "sphere", "cylinder", "mesh")
 
@@ -165,13 +166,13 @@ def _floats(text: str | None, n: int, default: float) -> list[float]:
 def body_primitives(urdf: str | Path, scale: Sequence[float], field: str = "urdf") -> tuple[Primitive, ...]:
     """The collision primitives of the URDF at ``urdf`` scaled by ``scale`` (sx, sy, sz), in its base frame.
 
-    ConfigError naming ``field`` for a missing or unreadable file, an unknown geometry or no collision geometry.
+    ConfigError naming ``field`` for a missing or unreadable file, an unknown geometry or no collision geometry, or
+    any geometry pbdyn.urdf.check_urdf refuses (non-positive or non-finite sizes, bad origins, ...).
     """
     from pbdyn.world.bullet import scale_urdf_text
 
     path = Path(urdf)
-    if not path.is_file():
-        raise ConfigError(field, "file not found", str(urdf))
+    check_urdf(path, field, tuple(scale))
     try:
         root = ET.fromstring(scale_urdf_text(path.read_text(), tuple(scale), path.parent))
     except (ET.ParseError, ValueError, UnicodeDecodeError) as exc:

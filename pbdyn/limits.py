@@ -1,0 +1,66 @@
+"""Resource limits checked when a scenario or world file is loaded (README "Scenario reference").
+
+A scenario that passes every other check can still ask for more memory or time than any machine has (a map count
+of 2**63, a step of a microsecond, an arena of a million metres at a 1 m grid, ten thousand obstacles). Such a
+file is refused when it is loaded, before anything is allocated, with a ConfigError naming the field, its value
+and the limit. The limits are generous: every bundled scenario and dataset uses a small fraction of each.
+
+- MAX_MAPS_PER_SETUP = 100 000: obstacles.maps_per_setup.
+- MAX_SETUPS = 100 000: setups, the product of the grid fields' lengths (count x radius x speed).
+- MAX_OBSTACLES = 2 000: every obstacles.count value; the number of [[bodies]] and of [[static_obstacles]].
+- MAX_STEPS = 1 000 000: steps of a rollout, (max(world.time_limit, METRICS_HORIZON_S) + dt) / dt.
+- MAX_ROLLOUT_BYTES = 2 GiB: a rollout's arrays, steps x obstacles x d x 8 bytes x 2 (positions, velocities);
+  an imported world adds steps x bodies x 7 x 8 bytes (poses).
+- MAX_GRID_CELLS = 100 000 000: occupancy-grid cells, prod(world.size / world.grid_resolution + 2).
+- MAX_SENSOR_RAYS = 100 000: rays of one scan at 360 deg (a gaze planner may widen the fov to 360 deg).
+- MAX_RVO_CANDIDATES = 100 000: obstacles.rvo n_headings x n_speeds.
+- MAX_RVO_CONTACT_ITERATIONS = 1 000: obstacles.rvo.contact_iterations.
+- MAX_NESTING = 32: levels of tables and arrays in a scenario document.
+- MAX_METRIC_SAMPLES = 10 000 000: points or cells of a metric's sample grid over the arena (checked when the metric
+  runs: its spacing / cell is a metric parameter, named in the error).
+
+The number of trials a batch would fly (setups x maps_per_setup x ordered start/goal pairs x v_max values x
+planner entries) is not limited: a batch is resumable and may be sharded; ``Scenario.n_trials()`` reports it.
+"""
+
+from __future__ import annotations
+
+import math
+
+from pbdyn.errors import ConfigError
+
+MAX_MAPS_PER_SETUP = 100_000
+MAX_SETUPS = 100_000
+MAX_OBSTACLES = 2_000
+MAX_STEPS = 1_000_000
+MAX_ROLLOUT_BYTES = 2 * 1024 ** 3
+MAX_GRID_CELLS = 100_000_000
+MAX_SENSOR_RAYS = 100_000
+MAX_RVO_CANDIDATES = 100_000
+MAX_RVO_CONTACT_ITERATIONS = 1_000
+MAX_NESTING = 32
+MAX_METRIC_SAMPLES = 10_000_000
+
+METRICS_HORIZON_S = 44.0
+"""Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s). A map's rollout
+covers max(world.time_limit, METRICS_HORIZON_S) + dt (pbdyn.world.rollout.default_horizon)."""
+
+
+def check_limit(field: str, what: str, amount: float, limit: float, value: object) -> None:
+    """ConfigError naming ``field`` and ``value`` when ``amount`` (a count of ``what``; "bytes" are shown in GiB)
+    exceeds ``limit``."""
+    if not amount <= limit:
+        if what == "bytes":
+            need, cap = f"{amount / 1024 ** 3:.3g} GiB", f"{limit / 1024 ** 3:g} GiB"
+        else:
+            need, cap = f"{_fmt(amount)} {what}", _fmt(limit)
+        raise ConfigError(field, f"would need {need}, more than the limit of {cap} (pbdyn.limits)", value)
+
+
+def grid_count(size, spacing: float) -> float:
+    """Cells of a grid of ``spacing`` m over an arena of extents ``size`` (m), as a float (never overflows)."""
+    return math.prod(float(math.ceil(float(s) / float(spacing) - 1e-9)) for s in size)
+
+
+def _fmt(x: float) -> str:
+    return f"{int(x):,}" if float(x).is_integer() and abs(x) < 1e15 else f"{x:.3g}"
