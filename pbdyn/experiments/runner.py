@@ -281,7 +281,7 @@ def check_planners(scenario: Scenario) -> None:
 
 
 SCHEMES = ("tcp", "tls", "inproc", "ucx")
-PROBE_TIMEOUT_S = 5.0
+PROBE_TIMEOUT_S = 3.0
 """How long a scheduler address may take to send Dask's handshake after accepting a connection."""
 _MAX_HANDSHAKE = 1 << 24
 

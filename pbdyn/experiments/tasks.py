@@ -74,6 +74,21 @@ _VARYING = ("map", "v_max", "start", "goal", "planner")
 """The parts of TrialSpec.resolved() that differ between the trials of one scenario; each depends on one axis."""
 
 
+class _ScenarioDict:
+    """A Scenario whose to_dict() is computed once (TrialSpec.resolved() calls it on every call; with thousands of
+    candidates it costs 0.1 s). Everything else is the scenario's own."""
+
+    def __init__(self, scenario: Scenario):
+        self._scenario = scenario
+        self._dict = scenario.to_dict()
+
+    def to_dict(self) -> dict:
+        return self._dict
+
+    def __getattr__(self, name):
+        return getattr(self._scenario, name)
+
+
 class _TrialKeys:
     """Trial keys (config hashes) without building a TrialSpec per trial: the canonical JSON of resolved() is the
     concatenation, in sorted key order, of each top-level value's canonical JSON, so the scenario's fragments are
@@ -81,7 +96,7 @@ class _TrialKeys:
     itself. The same bits as spec.config_hash (checked against it on the first trial of every map)."""
 
     def __init__(self, scenario: Scenario, maps):
-        self.scenario = scenario
+        self.scenario = _ScenarioDict(scenario)
         self.m0 = maps[0] if len(maps) else None
         c = scenario.task.candidates
         self.e0, self.v0, self.c0 = scenario.planners[0], float(scenario.drone.v_max[0]), tuple(c[0])
