@@ -113,8 +113,10 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     gobj = None if gaze is None or isinstance(gaze, str) else gaze
     if trace is not None and not str(trace).endswith(".npz"):
         raise ConfigError("trace", "must name an .npz file", str(trace))
-    if trace is not None and not Path(trace).resolve().parent.is_dir():
-        raise ConfigError("trace", "folder does not exist", str(Path(trace).parent))
+    if trace is not None:   # before flying: a trace that cannot be written fails now, not after the trial
+        from pbdyn.errors import check_writable_file
+
+        check_writable_file("trace", trace)
     spec = make_trial_spec(sc, ms, planner=None if tobj is not None else tname,
                            gaze=None if gobj is not None else gname, v_max=v_max,
                            start=_point(start, "start"), goal=_point(goal, "goal"))
@@ -168,7 +170,9 @@ def run_batch(scenario, out: str | Path, *, workers: int | None = None, schedule
     """Run (or resume) every trial and map metric of ``scenario`` into the results store ``out`` (SQLite) and
     return a BatchSummary (total, skipped, ran, errors, stored_errors, rerun, maps_computed, wall_time_s).
 
-    workers: local processes (default: CPU count); scheduler: a Dask scheduler address or Client; limit: only the
+    workers: local processes (default: CPU count; at most 4 x the CPU count); scheduler: a Dask scheduler address
+    ("tcp://host:8786"; checked and probed, a bounded wait) or a dask.distributed Client (tls: a Client made with a
+    Security object); limit: only the
     first N trials; extend: accept added grid values, planners, MAV speeds or maps; metrics: compute each map's
     metrics; rerun_changed: re-fly rows whose planner code changed; retry_errors: re-fly stored error rows.
     Planners must be given by name in the scenario (workers import them)."""
@@ -257,6 +261,9 @@ def export_results(results: str | Path, path: str | Path, *, format: str | None 
     fmt = format or Path(path).suffix.lstrip(".").lower()
     if fmt not in ("csv", "parquet"):
         raise ConfigError("format", 'must be "csv" or "parquet" (or a path ending in .csv / .parquet)', format or str(path))
+    from pbdyn.errors import check_path_length
+
+    check_path_length(fmt, path)
     store = ResultsStore.open(results)
     try:
         return export_csv(store, path) if fmt == "csv" else export_parquet(store, path)
@@ -270,6 +277,12 @@ def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000):
     from pbdyn.experiments.evaluate import evaluate_stores
 
     paths = [results] if isinstance(results, (str, Path)) else list(results)
+    if plots is not None:
+        from pbdyn.errors import check_path_length
+
+        check_path_length("plots", plots)
+        if Path(plots).exists() and not Path(plots).is_dir():
+            raise ConfigError("plots", "is a file; give a folder for the figures", str(plots))
     return evaluate_stores([str(p) for p in paths], plots=plots, n_boot=n_boot)
 
 

@@ -85,8 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     bat.add_argument("scenario", help="scenario TOML file")
     bat.add_argument("--out", required=True, help="results store (SQLite; keep it on a local disk)")
     grp = bat.add_mutually_exclusive_group()
-    grp.add_argument("--workers", type=_nonneg_int, help="local worker processes (default: CPU count)")
-    grp.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786")
+    grp.add_argument("--workers", type=_nonneg_int, help="local worker processes (default: CPU count; at most 4 x the CPU count)")
+    grp.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786 (tls:// only through the Python API, with a "
+                     "Client)")
     bat.add_argument("--limit", type=_nonneg_int, help="run only the first N trials of the experiment")
     bat.add_argument("--extend", action="store_true",
                      help="accept a scenario that adds grid values, planners, MAV speeds or maps to the store's")
@@ -141,6 +142,9 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         raise ConfigError("--out", "must name an .npz file", args.out)
     if out.parent and not out.parent.exists():
         raise ConfigError("--out", "folder does not exist", str(out.parent))
+    from pbdyn.errors import check_writable_file
+
+    check_writable_file("--out", out)
     scenario = api.load_scenario(args.scenario)
     m = api.map_info(scenario, args.map)
     ro = api.rollout(scenario, args.map, horizon=args.horizon)

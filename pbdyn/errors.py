@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 import unicodedata
+from pathlib import Path
 
 
 class PbdynError(Exception):
@@ -135,3 +138,50 @@ def import_object(name: str, field: str):
             raise ConfigError(field, f"module {module_name!r} has no attribute {attr!r}", name)
         obj = getattr(obj, part)
     return obj
+
+
+# ---------------------------------------------------------------------------------------- paths pbdyn writes to
+NAME_MAX = 255
+"""Longest file or folder name, in bytes (ext4, XFS, APFS, NTFS)."""
+PATH_MAX = 4096
+"""Longest path, in bytes (Linux)."""
+
+
+def check_path_length(field: str, path) -> None:
+    """ConfigError naming ``field`` if a component of ``path`` is longer than NAME_MAX bytes or the absolute path
+    longer than PATH_MAX bytes."""
+    p = Path(path)
+    for part in p.parts:
+        if len(os.fsencode(part)) > NAME_MAX:
+            raise ConfigError(field, f"has a name longer than {NAME_MAX} bytes ({len(os.fsencode(part))} bytes: "
+                              f"{part[:40]}...)", _short(path), show_value=True)
+    full = len(os.fsencode(str(p.absolute())))
+    if full > PATH_MAX:
+        raise ConfigError(field, f"is longer than {PATH_MAX} bytes ({full} bytes)", _short(path))
+
+
+def _short(path) -> str:
+    text = str(path)
+    return text if len(text) <= 120 else text[:60] + "..." + text[-40:]
+
+
+def check_writable_file(field: str, path) -> Path:
+    """``path`` as a Path whose folder exists and accepts a new file (a temporary file is created and removed
+    there); ConfigError naming ``field`` otherwise."""
+    p = Path(path)
+    check_path_length(field, p)
+    if p.is_dir():
+        raise ConfigError(field, "is a folder; give a file name", str(path))
+    folder = p.absolute().parent
+    if not folder.is_dir():
+        raise ConfigError(field, "folder does not exist", str(p.parent))
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".pbdyn-write-test-", dir=folder)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise ConfigError(field, f"cannot be written: the folder {folder} does not accept new files "
+                          f"({exc.strerror or exc})", str(path)) from None
+    if p.exists() and not os.access(p, os.W_OK):
+        raise ConfigError(field, "exists and is not writable", str(path))
+    return p

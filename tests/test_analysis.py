@@ -404,3 +404,25 @@ def test_within_setup_reliability_separates_noise_from_real_differences():
     vb = np.mean([spread[groups == g, 0].var(ddof=1) for g in range(20)])
     vn = np.mean([np.mean(spread[groups == g, 0] * (1 - spread[groups == g, 0]) / 400.0) for g in range(20)])
     assert r_spread["per_pair"][0]["reliability"] == pytest.approx(1 - vn / vb, rel=1e-12)
+
+
+def test_figure_names_from_stores_never_leave_the_plots_folder(table, tmp_path):
+    """A dataset (scenario) or metric name with "/" or ".." (names come from stores) gives a safe file name inside
+    the plots folder."""
+    from pbdyn.analysis.plots import figure_name
+
+    trials, maps, _ = table
+    evil = "../../evil/x"
+    maps = {mid: dict(m, dataset=evil if m["dataset"] == "shifted" else m["dataset"],
+                      metrics={("a/../b" if k == "vo_feasibility" else k): v for k, v in m["metrics"].items()})
+            for mid, m in maps.items()}
+    trials = [dict(t, dataset=evil if t.get("dataset") == "shifted" else t.get("dataset")) for t in trials]
+    rep = evaluate(trials, maps, n_boot=20, seed=3)
+    out = tmp_path / "deep" / "er" / "figs"
+    paths = write_plots(trials, maps, rep, out)
+    names = {p.name for p in paths}
+    assert "uncontrolled_.._.._evil_x.png" in names and "metric_a_.._b.png" in names
+    assert all(p.parent == out for p in paths) and sorted(names) == sorted(p.name for p in out.iterdir())
+    assert not list(tmp_path.rglob("x.png")) and not (tmp_path / "deep" / "evil").exists()
+    assert figure_name("..hidden") == "hidden.png" and figure_name("") == "figure.png"
+    assert figure_name("a b/c\x00") == "a_b_c_.png"

@@ -393,11 +393,17 @@ def test_a_version_1_store_is_read_and_upgraded_and_its_rows_count_as_changed(re
     line = res.stderr.strip()
     assert "\n" not in line and "--rerun-changed" in line and "planners[0] (lookahead+local_primitives)" in line
     assert "80 stored trials" not in line and "40 stored trials flown with none" in line
-    with sqlite3.connect(f"file:{v1}?mode=ro", uri=True) as c:   # upgraded in place, nothing run
-        assert c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
-        assert "planner_fingerprint" in {r[1] for r in c.execute("PRAGMA table_info(trials)")}
+    with sqlite3.connect(f"file:{v1}?mode=ro", uri=True) as c:   # a batch that stops before it starts: untouched
+        assert c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "1"
+        assert "planner_fingerprint" not in {r[1] for r in c.execute("PRAGMA table_info(trials)")}
         assert c.execute("SELECT COUNT(*) FROM runs").fetchone()[0] == \
             sqlite3.connect(f"file:{out}?mode=ro", uri=True).execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+    res = batch([str(sc), "--out", str(v1), "--workers", "1", "--rerun-changed", "--limit", "1", "--json"])
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["rerun"] == 1
+    with sqlite3.connect(f"file:{v1}?mode=ro", uri=True) as c:   # a batch that runs upgrades the store in place
+        assert c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+        assert "planner_fingerprint" in {r[1] for r in c.execute("PRAGMA table_info(trials)")}
 
 
 PLUGIN = """

@@ -16,6 +16,7 @@ from pbdyn.analysis.cv import LEVELS, difficulty_level, level_stats
 from pbdyn.analysis.regression import setup_features
 from pbdyn.analysis.report import difficulty_table
 from pbdyn.analysis.success import grouped_rate, success_table, trial_arrays
+from pbdyn.errors import ConfigError
 from pbdyn.sim.outcome import Outcome
 
 _CENTRES = np.arange(LEVELS) + 0.5
@@ -28,7 +29,22 @@ def _figure(w: float = 7.0, h: float = 4.5, ncols: int = 1) -> tuple[Figure, lis
     return fig, axes
 
 
-def _save(fig: Figure, path: Path, out: list[Path]) -> None:
+_SAFE = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-")
+
+
+def figure_name(stem: str) -> str:
+    """``stem`` + ".png" as a safe file name: characters other than [A-Za-z0-9._-] become "_", no leading dots
+    (scenario and metric names come from stores: "../../x" or "a/b" must not leave the plots folder), at most
+    200 characters."""
+    text = "".join(c if c in _SAFE else "_" for c in str(stem)).lstrip(".")
+    return (text[:200] or "figure") + ".png"
+
+
+def _save(fig: Figure, out_dir: Path, stem: str, out: list[Path]) -> None:
+    """Save ``fig`` as out_dir/figure_name(stem), never outside ``out_dir``."""
+    path = out_dir / figure_name(stem)
+    if path.resolve().parent != out_dir.resolve():   # pragma: no cover - figure_name cannot produce such a name
+        raise ConfigError("plots", "a figure would be written outside the folder (a symbolic link there?)", str(path))
     fig.savefig(path, dpi=90, format="png", metadata={"Software": None})
     out.append(path)
 
@@ -44,7 +60,7 @@ def _legend(ax, n: int) -> None:
         ax.legend(fontsize=6 if n > 8 else 8, ncol=2 if n > 8 else 1, loc="best")
 
 
-def _metric_figure(name: str, d: np.ndarray, rate: np.ndarray, pairs: tuple[str, ...], path: Path,
+def _metric_figure(name: str, d: np.ndarray, rate: np.ndarray, pairs: tuple[str, ...], out_dir: Path,
                    out: list[Path]) -> None:
     fig, (ax,) = _figure()
     cnt, mu, sd = level_stats(d, rate)
@@ -58,7 +74,7 @@ def _metric_figure(name: str, d: np.ndarray, rate: np.ndarray, pairs: tuple[str,
     ax.set(xlabel=f"{name} difficulty (normalised, eq. 4-10/4-11)", ylabel="success rate", xlim=(0, LEVELS),
            ylim=(-0.05, 1.05), title=f"{name} vs success rate (mean +- 1 sigma per level)")
     _legend(ax, len(pairs))
-    _save(fig, path, out)
+    _save(fig, out_dir, f"metric_{name}", out)
 
 
 def _group_lines(ax, group: np.ndarray, n_groups: int, labels: tuple[str, ...], hit: np.ndarray, lev: np.ndarray,
@@ -101,14 +117,15 @@ def _uncontrolled_figures(report: dict, band: str, d: np.ndarray, st, map_ids, m
                    title=pair)
             _legend(ax, 4)
         fig.suptitle(f"{name} against the controlled fit (figs. 4-14..4-16)")
-        _save(fig, out_dir / f"uncontrolled_{name}.png", out)
+        _save(fig, out_dir, f"uncontrolled_{name}", out)
 
 
 def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[Path]:
     """Write the evaluation figures as PNG files into ``out_dir`` (created) and return their paths:
     metric_<name>.png per report metric (figs 4-5..4-12), survivability_trajectory.png (fig 5-9),
     survivability_gaze.png (fig 5-10) and uncontrolled_<dataset>.png per non-controlled dataset (figs 4-14..4-16)
-    when the report has a sigma-band metric, velocity_ratio.png (fig 5-14).
+    when the report has a sigma-band metric, velocity_ratio.png (fig 5-14). File names are figure_name()s: only
+    [A-Za-z0-9._-], never outside ``out_dir``.
     ``report`` is the dict from pbdyn.analysis.report.evaluate on the same trials and maps."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -119,7 +136,7 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
     out: list[Path] = []
 
     for name, d in diff.items():
-        _metric_figure(name, d[c], st.rate[c], st.pairs, out_dir / f"metric_{name}.png", out)
+        _metric_figure(name, d[c], st.rate[c], st.pairs, out_dir, out)
 
     on_c = c[ta.map_idx] & ta.flown
     success = ta.is_outcome(Outcome.SUCCESS)
@@ -145,7 +162,7 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
                title="success (solid) and deadlock (hatched) rates")
         _legend(a2, 2 * nt)
         fig.suptitle(f"Trajectory planners vs {band} (fig. 5-9)")
-        _save(fig, out_dir / "survivability_trajectory.png", out)
+        _save(fig, out_dir, "survivability_trajectory", out)
 
         fig, axes = _figure(4.5 * nt, 4.0, nt)
         for i, (ax, traj) in enumerate(zip(axes, ta.trajectories)):
@@ -153,7 +170,7 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
                          "success rate")
             ax.set_title(traj)
         fig.suptitle(f"Gaze planners vs {band} (fig. 5-10)")
-        _save(fig, out_dir / "survivability_gaze.png", out)
+        _save(fig, out_dir, "survivability_gaze", out)
 
     if band in diff:
         _uncontrolled_figures(report, band, diff[band], st, map_ids, maps, out_dir, out)
@@ -180,5 +197,5 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
     a1.set_title("success vs velocity ratio")
     a2.set_title("same ratio (1), different obstacle speeds")
     fig.suptitle("Velocity ratio (fig. 5-14)")
-    _save(fig, out_dir / "velocity_ratio.png", out)
+    _save(fig, out_dir, "velocity_ratio", out)
     return out

@@ -16,11 +16,14 @@ terminated, and BatchInterrupted (a KeyboardInterrupt; exit status 128 + signal 
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures as cf
 import contextlib
+import itertools
 import multiprocessing
 import os
 import signal
+import sqlite3
 import sys
 import threading
 import time
@@ -31,11 +34,10 @@ from pathlib import Path
 
 from pbdyn import __version__
 from pbdyn.config import Scenario, canonical_json
-from pbdyn.errors import ConfigError, PbdynError
-from pbdyn.experiments.store import ResultsStore
+from pbdyn.errors import ConfigError, PbdynError, one_line
+from pbdyn.experiments.store import ResultsStore, check_store_path, store_error
 from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialTask, enumerate_trials, run_map_task,
                                      run_trial_task, trial_spec, worker_init)
-from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import default_horizon, rollout_file
 
 COMMIT_INTERVAL_S = 1.0
@@ -138,14 +140,15 @@ def scenario_changes(old: dict, new: dict) -> tuple[list[str], list[str]]:
     return allowed, refused
 
 
-def check_scenario(store: ResultsStore, scenario: Scenario, extend: bool) -> None:
+def check_scenario(store: ResultsStore, scenario: Scenario, extend: bool, write: bool = True) -> None:
     """Record the scenario in a new store; for an existing one require the same scenario, or with ``extend`` only
-    additions (ConfigError naming SCENARIO otherwise)."""
+    additions (ConfigError naming SCENARIO otherwise). ``write=False``: check only."""
     doc = {"name": scenario.name, **scenario.to_dict()}
     new_json = canonical_json(doc)
     old_json = store.get_meta("scenario")
     if old_json is None:
-        store.set_meta("scenario", new_json)
+        if write:
+            store.set_meta("scenario", new_json)
         return
     if old_json == new_json:
         return
@@ -159,7 +162,8 @@ def check_scenario(store: ResultsStore, scenario: Scenario, extend: bool) -> Non
     if not extend:
         raise ConfigError("SCENARIO", f"adds to the scenario {store.path.name} was made with ({', '.join(allowed)});"
                           " pass --extend to run the additions", scenario.source or scenario.name)
-    store.set_meta("scenario", new_json)
+    if write:
+        store.set_meta("scenario", new_json)
 
 
 # ------------------------------------------------------------------------------------------------ progress
@@ -276,58 +280,271 @@ def check_planners(scenario: Scenario) -> None:
                           f"planners[{i}].gaze_params")
 
 
-def connect(address: str):
-    """A dask.distributed Client of the scheduler at ``address``; ConfigError naming --scheduler if it cannot be
-    reached within CONNECT_TIMEOUT_S."""
-    from dask.distributed import Client
+SCHEMES = ("tcp", "tls", "inproc", "ucx")
+PROBE_TIMEOUT_S = 3.0
+"""How long a scheduler address may take to send Dask's handshake after accepting a connection."""
+_MAX_HANDSHAKE = 1 << 24
+
+
+def _scheduler_error(problem: str, address: str) -> ConfigError:
+    return ConfigError("scheduler", problem, address)
+
+
+def parse_scheduler(address: str) -> tuple[str, str, int | None]:
+    """(scheme, host, port) of a Dask scheduler address "SCHEME://HOST:PORT" (scheme tcp, tls, inproc or ucx;
+    "HOST:PORT" means tcp); ConfigError naming --scheduler otherwise."""
+    from urllib.parse import urlsplit
+
+    if not isinstance(address, str) or not address.strip():
+        raise _scheduler_error("must be a Dask scheduler address like tcp://host:8786", address)
+    text = address.strip()
+    if "://" not in text:
+        text = "tcp://" + text
+    try:
+        u = urlsplit(text)
+        port = u.port
+    except ValueError as exc:
+        raise _scheduler_error(f"is not an address like tcp://host:8786 ({exc})", address) from None
+    scheme = u.scheme.lower()
+    if scheme in ("http", "https"):
+        raise _scheduler_error("is an HTTP address; give the scheduler's own address, like tcp://host:8786 (the "
+                               "dashboard on :8787 is not the scheduler)", address)
+    if scheme not in SCHEMES:
+        raise _scheduler_error(f"has scheme {scheme!r}; use one of {', '.join(s + '://' for s in SCHEMES)}", address)
+    if scheme == "inproc":
+        return scheme, text[len("inproc://"):], None
+    if u.path not in ("", "/") or u.query or u.fragment or u.username or u.password:
+        raise _scheduler_error("must be SCHEME://HOST:PORT with nothing after the port", address)
+    if not u.hostname:
+        raise _scheduler_error("has no host (like tcp://host:8786)", address)
+    if port is None or not 1 <= port <= 65535:
+        raise _scheduler_error("needs a port in 1..65535 (like tcp://host:8786)", address)
+    return scheme, u.hostname, port
+
+
+def _in_thread(fn, timeout: float):
+    """fn() in a daemon thread: ("ok", value), ("error", exception) or ("timeout", None) after ``timeout`` s (the
+    thread is then abandoned; it cannot block the process' exit)."""
+    box: list = []
+
+    def target():
+        try:
+            box.append(("ok", fn()))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            box.append(("error", exc))
+
+    t = threading.Thread(target=target, name="pbdyn-connect", daemon=True)
+    t.start()
+    t.join(timeout)
+    return box[0] if box else ("timeout", None)
+
+
+def _probe(host: str, port: int, timeout: float) -> str | None:
+    """None if a Dask comm listens at host:port (it sends the first frame of its handshake, an 8-byte length and
+    a small message, as soon as it accepts), else what is wrong, in words."""
+    import socket
+    import struct
 
     try:
-        return Client(address, timeout=CONNECT_TIMEOUT_S)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise ConfigError("scheduler", "cannot reach a Dask scheduler there "
-                          f"({type(exc).__name__}: {' '.join(str(exc).split())[:160]})", address) from None
+        sock = socket.create_connection((host, port), timeout=timeout)
+    except socket.gaierror as exc:
+        return f"cannot resolve the host ({exc.strerror or exc})"
+    except (TimeoutError, socket.timeout):
+        return f"no answer to a connection within {timeout:g} s"
+    except OSError as exc:
+        return f"cannot connect ({exc.strerror or exc})"
+    with sock:
+        deadline = time.monotonic() + timeout
+        head = b""
+        try:
+            while len(head) < 8:
+                sock.settimeout(max(0.01, deadline - time.monotonic()))
+                chunk = sock.recv(8 - len(head))
+                if not chunk:
+                    return "the peer closed the connection without a Dask handshake"
+                head += chunk
+        except (TimeoutError, socket.timeout):
+            what = _http_reply(sock)
+            return (f"accepts connections but sent no Dask handshake within {timeout:g} s"
+                    + (" (it answers HTTP: a web server, perhaps the dashboard, not the scheduler port)" if what else
+                       " (not a Dask scheduler?)"))
+        except OSError as exc:
+            return f"the connection failed ({exc.strerror or exc})"
+        if head[:4] in (b"HTTP", b"SSH-") or head[:1] == b"<":
+            return f"answers like another protocol ({head[:8]!r}), not a Dask scheduler"
+        (n,) = struct.unpack("<Q", head)
+        if not 0 < n <= _MAX_HANDSHAKE:
+            return f"sent a frame of {n} bytes where Dask's handshake is a small message (not a Dask scheduler?)"
+    return None
+
+
+def _http_reply(sock) -> bool:
+    """After a silent wait: does the peer answer an HTTP request (with "HTTP/") within 0.5 s?"""
+    try:
+        sock.settimeout(0.5)
+        sock.sendall(b"GET / HTTP/1.0\r\nHost: pbdyn\r\n\r\n")
+        return sock.recv(5) == b"HTTP/"
+    except OSError:
+        return False
+
+
+def connect(address: str, timeout: float | None = None):
+    """A dask.distributed Client of the scheduler at ``address``. The address is checked (scheme tcp, tls, inproc
+    or ucx; host; port 1..65535); a tcp address is probed first (a Dask comm sends its handshake on accept: a
+    silent port or a web server is refused without handing it to dask, whose own timeout does not cover a peer
+    that never answers); the Client is then created under an overall deadline. ``timeout``: seconds (default
+    CONNECT_TIMEOUT_S). Every failure is a one-line ConfigError naming --scheduler; tls:// needs a
+    dask.distributed Security object, so it is only accepted as a Client (run_batch(scheduler=Client(...)))."""
+    timeout = CONNECT_TIMEOUT_S if timeout is None else float(timeout)
+    scheme, host, port = parse_scheduler(address)
+    if scheme == "tls":
+        raise _scheduler_error("tls:// needs TLS certificates (a dask.distributed Security object), which a command "
+                               "line address cannot carry: create the Client in Python and pass it, "
+                               "pbdyn.run_batch(..., scheduler=Client(address, security=Security(...)))", address)
+    t0 = time.monotonic()
+    if scheme == "tcp":
+        status, why = _in_thread(lambda: _probe(host, port, min(PROBE_TIMEOUT_S, timeout)), timeout)
+        if status == "timeout":
+            why = f"no answer within {timeout:g} s (host name lookup or connection hangs)"
+        elif status == "error":
+            why = one_line(why)
+        if why:
+            raise _scheduler_error(f"cannot reach a Dask scheduler there: {why}", address)
+    left = max(1.0, timeout - (time.monotonic() - t0))
+    target = f"{scheme}://{host}:{port}" if scheme != "inproc" else address.strip()
+
+    def make():
+        from dask.distributed import Client
+
+        return Client(target, timeout=left)
+
+    status, value = _in_thread(make, left + 2.0)
+    if status == "ok":
+        return value
+    if status == "timeout":
+        raise _scheduler_error(f"cannot reach a Dask scheduler there: no client connection within {left + 2.0:g} s",
+                               address)
+    raise _scheduler_error(f"cannot reach a Dask scheduler there ({one_line(value)[:200]})", address)
+
+
+MAX_WORKERS_PER_CPU = 4
+
+
+def max_workers() -> int:
+    """The largest --workers accepted: MAX_WORKERS_PER_CPU x the CPU count (more processes than that only add
+    memory and switching; each worker holds a PyBullet client and a map's rollout)."""
+    return MAX_WORKERS_PER_CPU * max(1, os.cpu_count() or 1)
 
 
 def _default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
-def changed_planners(store: ResultsStore, scenario: Scenario, states: dict | None = None) -> tuple[set[str],
-                                                                                                  list[str]]:
-    """(keys of stored rows whose planner fingerprint differs from the current code's for their entry, one note per
-    changed entry: "planners[i] (label): n stored trials flown with <old>, the code now gives <new>").
-    ``states``: store.trial_states() if already read."""
+def changed_planners(store: ResultsStore, scenario: Scenario) -> tuple[dict[str, str], list[str]]:
+    """(label -> the current code's fingerprint of every entry whose stored rows were flown with other code, one
+    note per such entry: "planners[i] (label): n stored trials flown with <old>, the code now gives <new>").
+    Counted in SQL: no stored key is read."""
     from pbdyn.planning.registry import pair_fingerprint
 
     current = {e.label: (i, pair_fingerprint(e.trajectory, e.gaze)) for i, e in enumerate(scenario.planners)}
-    stale: set[str] = set()
     seen: dict[str, tuple[int, set[str]]] = {}
-    for key, (label, fp, _) in (store.trial_states() if states is None else states).items():
+    for label, fp, n in store.fingerprint_counts():
         if label in current and fp != current[label][1]:
-            stale.add(key)
-            n, fps = seen.get(label, (0, set()))
-            seen[label] = (n + 1, fps | {fp or "none"})
+            k, fps = seen.get(label, (0, set()))
+            seen[label] = (k + n, fps | {fp or "none"})
     notes = [f"planners[{current[label][0]}] ({label}): {n} stored trials flown with {', '.join(sorted(fps))}, the "
              f"code now gives {current[label][1]}" for label, (n, fps) in sorted(seen.items(),
                                                                                  key=lambda kv: current[kv[0]][0])]
-    return stale, notes
+    return {label: current[label][1] for label in seen}, notes
+
+
+@dataclass
+class _Plan:
+    """What a batch will do, worked out before the store is written: pending trial count, rows it replaces, the
+    maps whose rollouts the run needs, the maps whose metrics it computes."""
+
+    total: int
+    pending: int
+    rerun: int
+    trial_maps: list
+    metric_maps: list
+    stored: bool          # the store holds trials: pending trials are looked up in it
+    stale: dict           # label -> current fingerprint of entries whose rows must be re-flown (rerun_changed)
+
+
+def _pending(trials, total: int, states_of, stale: dict, retry_errors: bool) -> Iterator[tuple[tuple, bool]]:
+    """(trial, replaces a stored row) for every trial of the first ``total`` that is not stored, or is stored and
+    must be re-flown; ``states_of(keys)`` reads the stored states of a chunk of keys (None: nothing stored)."""
+    it = trials.iter_range(0, total)
+    while True:
+        chunk = list(itertools.islice(it, 500))
+        if not chunk:
+            return
+        states = states_of([t[0] for t in chunk]) if states_of is not None else {}
+        for t in chunk:
+            st = states.get(t[0])
+            if st is None:
+                yield t, False
+            else:
+                label, fp, outcome = st
+                if (label in stale and fp != stale[label]) or (retry_errors and outcome == "error"):
+                    yield t, True
+
+
+def _read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchOptions) -> _Plan:
+    """Read the existing store (if any) read-only and work out the plan; refuse a changed scenario or changed
+    planner code here, before anything is built or written."""
+    per_map_maps = [trials.maps[i] for i in trials.map_range(total)]
+    if not out.exists() or out.stat().st_size == 0:
+        return _Plan(total, total, 0, per_map_maps, per_map_maps if options.metrics else [], False, {})
+    store = ResultsStore.open(out, field="out")
+    try:
+        if store._foreign_tables():
+            raise ConfigError("out", "is an SQLite file but not a pbdyn results store (use a new --out file)",
+                              str(out))
+        stale, notes = changed_planners(store, scenario)
+        if stale and not options.rerun_changed:
+            raise ConfigError("; ".join(notes), "planner code changed since these rows were flown; pass "
+                              "--rerun-changed to re-fly them (or use a new --out file)", show_value=False)
+        check_scenario(store, scenario, options.extend, write=False)
+        if not options.rerun_changed:
+            stale = {}
+        stored = store.count() > 0
+        pending = rerun = 0
+        maps: dict[str, object] = {}
+        for t, rep in _pending(trials, total, store.stored_states if stored else None, stale, options.retry_errors):
+            pending += 1
+            rerun += rep
+            maps.setdefault(t[1].map_id, t[1])
+        done = store.maps_with_metrics() if options.metrics else set()
+        metric_maps = [m for m in per_map_maps if m.map_id not in done] if options.metrics else []
+        return _Plan(total, pending, rerun, list(maps.values()), metric_maps, stored, stale)
+    finally:
+        store.conn.close()
 
 
 def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions(),
               command: str = "") -> BatchSummary:
     """Run (or resume, or extend) the experiment of ``scenario`` into the results store ``out``. SIGTERM/SIGINT
-    raise BatchInterrupted after committing what has arrived and stopping the workers."""
+    raise BatchInterrupted after committing what has arrived and stopping the workers.
+
+    Everything that can fail before the first trial -- options, planners, the store's compatibility, every needed
+    rollout, the scheduler -- is done before the store is written, so a failed start leaves no new store file
+    and an existing store untouched. The trials are enumerated lazily (--limit N costs O(N))."""
     t0 = time.perf_counter()
     workers = options.workers if options.workers is not None else _default_workers()
-    if not isinstance(workers, int) or workers < 1:
+    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
         raise ConfigError("workers", "must be an integer >= 1", workers)
-    if options.limit is not None and (not isinstance(options.limit, int) or options.limit < 1):
+    if workers > max_workers():
+        raise ConfigError("workers", f"must be <= {max_workers()} ({MAX_WORKERS_PER_CPU} x the "
+                          f"{os.cpu_count() or 1} CPUs of this machine)", workers)
+    if options.limit is not None and (not isinstance(options.limit, int) or isinstance(options.limit, bool)
+                                      or options.limit < 1):
         raise ConfigError("limit", "must be an integer >= 1", options.limit)
+    out_path = check_store_path(out, "out")
     check_planners(scenario)
-    maps = enumerate_maps(scenario)
-    trials = enumerate_trials(scenario, maps)
-    if options.limit is not None:
-        trials = trials[: options.limit]
+    trials = enumerate_trials(scenario)
+    total = len(trials) if options.limit is None else min(options.limit, len(trials))
     if isinstance(options.scheduler, str):   # reach the cluster before touching the store
         client = connect(options.scheduler)
         try:
@@ -335,127 +552,161 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
         finally:
             client.close()
     with _stop_on_signals():
-        store = ResultsStore.create(out)
+        plan = _read_plan(out_path, scenario, trials, total, options)
+        files = _rollout_files(scenario, plan.trial_maps + plan.metric_maps, out_path)
+        store = ResultsStore.create(out_path, field="out")
         try:
-            return _run(store, scenario, trials, workers, options, command, t0)
+            return _run(store, scenario, trials, plan, files, workers, options, command, t0)
         except BatchInterrupted as exc:
             store.commit()
             raise BatchInterrupted(exc.signum, f"batch stopped by {signal.Signals(exc.signum).name}: {store.count()} "
                                    f"trials committed to {out} (re-run the same command to resume)") from None
+        except sqlite3.DatabaseError as exc:
+            raise store_error("out", exc, out) from None
         finally:
-            store.close()
+            try:
+                store.close()
+            except ConfigError:
+                pass
 
 
-def _run(store: ResultsStore, scenario: Scenario, trials: list, workers: int, options: BatchOptions, command: str,
-         t0: float) -> BatchSummary:
-    states = store.trial_states()
-    stale, notes = changed_planners(store, scenario, states)
-    if stale and not options.rerun_changed:
-        raise ConfigError("; ".join(notes), "planner code changed since these rows were flown; pass "
-                          "--rerun-changed to re-fly them (or use a new --out file)", show_value=False)
+def _rollout_files(scenario: Scenario, maps: list, out: Path) -> dict[str, tuple[str, Path]]:
+    """map_id -> (rollout key, .npz path) of every map, built (or found in the cache) now."""
+    horizon = default_horizon(scenario)
+    files: dict[str, tuple[str, Path]] = {}
+    for m in maps:
+        if m.map_id not in files:
+            files[m.map_id] = rollout_file(scenario, m, horizon, fallback_dir=out.absolute().parent)
+    return files
+
+
+def _run(store: ResultsStore, scenario: Scenario, trials, plan: _Plan, files: dict, workers: int,
+         options: BatchOptions, command: str, t0: float) -> BatchSummary:
     check_scenario(store, scenario, options.extend)
-    redo = set(stale) if options.rerun_changed else set()
-    if options.retry_errors:
-        redo |= {k for k, (_, _, outcome) in states.items() if outcome == "error"}
-    pending = [t for t in trials if t[0] not in states or t[0] in redo]
-    replace_keys = {t[0] for t in pending if t[0] in states}
-    used_maps = {t[1].map_id: t[1] for t in trials}
-    need_metrics = [m for mid, m in used_maps.items() if mid not in store.maps_with_metrics()] \
-        if options.metrics else []
     run_id = store.start_run(__version__, canonical_json(scenario.to_dict()), command,
                              "dask" if options.scheduler is not None else str(workers))
     ran = errors = maps_done = 0
-    if pending or need_metrics:
-        horizon = default_horizon(scenario)
-        files: dict[str, tuple[str, Path]] = {}
-        for m in list({t[1].map_id: t[1] for t in pending}.values()) + need_metrics:
-            if m.map_id not in files:
-                files[m.map_id] = rollout_file(scenario, m, horizon, fallback_dir=store.path.parent)
-        ran, errors, maps_done = _execute(store, scenario, pending, need_metrics, files, workers, options,
-                                          replace_keys)
+    if plan.pending or plan.metric_maps:
+        items = _pending(trials, plan.total, store.stored_states if plan.stored else None, plan.stale,
+                         options.retry_errors)
+        ran, errors, maps_done = _execute(store, scenario, items, plan, files, workers, options)
     store.end_run(run_id)
-    return BatchSummary(len(trials), len(trials) - len(pending), ran, errors, maps_done, time.perf_counter() - t0,
-                        rerun=len(replace_keys), stored_errors=store.error_count())
+    return BatchSummary(plan.total, plan.total - plan.pending, ran, errors, maps_done, time.perf_counter() - t0,
+                        rerun=plan.rerun, stored_errors=store.error_count())
 
 
-def _execute(store: ResultsStore, scenario: Scenario, pending: list, need_metrics: list, files: dict, workers: int,
-             options: BatchOptions, replace_keys: set[str] = frozenset()) -> tuple[int, int, int]:
+def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Plan, files: dict, workers: int,
+             options: BatchOptions) -> tuple[int, int, int]:
+    """Fly the pending ``items`` ((trial, replaces) pairs, streamed) and compute plan.metric_maps: a map's metrics
+    are queued when the stream reaches its first trial (maps without pending trials first), at most a window of
+    tasks is in flight, and a pool whose worker died is restarted with the lost tasks queued again."""
     pool = _Pool(workers, options.scheduler)
-    progress = Progress(len(pending), options.progress)
+    progress = Progress(plan.pending, options.progress)
     counts = {"ran": 0, "errors": 0, "maps": 0}
-    remaining_trials = {t[0]: t for t in pending}
-    remaining_maps = {m.map_id: m for m in need_metrics}
-    in_flight: dict = {}
+    metric_ids = {m.map_id for m in plan.metric_maps}
+    trial_map_ids = {m.map_id for m in plan.trial_maps}
 
-    def take(kind: str, item, result) -> None:
+    def source() -> Iterator[tuple]:
+        for m in plan.metric_maps:
+            if m.map_id not in trial_map_ids:
+                metric_ids.discard(m.map_id)
+                yield "map", m, False
+        for t, rep in items:
+            if t[1].map_id in metric_ids:
+                metric_ids.discard(t[1].map_id)
+                yield "map", t[1], False
+            yield "trial", t, rep
+        for m in plan.metric_maps:          # metric maps the stream never reached (nothing pending there)
+            if m.map_id in metric_ids:
+                metric_ids.discard(m.map_id)
+                yield "map", m, False
+
+    def take(item, result) -> None:
+        kind, obj, rep = item
         if kind == "map":
             store.add_map(result)
-            remaining_maps.pop(item.map_id, None)
             counts["maps"] += 1
         else:
             key, row, err = result
-            store.add_trials([(key, row, err)], replace=key in replace_keys)
-            remaining_trials.pop(key, None)
+            store.add_trials([(key, row, err)], replace=rep)
             counts["ran"] += 1
             counts["errors"] += err is not None
             progress.step()
 
+    stream = source()
+    retry: collections.deque = collections.deque()
+    in_flight: dict = {}
     last_commit = time.perf_counter()
     restarts = 0
     interrupted = False
+    window = 4 * workers if not pool.dask else max(64, 8 * workers)
     try:
-        while remaining_trials or remaining_maps:
-            queue = [("map", m) for m in remaining_maps.values()] + [("trial", t) for t in remaining_trials.values()]
-            in_flight.clear()
-            window = 4 * workers if not pool.dask else max(64, 8 * workers)
-            it = iter(queue)
+        while True:
             try:
                 while True:
                     while len(in_flight) < window:
-                        item = next(it, None)
+                        item = retry.popleft() if retry else next(stream, None)
                         if item is None:
                             break
-                        fut = _submit(pool, scenario, item, files)
+                        try:
+                            fut = _submit(pool, scenario, item, files)
+                        except BrokenProcessPool:
+                            retry.appendleft(item)
+                            raise
                         in_flight[fut] = item
                     if not in_flight:
                         break
                     finished, _ = cf.wait(list(in_flight), return_when=cf.FIRST_COMPLETED)
                     for fut in finished:
-                        kind, item = in_flight.pop(fut)
-                        take(kind, item, fut.result())
+                        result = fut.result()
+                        take(in_flight.pop(fut), result)
                     now = time.perf_counter()
                     if now - last_commit >= COMMIT_INTERVAL_S:
                         store.commit()
                         last_commit = now
+                break
             except BrokenProcessPool:
+                lost = []
+                for fut, item in in_flight.items():
+                    if fut.done() and not fut.cancelled() and fut.exception() is None:
+                        take(item, fut.result())
+                    else:
+                        lost.append(item)
+                in_flight.clear()
+                retry.extendleft(reversed(lost))
                 store.commit()
                 restarts += 1
                 if restarts > MAX_POOL_RESTARTS:
-                    raise PbdynError(f"worker processes died {restarts} times; {len(remaining_trials)} trials not "
-                                     "run (re-run the same command to resume)") from None
+                    left = plan.pending - counts["ran"]
+                    raise PbdynError(f"worker processes died {restarts} times; {left} trials not run (re-run the "
+                                     "same command to resume)") from None
                 sys.stderr.write(f"pbdyn batch: a worker died; restarting the pool ({restarts}/"
                                  f"{MAX_POOL_RESTARTS}) and resuming\n")
                 pool.restart()
         store.commit()
     except KeyboardInterrupt:
         interrupted = True
-        for fut, (kind, item) in list(in_flight.items()):   # keep what has arrived
+        for fut, item in list(in_flight.items()):   # keep what has arrived
             if fut.done() and not fut.cancelled() and fut.exception() is None:
-                take(kind, item, fut.result())
+                take(item, fut.result())
         raise
     finally:
-        store.commit()
-        pool.close(terminate=interrupted)
+        try:
+            store.commit()
+        finally:
+            pool.close(terminate=interrupted)
     return counts["ran"], counts["errors"], counts["maps"]
 
 
 def _submit(pool: _Pool, scenario: Scenario, item, files: dict):
-    kind, obj = item
+    kind, obj, _ = item
     if kind == "map":
         key, path = files[obj.map_id]
         return pool.submit(run_map_task, MapTask(scenario, obj, RolloutRef(key, str(path)), METRIC_SET, "auto"),
                            key, path)
     key, m, entry, v, start, goal = obj
+    if m.map_id not in files:     # not foreseen (the store changed under the batch): build it now
+        files[m.map_id] = rollout_file(scenario, m, default_horizon(scenario))
     rkey, path = files[m.map_id]
     spec = trial_spec(scenario, m, entry, v, start, goal)
     return pool.submit(run_trial_task, TrialTask(key, spec, RolloutRef(rkey, str(path))), rkey, path)

@@ -11,18 +11,22 @@ rollout and PyBullet world for the next trial of the same map, and one PyBullet 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
+import json
+import operator
 import os
 import traceback
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pbdyn.config import PlannerEntry, Scenario
+from pbdyn.config import PlannerEntry, Scenario, canonical_json
 from pbdyn.errors import one_line
 from pbdyn.metrics.catalog import BATCH
 from pbdyn.sim.outcome import Outcome
-from pbdyn.world.maps import MapSpec
+from pbdyn.world.maps import MapSpec, enumerate_maps
 
 METRIC_SET = BATCH
 """The metrics of the thesis' table 4-5, computed once per map (pbdyn.metrics.catalog)."""
@@ -64,19 +68,171 @@ def trial_spec(scenario: Scenario, map_spec: MapSpec, planner: PlannerEntry, v_m
     return TrialSpec(scenario, map_spec, planner, float(v_max), tuple(map(float, start)), tuple(map(float, goal)))
 
 
-def enumerate_trials(scenario: Scenario, maps: list[MapSpec]) -> list[tuple[str, MapSpec, PlannerEntry, float,
-                                                                            tuple, tuple]]:
+Trial = tuple  # (key, MapSpec, PlannerEntry, v_max, start, goal)
+
+_VARYING = ("map", "v_max", "start", "goal", "planner")
+"""The parts of TrialSpec.resolved() that differ between the trials of one scenario; each depends on one axis."""
+
+
+class _ScenarioDict:
+    """A Scenario whose to_dict() is computed once (TrialSpec.resolved() calls it on every call; with thousands of
+    candidates it costs 0.1 s). Everything else is the scenario's own."""
+
+    def __init__(self, scenario: Scenario):
+        self._scenario = scenario
+        self._dict = scenario.to_dict()
+
+    def to_dict(self) -> dict:
+        return self._dict
+
+    def __getattr__(self, name):
+        return getattr(self._scenario, name)
+
+
+class _TrialKeys:
+    """Trial keys (config hashes) without building a TrialSpec per trial: the canonical JSON of resolved() is the
+    concatenation, in sorted key order, of each top-level value's canonical JSON, so the scenario's fragments are
+    computed once and each axis' fragment (map, planner entry, speed, start, goal) once per value, from resolved()
+    itself. The same bits as spec.config_hash (checked against it on the first trial of every map)."""
+
+    def __init__(self, scenario: Scenario, maps):
+        self.scenario = _ScenarioDict(scenario)
+        self.m0 = maps[0] if len(maps) else None
+        c = scenario.task.candidates
+        self.e0, self.v0, self.c0 = scenario.planners[0], float(scenario.drone.v_max[0]), tuple(c[0])
+        proto = self._resolved(m=self.m0) if self.m0 is not None else {}
+        # the canonical JSON as constant text between the varying values, in sorted key order
+        self.slots: list[str] = []      # varying names, in order
+        self.text: list[str] = [""]     # len(slots) + 1 constant pieces
+        for i, k in enumerate(sorted(proto)):
+            self.text[-1] += ("{" if i == 0 else ",") + json.dumps(k) + ":"
+            if k in _VARYING:
+                self.slots.append(k)
+                self.text.append("")
+            else:
+                self.text[-1] += canonical_json(proto[k])
+        self.text[-1] += "}"
+        self.cache: dict = {}
+
+    def _resolved(self, m=None, e=None, v=None, s=None, g=None) -> dict:
+        return trial_spec(self.scenario, m or self.m0, e or self.e0, self.v0 if v is None else v,
+                          s or self.c0, g or self.c0).resolved()
+
+    def _frag(self, axis: str, ident, **kw) -> str:
+        k = (axis, ident)
+        f = self.cache.get(k)
+        if f is None:
+            f = canonical_json(self._resolved(**kw)[axis])
+            if axis != "map":      # maps come and go; the other axes are few
+                self.cache[k] = f
+        return f
+
+    def key(self, mfrag: str, e_i: int, entry: PlannerEntry, v: float, start: tuple, s_i: int, goal: tuple,
+            g_i: int) -> str:
+        parts = {"map": mfrag, "planner": self._frag("planner", e_i, e=entry),
+                 "v_max": self._frag("v_max", v, v=v), "start": self._frag("start", s_i, s=start),
+                 "goal": self._frag("goal", g_i, g=goal)}
+        text = self.text[0] + "".join(parts[k] + t for k, t in zip(self.slots, self.text[1:]))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def map_frag(self, m: MapSpec) -> str:
+        return self._frag("map", m.key, m=m)
+
+
+class TrialSequence(Sequence):
+    """Every trial of the experiment as (key, map, planner entry, v_max, start, goal), lazily, in the order maps
+    (file order) x planner entries x MAV speeds x start/goal pairs: ``len``, indexing by index arithmetic, slices
+    (lists), iteration and ``iter_range(start, stop)`` (streams; --limit N costs O(N))."""
+
+    def __init__(self, scenario: Scenario, maps=None):
+        self.scenario = scenario
+        self.maps = enumerate_maps(scenario) if maps is None else maps
+        self.cands = tuple(tuple(c) for c in scenario.task.candidates)
+        self.speeds = tuple(float(v) for v in scenario.drone.v_max)
+        self.entries = tuple(scenario.planners)
+        n = len(self.cands)
+        self.n_pairs = n * (n - 1)
+        self.per_map = len(self.entries) * len(self.speeds) * self.n_pairs
+        self._keys: _TrialKeys | None = None
+
+    def __len__(self) -> int:
+        return len(self.maps) * self.per_map
+
+    def pair(self, p: int) -> tuple[int, int]:
+        """The p-th ordered (start, goal) index pair, as scenario.task.pairs()[p]."""
+        n1 = len(self.cands) - 1
+        i, r = divmod(p, n1)
+        return i, r + (r >= i)
+
+    def _split(self, idx: int) -> tuple[int, int, int, int]:
+        m, rem = divmod(idx, self.per_map)
+        e, rem = divmod(rem, len(self.speeds) * self.n_pairs)
+        v, p = divmod(rem, self.n_pairs)
+        return m, e, v, p
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            start, stop, step = index.indices(len(self))
+            if step == 1:
+                return list(self.iter_range(start, stop))
+            return [self[i] for i in range(start, stop, step)]
+        n = len(self)
+        i = operator.index(index)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError("trial index out of range")
+        return next(self.iter_range(i, i + 1))
+
+    def __iter__(self) -> Iterator[Trial]:
+        return self.iter_range(0, len(self))
+
+    def map_range(self, stop: int) -> range:
+        """Indices of the maps the first ``stop`` trials fly on."""
+        return range(0, (stop + self.per_map - 1) // self.per_map if self.per_map else 0)
+
+    def iter_range(self, start: int, stop: int) -> Iterator[Trial]:
+        """Trials start..stop-1 of the enumeration, one at a time."""
+        stop = min(stop, len(self))
+        if start >= stop:
+            return
+        if self._keys is None:
+            self._keys = _TrialKeys(self.scenario, self.maps)
+        keys = self._keys
+        nv, npairs = len(self.speeds), self.n_pairs
+        idx = start
+        while idx < stop:
+            mi, e_i, v_i, p = self._split(idx)
+            m = self.maps[mi]
+            mfrag = keys.map_frag(m)
+            checked = False
+            for e_i in range(e_i, len(self.entries)):
+                entry = self.entries[e_i]
+                for v_i in range(v_i, nv):
+                    v = self.speeds[v_i]
+                    for p in range(p, npairs):
+                        if idx >= stop:
+                            return
+                        i, j = self.pair(p)
+                        s, g = self.cands[i], self.cands[j]
+                        key = keys.key(mfrag, e_i, entry, v, s, i, g, j)
+                        if not checked:       # the fragments against the spec's own hash, once per map
+                            ref = trial_spec(self.scenario, m, entry, v, s, g).config_hash
+                            if ref != key:   # pragma: no cover - a change to TrialSpec.resolved() needs _VARYING
+                                raise RuntimeError(f"trial key fragments disagree with TrialSpec.config_hash "
+                                                   f"({key} != {ref}); update pbdyn.experiments.tasks._VARYING")
+                            checked = True
+                        yield key, m, entry, v, s, g
+                        idx += 1
+                    p = 0
+                v_i = 0
+
+
+def enumerate_trials(scenario: Scenario, maps=None) -> TrialSequence:
     """Every trial of the experiment as (key, map, planner entry, v_max, start, goal), in the order maps (file
-    order) x planner entries x MAV speeds x start/goal pairs."""
-    cands = scenario.task.candidates
-    out = []
-    for m in maps:
-        for entry in scenario.planners:
-            for v in scenario.drone.v_max:
-                for i, j in scenario.task.pairs():
-                    spec = trial_spec(scenario, m, entry, v, cands[i], cands[j])
-                    out.append((spec.config_hash, m, entry, float(v), tuple(cands[i]), tuple(cands[j])))
-    return out
+    order) x planner entries x MAV speeds x start/goal pairs -- lazily (a TrialSequence); ``maps``: the maps to
+    enumerate (default: all of the scenario's, lazily)."""
+    return TrialSequence(scenario, maps)
 
 
 # ------------------------------------------------------------------------------------------------ worker side

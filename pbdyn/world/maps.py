@@ -7,11 +7,15 @@ replicate number, never by a position in a list, so adding a grid value adds map
 from __future__ import annotations
 
 import hashlib
+import itertools
+import math
+import operator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pbdyn.config import Scenario, canonical_json
+from pbdyn.config import Range, Scenario, _json_default, canonical_json
 from pbdyn.errors import ConfigError
 from pbdyn.world.geometry import StaticBody
 
@@ -56,19 +60,65 @@ class MapSpec:
         return np.random.default_rng(self.seed_sequence())
 
 
-def enumerate_maps(scenario: Scenario) -> list[MapSpec]:
-    """All maps: setups in file order (first grid field slowest), replicates fastest."""
-    out = []
-    for setup in scenario.setups():
-        for rep in range(scenario.obstacles.maps_per_setup):
-            out.append(MapSpec(len(out), setup, rep, scenario.obstacles.root_seed))
-    return out
+class MapSequence(Sequence):
+    """Every map of a scenario, lazily: setups in file order (first grid field slowest), replicates fastest.
+
+    ``len``, indexing (index arithmetic: no other map is built), slices (lists) and iteration; the same MapSpecs,
+    in the same order, as building the whole list."""
+
+    def __init__(self, scenario: Scenario):
+        self._grids = [(k, tuple(getattr(scenario.obstacles, k))) for k in scenario.obstacles.grid_order]
+        self._reps = int(scenario.obstacles.maps_per_setup)
+        self._root_seed = scenario.obstacles.root_seed
+        self._n_setups = math.prod(len(v) for _, v in self._grids)
+
+    def __len__(self) -> int:
+        return self._n_setups * self._reps
+
+    @staticmethod
+    def _setup(keys, combo) -> dict:
+        return {k: _json_default(v) if isinstance(v, Range) else v for k, v in zip(keys, combo)}
+
+    def setup(self, s: int) -> dict:
+        """The setup values of setup number ``s`` (mixed radix, first grid field slowest)."""
+        combo = []
+        for _, values in reversed(self._grids):
+            s, d = divmod(s, len(values))
+            combo.append(values[d])
+        return self._setup([k for k, _ in self._grids], reversed(combo))
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        n = len(self)
+        i = operator.index(index)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError("map index out of range")
+        s, rep = divmod(i, self._reps)
+        return MapSpec(i, self.setup(s), rep, self._root_seed)
+
+    def __iter__(self) -> Iterator[MapSpec]:
+        keys = [k for k, _ in self._grids]
+        i = 0
+        for combo in itertools.product(*(v for _, v in self._grids)):
+            setup = self._setup(keys, combo)
+            for rep in range(self._reps):
+                yield MapSpec(i, setup, rep, self._root_seed)
+                i += 1
+
+
+def enumerate_maps(scenario: Scenario) -> MapSequence:
+    """All maps, lazily (a Sequence: len, index, slice, iterate): setups in file order (first grid field slowest),
+    replicates fastest."""
+    return MapSequence(scenario)
 
 
 def get_map(scenario: Scenario, index: int) -> MapSpec:
-    """The map with enumeration index ``index``; ConfigError if out of range."""
-    maps = enumerate_maps(scenario)
-    if not isinstance(index, int) or not 0 <= index < len(maps):
+    """The map with enumeration index ``index`` (built alone, by index arithmetic); ConfigError if out of range."""
+    maps = MapSequence(scenario)
+    if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(maps):
         raise ConfigError("map", f"must be an index in [0, {len(maps) - 1}]", index)
     return maps[index]
 
