@@ -4,7 +4,7 @@ RULES says which pbdyn sub-packages (or top-level modules) each one may import; 
 Every import in every pbdyn module is checked with ``ast`` - module level, inside functions (lazy imports),
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
-Layers, bottom to top: errors, resources, config | world | perception | planning | metrics (beside perception and
+Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, resources, config | world | perception | planning | metrics (beside perception and
 planning: it sees rollouts only) | sim | analysis | experiments (evaluate feeds stored results to analysis) | api
 (the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py, which re-exports the api.
 """
@@ -19,14 +19,15 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("errors", "resources", "config")
+_BASE = ("usercode", "errors", "resources", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
 RULES: dict[str, tuple[str, ...]] = {
-    "errors": (),
-    "resources": ("errors",),
-    "config": ("errors", "resources"),
+    "usercode": (),
+    "errors": ("usercode",),
+    "resources": ("usercode", "errors"),
+    "config": ("usercode", "errors", "resources"),
     "world": _BASE,
     "perception": _BASE + ("world",),
     "planning": _BASE + ("world", "perception"),
