@@ -71,6 +71,7 @@ def cli_in_process(argv) -> tuple[int, str, str]:
     ("returns_nan", "at t = 0.6 s .*position must be 3 finite numbers; it returned \\[25.0, nan, 2.0\\]"),
     ("returns_inf", "position must be 3 finite numbers"),
     ("returns_huge_int", "position must be 3 finite numbers"),
+    ("returns_far", r"coordinates must be within \+-1e\+06 m; it returned \[1e\+300, 25.0, 2.0\]"),
     ("returns_bad_float", "position must be 3 real numbers"),
     ("returns_multiline_array", r"not shape \(20, 10\)"),
     ("returns_zero_quat", "quaternion must not be zero"),
@@ -221,6 +222,15 @@ def test_in_process_cli_keeps_stdout_clean_with_a_printing_motion_function(tmp_p
     path = world_file(tmp_path, f"{M}:prints", time_limit=1.0, dt=0.05)   # a rollout no other test cached
     code, out, err = cli_in_process(["metrics", path, "--metric", "density", "--json"])
     assert code == 0 and json.loads(out) and "hello from the motion function" in err
+
+
+def test_a_planner_that_exits_ends_the_run_with_one_line(tmp_path):
+    path = tmp_path / "short.toml"
+    path.write_text((ROOT / "scenarios" / "quickstart.toml").read_text().replace("time_limit = 40.0",
+                                                                                "time_limit = 2.0"))
+    code, out, err = cli_in_process(["run", path, "--json", "--planner", f"{M}:ExitingPlanner"])
+    assert code == 2 and out == "" and err.splitlines() == [
+        f"pbdyn: error: --planner: the planner pair {M}:ExitingPlanner + lookahead raised SystemExit: 7 at t = 0 s"]
 
 
 def test_one_line_and_shorten():

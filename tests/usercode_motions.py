@@ -183,3 +183,20 @@ class PrintingGaze(FullRange):
     def yaw_rate(self, view, trajectory):
         print("gaze!")
         return super().yaw_rate(view, trajectory)
+
+
+def returns_far(t, *, x=1e300):
+    """Finite but absurd positions (far outside any arena)."""
+    return [x * (1.0 + t), 25.0, 2.0]
+
+
+class ExitingPlanner(StraightLine):
+    """plan() calls sys.exit (a planner plug-in's BaseException)."""
+
+    def plan(self, view):
+        sys.exit(7)
+
+
+class RaisingPlanner(StraightLine):
+    def plan(self, view):
+        raise RuntimeError("planner bug")

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pbdyn.errors import ConfigError, one_line
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.planning.trajectory import Trajectory
@@ -104,9 +105,19 @@ class Agent:
     def act(self, view: View) -> Decision:
         """Steps (4)-(6) at view.t: replan if asked (checking the plan contract), the gaze yaw rate, and the MAV's
         next state from the plan in execution or, without one, a braking step. What the planners print goes to
-        stderr (Python-level writes; pbdyn.usercode.user_stdout)."""
+        stderr (Python-level writes; pbdyn.usercode.user_stdout). A planner's exit or other BaseException
+        (SystemExit, GeneratorExit; not KeyboardInterrupt) becomes a ConfigError naming the pair and the time, so it
+        ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2); Exceptions keep their type and
+        traceback."""
         with user_stdout():
-            return self._act(view)
+            try:
+                return self._act(view)
+            except (Exception, KeyboardInterrupt):
+                raise
+            except BaseException as exc:
+                entry = self.spec.planner
+                raise ConfigError("planner", f"the planner pair {entry.trajectory} + {entry.gaze} raised "
+                                  f"{one_line(exc)} at t = {view.t:g} s", None, show_value=False) from None
 
     def _act(self, view: View) -> Decision:
         c3 = time.perf_counter()

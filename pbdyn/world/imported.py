@@ -29,6 +29,9 @@ from pbdyn.world.motion import cvm_fold
 from pbdyn.world.shapes import ShapeField, body_primitives, bounds_of, quat_from_rpy, rotation_from_quat
 
 YAW_ONLY_TOL = 1e-9
+MAX_COORDINATE_M = 1e6
+"""Largest |coordinate| (m) a motion function may return: finite positions beyond it (1e300) are bugs, and they
+overflow the velocity, collision and distance arithmetic downstream."""
 
 
 @dataclass(frozen=True)
@@ -163,6 +166,8 @@ def _pose(out: object) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     p, problem = _real_vector(out, 3, "position")
     if p is None:
         return None, None, problem
+    if np.any(np.abs(p) > MAX_COORDINATE_M):
+        return None, None, f"the position's coordinates must be within +-{MAX_COORDINATE_M:g} m"
     qa, problem = _real_vector(q, 4, "quaternion")
     if qa is None:
         return None, None, problem
