@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import inspect
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -213,11 +214,16 @@ def _function_poses(body: BodyConfig, where: str, times: np.ndarray) -> tuple[np
     return pos, quat
 
 
-def _sphere(prims, dims: int, yaw_only: bool) -> tuple[np.ndarray, float]:
+def _sphere(prims, dims: int, yaw_only: bool, where: str) -> tuple[np.ndarray, float]:
     lo, hi = bounds_of(prims)
-    centre = 0.5 * (lo + hi)
-    half = 0.5 * (hi - lo)
-    radius = float(np.linalg.norm(half[:2] if dims == 2 and yaw_only else half))
+    with np.errstate(all="ignore"):      # non-finite or huge geometry: reported below, not as RuntimeWarnings
+        centre = 0.5 * (lo + hi)
+        half = 0.5 * (hi - lo)
+        radius = float(np.linalg.norm(half[:2] if dims == 2 and yaw_only else half))
+    if not (np.all(np.isfinite(centre)) and math.isfinite(radius) and radius <= MAX_COORDINATE_M):
+        raise ConfigError(where, f"the body's collision geometry (scaled) must have a finite size of at most "
+                          f"{MAX_COORDINATE_M:g} m (bounding box {lo.tolist()} .. {hi.tolist()} m)", None,
+                          show_value=False)
     return centre, max(radius, 1e-6)
 
 
@@ -245,7 +251,7 @@ def build_world_bodies(scenario: Scenario, times: np.ndarray) -> WorldBodies:
         elif body.motion not in ("static", "constant_velocity"):
             pos, quat = _function_poses(body, where, times)
         yaw_only = bool(np.all(np.abs(quat[:, :2]) <= YAW_ONLY_TOL))
-        c_local, r = _sphere(prims, dims, yaw_only)
+        c_local, r = _sphere(prims, dims, yaw_only, where)
         if body.motion == "constant_velocity":
             c0 = pos[0] + rotation_from_quat(q0) @ c_local
             if np.any(c0[:dims] - r < 0) or np.any(c0[:dims] + r > size):
