@@ -117,26 +117,63 @@ def check_positive(field: str, value: object) -> float:
     return v
 
 
+MAX_MESSAGE_CHARS = 300
+"""Longest text of a user exception (or returned value) quoted in a one-line error."""
+
+
+def shorten(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
+    """``text`` with its whitespace (line breaks included) collapsed to single spaces, other control characters
+    escaped, and cut to ``limit`` characters ("..." marks a cut)."""
+    text = " ".join(text.split())
+    if not text.isprintable():
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def one_line(exc: BaseException) -> str:
-    """``exc`` as one line: "Type: message" with the message's whitespace collapsed."""
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    """``exc`` as one line: "Type: message" with the message's whitespace collapsed (and cut; an exception whose
+    str() fails is named by its type)."""
+    try:
+        text = shorten(str(exc))
+    except KeyboardInterrupt:
+        raise
+    except BaseException:  # user exceptions may fail to print themselves
+        text = "<unprintable>"
+    name = getattr(type(exc), "__name__", "exception")
+    return f"{name}: {text}" if text else name
+
+
+def import_module(module_name: str, field: str, name: str | None = None):
+    """Import the user module ``module_name``; ConfigError naming ``field`` (and showing ``name``, default the
+    module name) on any exception or exit while importing it (SystemExit, custom BaseExceptions; not
+    KeyboardInterrupt). What the module prints while it is imported goes to stderr (Python and C level), never to
+    pbdyn's stdout."""
+    import importlib
+
+    from pbdyn.usercode import quiet_user_code
+
+    try:
+        with quiet_user_code():
+            return importlib.import_module(module_name)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # any failure while importing user code is a configuration problem
+        raise ConfigError(field, f"cannot import module {module_name!r} ({one_line(exc)})",
+                          module_name if name is None else name) from None
 
 
 def import_object(name: str, field: str):
     """The object named by "package.module:attr[.attr...]" (user plug-ins, motion functions); ConfigError naming
-    ``field`` if the module cannot be imported or has no such attribute."""
-    import importlib
-
+    ``field`` if the module cannot be imported (see import_module) or has no such attribute."""
     module_name, _, attr = name.partition(":")
-    try:
-        obj = importlib.import_module(module_name)
-    except Exception as exc:  # any failure while importing user code is a configuration problem
-        raise ConfigError(field, f"cannot import module {module_name!r} ({one_line(exc)})", name) from None
+    obj = import_module(module_name, field, name)
     for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise ConfigError(field, f"module {module_name!r} has no attribute {attr!r}", name)
-        obj = getattr(obj, part)
+        try:
+            obj = getattr(obj, part)
+        except KeyboardInterrupt:
+            raise
+        except BaseException:  # AttributeError, or a module __getattr__ that fails
+            raise ConfigError(field, f"module {module_name!r} has no attribute {attr!r}", name) from None
     return obj
 
 

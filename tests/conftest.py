@@ -37,3 +37,8 @@ def write_scenario(tmp_path):
 def pbdyn_cmd() -> list[str]:
     """The command line that runs the pbdyn CLI with this interpreter."""
     return [sys.executable, "-m", "pbdyn.cli"]
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "fuzz: the CLI-contract fuzz tests (tests/test_fuzz.py); run them alone with "
+                                       "-m 'fuzz and not slow', or all of them with -m fuzz")

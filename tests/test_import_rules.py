@@ -4,10 +4,10 @@ RULES says which pbdyn sub-packages (or top-level modules) each one may import; 
 Every import in every pbdyn module is checked with ``ast`` - module level, inside functions (lazy imports),
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
-Layers, bottom to top: errors, limits (resource limits), urdf (URDF validation), resources, config | world |
-perception | planning | metrics (beside perception and planning: it sees rollouts only) | sim | analysis |
-experiments (evaluate feeds stored results to analysis) | api (the one door) | cli, gym, __main__, and the package
-root pbdyn/__init__.py, which re-exports the api.
+Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, limits (resource
+limits), urdf (URDF validation), resources, config | world | perception | planning | metrics (beside perception and
+planning: it sees rollouts only) | sim | analysis | experiments (evaluate feeds stored results to analysis) | api
+(the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py, which re-exports the api.
 """
 
 from __future__ import annotations
@@ -20,16 +20,17 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("errors", "limits", "urdf", "resources", "config")
+_BASE = ("usercode", "errors", "limits", "urdf", "resources", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
 RULES: dict[str, tuple[str, ...]] = {
-    "errors": (),
-    "limits": ("errors",),
-    "urdf": ("errors",),
-    "resources": ("errors",),
-    "config": ("errors", "limits", "urdf", "resources"),
+    "usercode": (),
+    "errors": ("usercode",),
+    "limits": ("usercode", "errors"),
+    "urdf": ("usercode", "errors"),
+    "resources": ("usercode", "errors"),
+    "config": ("usercode", "errors", "limits", "urdf", "resources"),
     "world": _BASE,
     "perception": _BASE + ("world",),
     "planning": _BASE + ("world", "perception"),
@@ -141,11 +142,12 @@ def test_every_pbdyn_import_follows_the_rules():
 
 def test_the_rules_are_a_one_way_order():
     """No cycles; nothing below the api may import api, cli, gym, __main__ or the package root; config and
-    errors sit at the bottom."""
+    errors sit at the bottom, on usercode (stdlib only)."""
     for unit, allowed in RULES.items():
         if unit not in _TOP:
             assert not set(allowed) & set(_TOP), f"{unit} may import {sorted(set(allowed) & set(_TOP))}"
-    assert set(RULES["config"]) <= {"errors", "limits", "urdf", "resources"} and RULES["errors"] == ()
+    assert set(RULES["config"]) <= {"usercode", "errors", "limits", "urdf", "resources"}
+    assert RULES["errors"] == ("usercode",) and RULES["usercode"] == ()
     done: set[str] = set()
 
     def visit(u: str, stack: tuple[str, ...]) -> None:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pbdyn.errors import ConfigError, one_line
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.planning.trajectory import Trajectory
@@ -21,6 +22,7 @@ from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.contract import PlanViolation, check_plan, plan_violations
 from pbdyn.sim.env import Action
 from pbdyn.sim.spec import TrialSpec
+from pbdyn.usercode import quiet_user_code, user_stdout
 
 
 def brake(p: np.ndarray, v: np.ndarray, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -89,7 +91,8 @@ class Agent:
 
     def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool = True):
         self.spec = spec
-        self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze)
+        with quiet_user_code():  # plug-ins' prints while they are built go to stderr (Python and C level)
+            self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze)
         self.limits = self.context.limits
         self.physical = physical
         self.fov_deg = getattr(self.gaze, "fov_deg", None)
@@ -101,7 +104,22 @@ class Agent:
 
     def act(self, view: View) -> Decision:
         """Steps (4)-(6) at view.t: replan if asked (checking the plan contract), the gaze yaw rate, and the MAV's
-        next state from the plan in execution or, without one, a braking step."""
+        next state from the plan in execution or, without one, a braking step. What the planners print goes to
+        stderr (Python-level writes; pbdyn.usercode.user_stdout). A planner's exit or other BaseException
+        (SystemExit, GeneratorExit; not KeyboardInterrupt) becomes a ConfigError naming the pair and the time, so it
+        ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2); Exceptions keep their type and
+        traceback."""
+        with user_stdout():
+            try:
+                return self._act(view)
+            except (Exception, KeyboardInterrupt):
+                raise
+            except BaseException as exc:
+                entry = self.spec.planner
+                raise ConfigError("planner", f"the planner pair {entry.trajectory} + {entry.gaze} raised "
+                                  f"{one_line(exc)} at t = {view.t:g} s", None, show_value=False) from None
+
+    def _act(self, view: View) -> Decision:
         c3 = time.perf_counter()
         limits = self.limits
         plan_ok = True

@@ -22,7 +22,6 @@ the results equal casting every ray, at a fraction of the cost (Bullet's ray tes
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import functools
 import math
 import operator
@@ -38,38 +37,9 @@ import numpy as np
 from pbdyn import resources
 from pbdyn.errors import ConfigError, check_positive
 from pbdyn.urdf import check_urdf
+from pbdyn.usercode import flush_c_stdout as _flush_c_stdout
+from pbdyn.usercode import stdout_fd_to as _stdout_to
 from pbdyn.world.geometry import StaticBody
-
-
-def _flush_c_stdout() -> None:
-    try:
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, AttributeError):  # pragma: no cover - platforms without a C runtime handle
-        pass
-
-
-@contextlib.contextmanager
-def _stdout_to(fd: int | None) -> Iterator[None]:
-    """Point file descriptor 1 at ``fd`` (None: /dev/null) for the duration; Python's and the C runtime's stdout
-    buffers are flushed on both sides, so nothing printed inside the block can reach the real stdout later."""
-    sys.stdout.flush()
-    _flush_c_stdout()
-    try:
-        saved = os.dup(1)
-    except OSError:  # no fd 1 at all: nothing to protect
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY) if fd is None else None
-    try:
-        os.dup2(devnull if fd is None else fd, 1)
-        yield
-    finally:
-        sys.stdout.flush()
-        _flush_c_stdout()
-        os.dup2(saved, 1)
-        os.close(saved)
-        if devnull is not None:
-            os.close(devnull)
 
 
 def stdout_to_stderr():

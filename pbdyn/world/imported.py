@@ -16,19 +16,23 @@ z (else the 3D value) -- the disc that covers the body's cut by the flight plane
 from __future__ import annotations
 
 import hashlib
-import importlib
 import inspect
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pbdyn.config import BodyConfig, Scenario
-from pbdyn.errors import ConfigError, import_object, one_line
+from pbdyn.errors import ConfigError, import_module, import_object, one_line, shorten
+from pbdyn.usercode import USER_CODE_TIMEOUT_S, UserCodeTimeout, quiet_user_code, time_budget
 from pbdyn.world.motion import cvm_fold
 from pbdyn.world.shapes import ShapeField, body_primitives, bounds_of, quat_from_rpy, rotation_from_quat
 
 YAW_ONLY_TOL = 1e-9
+MAX_COORDINATE_M = 1e6
+"""Largest |coordinate| (m) a motion function may return: finite positions beyond it (1e300) are bugs, and they
+overflow the velocity, collision and distance arithmetic downstream."""
 
 
 @dataclass(frozen=True)
@@ -112,37 +116,114 @@ def _load_function(body: BodyConfig, where: str):
     return obj
 
 
+_REAL_KINDS = "iuf"
+"""numpy dtype kinds a pose may have: integers and floats (not bool, complex, strings or objects)."""
+
+
+def _shown(value: object) -> str:
+    """A returned value as a short one-line text for error messages (its repr; the type if even that fails)."""
+    try:
+        text = repr(value)
+    except KeyboardInterrupt:
+        raise
+    except BaseException:
+        text = f"<{type(value).__name__} object>"
+    return shorten(text, 120)
+
+
+def _real_vector(value: object, n: int, what: str) -> tuple[np.ndarray | None, str]:
+    """(value as float [n], "") if it is n real, finite numbers, else (None, what is wrong). Conversion may run
+    user code (__float__, __array__); the caller guards it."""
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError, OverflowError):  # ragged nesting and the like
+        return None, f"the {what} must be {n} real numbers"
+    if arr.dtype.kind == "O":  # a list of Python objects: each must be a real number (bool is not)
+        flat = arr.reshape(-1).tolist()
+        if any(isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating))
+               for x in flat):
+            return None, f"the {what} must be {n} real numbers"
+        try:
+            arr = np.array(flat, dtype=float).reshape(arr.shape)
+        except OverflowError:
+            return None, f"the {what} must be {n} finite numbers"
+    if arr.dtype.kind not in _REAL_KINDS:
+        return None, f"the {what} must be {n} real numbers"
+    if arr.size != n:
+        return None, f"the {what} must be {n} numbers, not shape {arr.shape}"
+    with np.errstate(all="ignore"):
+        out = arr.astype(float).reshape(n)
+    if not np.all(np.isfinite(out)):
+        return None, f"the {what} must be {n} finite numbers"
+    return out, ""
+
+
+def _pose(out: object) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """(position [3], unit quaternion xyzw [4], "") from a motion function's return value, or (None, None, what is
+    wrong)."""
+    q: object = (0.0, 0.0, 0.0, 1.0)
+    if isinstance(out, tuple) and len(out) == 2:
+        out, q = out
+    p, problem = _real_vector(out, 3, "position")
+    if p is None:
+        return None, None, problem
+    if np.any(np.abs(p) > MAX_COORDINATE_M):
+        return None, None, f"the position's coordinates must be within +-{MAX_COORDINATE_M:g} m"
+    qa, problem = _real_vector(q, 4, "quaternion")
+    if qa is None:
+        return None, None, problem
+    m = float(np.max(np.abs(qa)))
+    if m == 0.0:
+        return None, None, "the quaternion must not be zero"
+    qa = qa / m                                       # scaled first: no overflow for huge components
+    return p, qa / float(np.sqrt(qa @ qa)), ""
+
+
 def _function_poses(body: BodyConfig, where: str, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pose of a body moved by a user function, called at each time under the user-code rules: its prints go
+    to stderr, any exception or exit it raises (not KeyboardInterrupt) and any return value that is not a pose
+    (README "Imported worlds") become a ConfigError naming ``bodies[i].motion`` with the time, and all its calls
+    together must finish within USER_CODE_TIMEOUT_S of wall-clock time."""
+    field = f"{where}.motion"
     fn = _load_function(body, where)
     pos = np.empty((times.shape[0], 3))
     quat = np.empty((times.shape[0], 4))
-    for k, t in enumerate(times.tolist()):
-        try:
-            out = fn(t, **dict(body.params))
-        except Exception as exc:
-            raise ConfigError(f"{where}.motion", f"the motion function raised at t = {t:g} s ({one_line(exc)})",
-                              body.motion) from None
-        q = (0.0, 0.0, 0.0, 1.0)
-        if isinstance(out, tuple) and len(out) == 2:
-            out, q = out
-        p = np.asarray(out, dtype=float).reshape(-1)
-        q = np.asarray(q, dtype=float).reshape(-1)
-        if p.shape != (3,) or q.shape != (4,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-            raise ConfigError(f"{where}.motion", "the motion function must return a finite position [3] or "
-                              f"(position [3], quaternion xyzw [4]); at t = {t:g} s it did not", body.motion)
-        norm = float(np.linalg.norm(q))
-        if norm < 1e-9:
-            raise ConfigError(f"{where}.motion", f"the motion function returned a zero quaternion at t = {t:g} s",
-                              body.motion)
-        pos[k], quat[k] = p, q / norm
+    params = dict(body.params)
+    t = float(times[0]) if times.shape[0] else 0.0
+    try:
+        with quiet_user_code(), time_budget(USER_CODE_TIMEOUT_S) as budget:
+            for k, t in enumerate(times.tolist()):
+                try:
+                    out = fn(t, **params)
+                    p, q, problem = _pose(out)
+                    if p is None:
+                        problem = f"{problem}; it returned {_shown(out)}"
+                except (KeyboardInterrupt, UserCodeTimeout):
+                    raise
+                except BaseException as exc:
+                    raise ConfigError(field, f"the motion function raised at t = {t:g} s ({one_line(exc)})",
+                                      body.motion) from None
+                if p is None:
+                    raise ConfigError(field, f"at t = {t:g} s the motion function must return a position [3] or "
+                                      f"(position [3], quaternion xyzw [4]): {problem}", body.motion)
+                pos[k], quat[k] = p, q
+                budget.check()
+    except UserCodeTimeout as exc:
+        raise ConfigError(field, f"the motion function did not return within {exc.seconds:g} s (its calls over the "
+                          f"whole rollout; stopped at t = {t:g} s)", body.motion) from None
     return pos, quat
 
 
-def _sphere(prims, dims: int, yaw_only: bool) -> tuple[np.ndarray, float]:
+def _sphere(prims, dims: int, yaw_only: bool, where: str) -> tuple[np.ndarray, float]:
     lo, hi = bounds_of(prims)
-    centre = 0.5 * (lo + hi)
-    half = 0.5 * (hi - lo)
-    radius = float(np.linalg.norm(half[:2] if dims == 2 and yaw_only else half))
+    with np.errstate(all="ignore"):      # non-finite or huge geometry: reported below, not as RuntimeWarnings
+        centre = 0.5 * (lo + hi)
+        half = 0.5 * (hi - lo)
+        radius = float(np.linalg.norm(half[:2] if dims == 2 and yaw_only else half))
+    if not (np.all(np.isfinite(centre)) and math.isfinite(radius) and radius <= MAX_COORDINATE_M):
+        raise ConfigError(where, f"the body's collision geometry (scaled) must have a finite size of at most "
+                          f"{MAX_COORDINATE_M:g} m (bounding box {lo.tolist()} .. {hi.tolist()} m)", None,
+                          show_value=False)
     return centre, max(radius, 1e-6)
 
 
@@ -170,7 +251,7 @@ def build_world_bodies(scenario: Scenario, times: np.ndarray) -> WorldBodies:
         elif body.motion not in ("static", "constant_velocity"):
             pos, quat = _function_poses(body, where, times)
         yaw_only = bool(np.all(np.abs(quat[:, :2]) <= YAW_ONLY_TOL))
-        c_local, r = _sphere(prims, dims, yaw_only)
+        c_local, r = _sphere(prims, dims, yaw_only, where)
         if body.motion == "constant_velocity":
             c0 = pos[0] + rotation_from_quat(q0) @ c_local
             if np.any(c0[:dims] - r < 0) or np.any(c0[:dims] + r > size):
@@ -260,9 +341,9 @@ def bodies_fingerprint(scenario: Scenario) -> list[dict]:
             d["urdf_sha256"] = None
         if body.motion not in ("static", "constant_velocity", "waypoints"):
             try:
-                src = inspect.getsourcefile(importlib.import_module(body.motion.partition(":")[0]))
+                src = inspect.getsourcefile(import_module(body.motion.partition(":")[0], f"bodies[{i}].motion"))
                 d["function_sha256"] = _file_digest(Path(src)) if src else None
-            except Exception:  # reported properly when the rollout is built
+            except (ConfigError, TypeError, OSError):  # reported properly when the rollout is built
                 d["function_sha256"] = None
         out.append(d)
     return out
