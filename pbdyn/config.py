@@ -53,6 +53,8 @@ def _check_number(value: Any, name: str, *, lo: float | None = None, lo_open: bo
     v = float(value)
     if not math.isfinite(v):
         raise ConfigError(name, "must be finite", value)
+    if abs(v) > limits.MAX_MAGNITUDE:
+        raise ConfigError(name, f"must be within +-{limits.MAX_MAGNITUDE:g} (pbdyn's limit for any scenario number)", value)
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise ConfigError(name, f"must be {'>' if lo_open else '>='} {lo:g}", value)
     if hi is not None and v > hi:
@@ -317,7 +319,7 @@ class Scenario:
         """True for an imported world (a scenario with [[bodies]] instead of generated obstacles)."""
         return bool(self.bodies)
 
-    def resolve_path(self, name: str) -> Path:
+    def resolve_path(self, name: str, field: str = "urdf") -> Path:
         """Absolute path of a file named in the scenario: absolute as is; relative: the scenario's folder if the
         file is there, else the bundled models (pbdyn.resources.models_dir)."""
         p = Path(name)
@@ -325,8 +327,11 @@ class Scenario:
             return p
         if self.source:
             cand = Path(self.source).resolve().parent / p
-            if cand.exists():
-                return cand
+            try:
+                if cand.exists():
+                    return cand
+            except OSError as exc:   # e.g. a file name longer than the file system allows
+                raise ConfigError(field, f"is not a usable path ({exc.strerror})", name) from None
         return resources.models_dir() / p
 
     def to_dict(self) -> dict:
@@ -354,7 +359,7 @@ class Scenario:
 
     def mav_urdf_path(self) -> Path:
         """Absolute path of the MAV URDF (relative paths: the scenario's folder, then the bundled urdf/)."""
-        return self.resolve_path(self.drone.urdf)
+        return self.resolve_path(self.drone.urdf, "drone.urdf")
 
 
 def _defaults(cls: type) -> dict[str, Any]:
@@ -629,6 +634,11 @@ def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
         else:
             position = bd["position"]   # a motion function gives every pose
         rpy = _vector(t["rpy_deg"], f"{where}.rpy_deg", 3) if "rpy_deg" in t else bd["rpy_deg"]
+        for key, points in (("position", [position] if "position" in t else []), ("waypoints", waypoints)):
+            for pt in points:
+                if not all(0.0 <= pt[a] <= world.size[a] for a in range(world.dims)):
+                    raise ConfigError(f"{where}.{key}", "must lie inside the arena "
+                                      f"[0, {', '.join(f'{s:g}' for s in world.size)}]", list(pt))
         out.append(BodyConfig(name, urdf, tuple(scale), tuple(position), tuple(rpy), motion, velocity, waypoints,
                               speed, params))
     return tuple(out)
@@ -826,7 +836,7 @@ def _check_urdfs(scenario: "Scenario") -> None:
     named = [("drone.urdf", scenario.drone.urdf, (r, r, r))]
     named += [(f"bodies[{i}].urdf", b.urdf, b.scale) for i, b in enumerate(scenario.bodies)]
     for field_name, name, scale in named:
-        path = scenario.resolve_path(name)
+        path = scenario.resolve_path(name, field_name)
         if not path.is_file():
             raise ConfigError(field_name, "file not found" + ("" if Path(name).is_absolute() else
                               " (relative paths: the scenario's folder, then the bundled urdf/)"), name)

@@ -16,6 +16,12 @@ and the limit. The limits are generous: every bundled scenario and dataset uses 
 - MAX_RVO_CANDIDATES = 100 000: obstacles.rvo n_headings x n_speeds.
 - MAX_RVO_CONTACT_ITERATIONS = 1 000: obstacles.rvo.contact_iterations.
 - MAX_NESTING = 32: levels of tables and arrays in a scenario document.
+- MAX_MAGNITUDE = 1e9: the absolute value of any number in a scenario (m, m/s, s, ...; integers such as seeds
+  excepted), so that no arithmetic on it overflows.
+- Built-in planner parameters (checked when a planner is built, naming planners[i].trajectory_params.<key>):
+  MAX_PLAN_HORIZON_S = 1 000 s for any planning/prediction horizon or primitive duration, MAX_PLAN_COUNT =
+  100 000 for counts of candidates, expansions, tracks, cells or rates, and MAX_PLAN_DISTANCE_M = 10 000 m for a
+  primitive's length; a local primitive whose duration would exceed MAX_PLAN_HORIZON_S is not built.
 - MAX_METRIC_SAMPLES = 10 000 000: points or cells of a metric's sample grid over the arena (checked when the metric
   runs: its spacing / cell is a metric parameter, named in the error).
 
@@ -38,6 +44,10 @@ MAX_GRID_CELLS = 100_000_000
 MAX_SENSOR_RAYS = 100_000
 MAX_RVO_CANDIDATES = 100_000
 MAX_RVO_CONTACT_ITERATIONS = 1_000
+MAX_MAGNITUDE = 1e9
+MAX_PLAN_HORIZON_S = 1_000.0
+MAX_PLAN_COUNT = 100_000
+MAX_PLAN_DISTANCE_M = 10_000.0
 MAX_NESTING = 32
 MAX_METRIC_SAMPLES = 10_000_000
 

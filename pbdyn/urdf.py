@@ -27,6 +27,8 @@ from typing import Sequence
 from pbdyn.errors import ConfigError
 
 SHAPES = ("box", "sphere", "cylinder", "mesh")
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".gltf", ".glb")
+"""Mesh formats both PyBullet and open3d read (by file suffix)."""
 
 
 def _numbers(text: str | None, n: tuple[int, ...]) -> list[float] | None:
@@ -148,5 +150,7 @@ def _check_shape(shape: ET.Element, s: list[float], path: Path, field: str, wher
             raise ConfigError(field, f"{where} needs a filename", str(path))
         if "://" not in mesh and not (path.parent / mesh).is_file():
             raise ConfigError(field, f"{where}: mesh file not found", mesh)
+        if Path(mesh).suffix.lower() not in MESH_SUFFIXES:
+            raise ConfigError(field, f"{where}: not a mesh file (readable: {', '.join(MESH_SUFFIXES)})", mesh)
     else:
         raise ConfigError(field, f"{where}: unsupported geometry (supported: {', '.join(SHAPES)})", shape.tag)

@@ -160,3 +160,25 @@ def test_builtins_never_breach_full(trajectory, dims):
     sc = _dataset(f"controlled_{dims}d", 80.0)
     for v in (2.0, 4.0, 6.0):
         _assert_no_breach(sc, trajectory, GAZES, v)
+
+
+class _Raises:
+    def __init__(self, context, **params):
+        pass
+
+    def replan_check(self, view):
+        return True
+
+    def plan(self, view):
+        raise ZeroDivisionError("the plug-in divided by zero")
+
+
+def test_a_plugin_that_raises_ends_with_one_line_naming_it():
+    """A plug-in's exception in plan() is the plug-in's bug: a ConfigError naming the pair and the time (CLI exit 2,
+    batch error row), not pbdyn's internal error."""
+    import pbdyn
+
+    with pytest.raises(pbdyn.ConfigError) as err:
+        pbdyn.run_trial("quickstart", planner=_Raises)
+    text = str(err.value)
+    assert "plug-in planner pair" in text and "ZeroDivisionError" in text and "t = 0 s" in text and "\n" not in text

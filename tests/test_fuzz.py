@@ -45,39 +45,7 @@ TIME_BOUND_S = 60.0
 
 pytestmark = pytest.mark.fuzz
 
-KNOWN_OPEN: tuple[str, ...] = (
-    # Each entry is a mutation class that failed in the exploration of cases 0..4999 (in-process); the comment says
-    # how. Owners: URDF validation (pbdyn/world/shapes.py, bullet.py); resource limits and value validation
-    # (pbdyn/config.py); tracking and planner parameters (config.py, pbdyn/planning/registry.py). Non-finite or
-    # huge scaled geometry that got past them (urdf sizes inf/nan/huge, bodies[].scale huge) is now stopped by
-    # pbdyn/world/imported.py's bounding-sphere check, so those classes run.
-    # -- URDF validation
-    "urdf:origin.rpy:inf",                               # exit 1: "math domain error"
-    "urdf:origin.rpy:short", "urdf:origin.rpy:string",   # exit 1: "not enough values to unpack", "could not convert"
-    "urdf:origin.xyz:inf",                               # RuntimeWarning: invalid value in matmul (shapes.py:205)
-    "urdf:box.size:inf",                                 # RuntimeWarning: invalid value in matmul (shapes.py:105)
-    "urdf:cylinder.radius:inf", "urdf:cylinder.length:inf",  # RuntimeWarning (shapes.py:108)
-    "urdf:mesh.scale:inf",                               # RuntimeWarning (shapes.py:135)
-    "urdf:mesh.filename:case.toml",                      # a non-mesh file: Open3D's warning printed on stdout
-    # -- resource limits and value validation
-    "set:world.dt:tiny",                                 # exit 1: MemoryError (328 GiB)
-    "set:world.time_limit:huge",                         # exit 1: MemoryError / "Maximum allowed size exceeded"
-    "set:world.size:scaled", "set:world.size:element",   # exit 1: MemoryError (45 TiB occupancy grid)
-    "set:obstacles.maps_per_setup:huge",                 # 41-55 s, then exit 1: MemoryError
-    "set:obstacles.speed:huge",                          # RuntimeWarning: overflow in multiply (motion.py:29)
-    "set:static_obstacles[].size:element",               # RuntimeWarning: overflow in reduce (1e308 sizes)
-    "set:bodies[]:scaled",                               # a body's numbers x1000: > 60 s
-    "set:bodies[].urdf:long_string", "set:drone.urdf:long_string",  # exit 1: OSError (file name too long)
-    "set:drone.v_max:scaled",                            # v_max x1000: > 60 s
-    "set:drone.a_max:tiny",                              # exit 1: "ValueError: -101 is not a valid Result"
-    # -- tracking and planner parameters
-    "set:tracking.q:zero",                               # exit 1: LinAlgError: Singular matrix
-    "set:planners[].trajectory_params.horizon_s:huge",   # > 60 s (3.5 GB)
-    "set:planners[].trajectory_params.horizon_s:nan",    # exit 1: cannot convert float NaN to integer
-    "set:planners[].trajectory_params.n_candidates:inf",  # exit 1: OverflowError
-    "set:planners[].trajectory_params.sphere_spacing_deg:tiny",  # 38 s, then exit 1: MemoryError
-    "set:planners[].gaze_params.gain:inf",               # exit 1: "returned a non-finite yaw rate"
-)
+KNOWN_OPEN: tuple[str, ...] = ()
 """fnmatch patterns of mutation classes whose failures other work owns (see the module docstring); cases with
 such a mutation are skipped. The lead empties this list once those fixes are merged."""
 

@@ -346,3 +346,33 @@ def test_every_bundled_scenario_and_dataset_is_within_the_limits():
         assert sc.n_trials() > 0
     sc = load_scenario(SCENARIOS / "datasets" / "controlled_2d.toml")
     assert sc.n_trials() == 27 * 20 * 72 * 3 * len(sc.planners)
+
+
+@pytest.mark.parametrize("entry, key", [
+    ({"trajectory": "global_primitives", "trajectory_params": {"horizon_s": 9.2e18}}, "horizon_s"),
+    ({"trajectory": "global_primitives", "trajectory_params": {"max_expansions": 2 ** 62}}, "max_expansions"),
+    ({"trajectory": "local_primitives", "trajectory_params": {"sphere_spacing_deg": 1e-9}}, "sphere_spacing_deg"),
+    ({"trajectory": "local_primitives", "trajectory_params": {"n_candidates": 10 ** 9}}, "n_candidates"),
+    ({"trajectory": "local_primitives", "trajectory_params": {"step_m": 1e12}}, "step_m"),
+    ({"trajectory": "mpc", "trajectory_params": {"horizon": 10 ** 6}}, "horizon"),
+    ({"trajectory": "straight_line", "trajectory_params": {"horizon_s": 1e9}}, "horizon_s"),
+])
+def test_planner_parameters_that_would_exhaust_memory_or_time_are_refused(entry, key):
+    """Resource limits of built-in planner parameters (pbdyn.limits MAX_PLAN_*): one ConfigError naming the key."""
+    import pbdyn
+
+    doc = {"world": {"time_limit": 5.0}, "obstacles": {"count": 0}, "planners": [{"gaze": "lookahead", **entry}]}
+    with pytest.raises(pbdyn.ConfigError) as err:
+        pbdyn.run_trial(doc)
+    assert key in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_tiny_jerk_limit_makes_no_endless_primitive():
+    """jerk_max 1e-9 would need primitives of ~1e4 s: they are not built (no hang, no memory blow-up)."""
+    import pbdyn
+
+    doc = {"world": {"time_limit": 2.0}, "obstacles": {"count": 0},
+           "planners": [{"trajectory": "local_primitives", "gaze": "lookahead",
+                         "trajectory_params": {"jerk_max": 1e-9}}]}
+    res = pbdyn.run_trial(doc)
+    assert res.outcome in ("deadlock", "freezing") and res.planning_failures > 0

@@ -262,7 +262,9 @@ NO_COLLISION = """<?xml version="1.0"?>
     ({"urdf": BOX, "motion": "no_such_module_x:f"}, "cannot import module"),
     ({"urdf": BOX, "motion": "pbdyn.world.motions:circle", "params": {"radius": 1.0}}, "motion function raised"),
     ({"urdf": BOX, "position": [10.0, 10.0], "scale": -1.0}, "bodies[0].scale"),
-    ({"urdf": BOX, "position": [10.0, 10.0], "scale": 1e300}, "bodies[0]: the body's collision geometry (scaled) must"),
+    ({"urdf": BOX, "position": [10.0, 10.0], "scale": 1e300}, "bodies[0].scale: must be within"),
+    ({"urdf": BOX, "position": [10.0, 10.0], "scale": 1e8}, "bodies[0]: the body's collision geometry (scaled) must"),
+    ({"urdf": BOX, "position": [80.0, 10.0]}, "bodies[0].position: must lie inside the arena"),
     ({"urdf": BOX, "position": [10.0, 10.0], "colour": "red"}, "bodies[0]"),
 ])
 def test_bad_world_files_exit_2_with_one_line(tmp_path, body, needle):

@@ -23,13 +23,15 @@ def static_measure(body: StaticBody, arena_size: np.ndarray) -> float:
 
 def shape_measure(rollout, b: int, k: int, cell: float) -> float:
     """Cross-section area in the flight plane (2D, m^2) or volume (3D, m^3) of imported body b at step k: exact for
-    a single-primitive body in 3D, else the cells of ``cell`` m (midpoint rule over the body's bounding box) whose
-    centre is inside its real shape."""
+    a single-primitive body in 3D, else the cells of ``cell`` m (midpoint rule over the part of the body's bounding
+    box inside the arena) whose centre is inside its real shape."""
     field = rollout.bodies.field()
     d = rollout.dims
     if d == 3 and len(field.prims[b]) == 1 and np.isfinite(field.prims[b][0].volume()):
         return field.prims[b][0].volume()
     lo, hi = field.world_bounds(b, k)
+    lo = np.maximum(lo[:d], 0.0).tolist() + list(lo[d:])          # only the part inside the arena counts
+    hi = np.minimum(hi[:d], rollout.arena_size).tolist() + list(hi[d:])
     axes = [np.arange(lo[a] + 0.5 * cell, hi[a], cell) for a in range(d)]
     if d == 2:
         h = float(rollout.meta.get("flight_height", 2.0))

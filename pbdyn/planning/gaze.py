@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from pbdyn.perception.grid import UNKNOWN
+from pbdyn.limits import MAX_PLAN_COUNT
 from pbdyn.planning import params
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
@@ -80,7 +81,7 @@ class FullRange:
 def rate_candidates(limit: float, n: int, include_zero: bool = True) -> np.ndarray:
     """Candidate yaw rates (rad/s): n evenly spaced values in [-limit, +limit] (both limits included), plus 0 when
     ``include_zero`` and n is even; sorted ascending. n >= 2."""
-    n = params.integer("the number of candidate rates", n, lo=2)
+    n = params.integer("the number of candidate rates", n, lo=2, hi=MAX_PLAN_COUNT)
     rates = np.linspace(-float(limit), float(limit), int(n))
     if include_zero and not np.any(rates == 0.0):
         rates = np.sort(np.append(rates, 0.0))

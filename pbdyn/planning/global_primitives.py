@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 
+from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.astar_heuristic import lqmt_lower_bound
 from pbdyn.planning.astar_static import StaticScreen
@@ -118,14 +119,16 @@ class GlobalPrimitives:
         if isinstance(n_accel, bool) or not isinstance(n_accel, (int, np.integer)) or n_accel < 3 \
                 or n_accel % 2 != 1:
             raise ValueError(f"n_accel must be an odd integer >= 3, got {n_accel!r}")
-        for name, value in (("duration_s", duration_s), ("rho", rho), ("horizon_s", horizon_s)):
-            if not (math.isfinite(float(value)) and float(value) > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name, value in (("duration_s", duration_s), ("horizon_s", horizon_s)):
+            params.number(name, value, lo=0.0, lo_open=True, hi=MAX_PLAN_HORIZON_S)
+        params.positive("rho", rho)
         if not (math.isfinite(float(epsilon)) and float(epsilon) >= 1.0):
             raise ValueError(f"epsilon must be a finite number >= 1, got {epsilon!r}")
         if not (math.isfinite(float(margin)) and float(margin) >= 0):
             raise ValueError(f"margin must be a finite number >= 0, got {margin!r}")
-        max_expansions = params.integer("max_expansions", max_expansions, lo=1)
+        max_expansions = params.integer("max_expansions", max_expansions, lo=1, hi=MAX_PLAN_COUNT)
+        if not int(n_accel) <= 101:
+            raise ValueError(f"n_accel must be <= 101, got {n_accel!r}")
         self.dims = d
         self.dt = float(context.dt)
         self.limits = lim = context.limits

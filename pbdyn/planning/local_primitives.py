@@ -23,6 +23,7 @@ import math
 import numpy as np
 import ruckig
 
+from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.checks import static_clear, trajectory_clear
 from pbdyn.planning.protocols import PlannerContext
@@ -87,17 +88,17 @@ class LocalPrimitives:
                  step_m: float = 3.0,
                  end_speed_frac: float = 0.5, jerk_max: float = 20.0, margin: float = 0.5,
                  min_duration: float | None = None):
-        n_candidates = params.integer("n_candidates", n_candidates, lo=1)
-        step_m = params.positive("step_m", step_m)
+        n_candidates = params.integer("n_candidates", n_candidates, lo=1, hi=MAX_PLAN_COUNT)
+        step_m = params.number("step_m", step_m, lo=0.0, lo_open=True, hi=MAX_PLAN_DISTANCE_M)
         end_speed_frac = params.number("end_speed_frac", end_speed_frac, lo=0.0, hi=1.0)
         jerk_max = params.positive("jerk_max", jerk_max)
         margin = params.non_negative("margin", margin)
         if min_duration is not None:
-            min_duration = params.non_negative("min_duration", min_duration)
+            min_duration = params.number("min_duration", min_duration, lo=0.0, hi=MAX_PLAN_HORIZON_S)
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
         self.limits = context.limits
-        sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.0, lo_open=True, hi=90.0)
+        sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.5, hi=90.0)
         self.sphere_spacing_deg = float(sphere_spacing_deg)
         self.n_candidates = int(n_candidates)
         self.step_m = float(step_m)
@@ -254,11 +255,13 @@ class LocalPrimitives:
         self.last_candidates_built += 1
         try:
             result = self._otg.calculate(inp, self._traj)
-        except ruckig.RuckigError:  # invalid input, e.g. a target velocity above the per-axis limit
-            return None
+        except (ruckig.RuckigError, ValueError):  # invalid input (e.g. a target velocity above the per-axis limit),
+            return None                             # or an error code the binding cannot name (e.g. -101)
         if result != ruckig.Result.Working and result != ruckig.Result.Finished:
             return None
         traj = self._traj
+        if not traj.duration <= MAX_PLAN_HORIZON_S:   # e.g. a tiny jerk limit: refuse rather than sample it
+            return None
         n = max(2, math.ceil(traj.duration / view.dt - 1e-9) + 1)
         flat: list[float] = []
         for k in range(n):  # past the duration the end velocity is held (end acceleration is 0)

@@ -43,6 +43,7 @@ import time
 import numpy as np
 
 from pbdyn.perception.grid import OCCUPIED
+from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.checks import WALL_MARGIN_CAP
 from pbdyn.planning.mpc_problem import (INACTIVE_RHS, ClarabelMPC, CvxpyMPC, MPCData, MPCShape, MPCSolution,
@@ -127,9 +128,9 @@ class MPC:
                  ref_dist: float | None = None, bias_deg: float = 15.0,
                  max_slack: float = 0.05, slack_window_s: float = 1.0, relinearise: int = 0,
                  limit_eps: float = 1.0e-6, backend: str = "clarabel"):
-        horizon = params.integer("horizon", horizon, lo=2)
-        n_tracks = params.integer("n_tracks", n_tracks, lo=0)
-        n_cells = params.integer("n_cells", n_cells, lo=0)
+        horizon = params.integer("horizon", horizon, lo=2, hi=int(MAX_PLAN_HORIZON_S))
+        n_tracks = params.integer("n_tracks", n_tracks, lo=0, hi=MAX_PLAN_COUNT)
+        n_cells = params.integer("n_cells", n_cells, lo=0, hi=MAX_PLAN_COUNT)
         wall_margin = params.non_negative("wall_margin", wall_margin)
         max_slack = params.non_negative("max_slack", max_slack)
         slack_window_s = params.non_negative("slack_window_s", slack_window_s)
@@ -157,7 +158,7 @@ class MPC:
         self.ref_dist = float(ref_dist) if ref_dist is not None else 2.0 * lim.v_max * self.horizon * self.dt
         self.bias_deg = float(bias_deg)
         self.max_slack = float(max_slack)
-        relinearise = params.integer("relinearise", relinearise, lo=0)
+        relinearise = params.integer("relinearise", relinearise, lo=0, hi=100)
         self.relinearise = int(relinearise)
         self.last_relinearisations = 0
         self.slack_steps = int(math.floor(slack_window_s / self.dt + 1e-9))

@@ -41,12 +41,16 @@ def non_negative(name: str, value) -> float:
     return number(name, value, lo=0.0)
 
 
-def integer(name: str, value, *, lo: int | None = None) -> int:
-    """``value`` as an int; ValueError unless it is an integer (an integral float is accepted) >= ``lo``."""
+def integer(name: str, value, *, lo: int | None = None, hi: int | None = None) -> int:
+    """``value`` as an int; ValueError unless it is an integer (an integral float is accepted) in [lo, hi]."""
     ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
     ok = ok and math.isfinite(float(value)) and float(value) == int(value)
     if ok and lo is not None:
         ok = int(value) >= lo
+    if ok and hi is not None:
+        ok = int(value) <= hi
     if not ok:
-        raise ValueError(f"{name} must be an integer{f' >= {lo}' if lo is not None else ''}, got {value!r}")
+        bounds = " and ".join(x for x in (f">= {lo}" if lo is not None else "", f"<= {hi}" if hi is not None else "")
+                              if x)
+        raise ValueError(f"{name} must be an integer{' ' if bounds else ''}{bounds}, got {value!r}")
     return int(value)

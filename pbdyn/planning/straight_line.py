@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from pbdyn.limits import MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
@@ -29,7 +30,7 @@ class StraightLine:
     """
 
     def __init__(self, context: PlannerContext, *, horizon_s: float = 1.0):
-        horizon_s = params.positive("horizon_s", horizon_s)
+        horizon_s = params.number("horizon_s", horizon_s, lo=0.0, lo_open=True, hi=MAX_PLAN_HORIZON_S)
         self.dims = int(context.dims)
         self.limits = context.limits
         self.horizon_s = float(horizon_s)

@@ -94,6 +94,7 @@ class Agent:
         with quiet_user_code():  # plug-ins' prints while they are built go to stderr (Python and C level)
             self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze)
         self.limits = self.context.limits
+        self._plugin = any(not type(x).__module__.startswith("pbdyn.") for x in (self.planner, self.gaze))
         self.physical = physical
         self.fov_deg = getattr(self.gaze, "fov_deg", None)
         self.trajectory: Trajectory | None = None
@@ -106,14 +107,20 @@ class Agent:
         """Steps (4)-(6) at view.t: replan if asked (checking the plan contract), the gaze yaw rate, and the MAV's
         next state from the plan in execution or, without one, a braking step. What the planners print goes to
         stderr (Python-level writes; pbdyn.usercode.user_stdout). A planner's exit or other BaseException
-        (SystemExit, GeneratorExit; not KeyboardInterrupt) becomes a ConfigError naming the pair and the time, so it
-        ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2); Exceptions keep their type and
-        traceback."""
+        (SystemExit, GeneratorExit; not KeyboardInterrupt), and any exception of a plug-in pair, becomes a ConfigError
+        naming the pair and the time, so it ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2, one
+        line); a built-in pair's exceptions keep their type and traceback (pbdyn's own bug)."""
         with user_stdout():
             try:
                 return self._act(view)
-            except (Exception, KeyboardInterrupt):
+            except KeyboardInterrupt:
                 raise
+            except Exception as exc:
+                if not self._plugin:   # a built-in planner's failure is pbdyn's own bug: keep it as it is
+                    raise
+                entry = self.spec.planner
+                raise ConfigError("planner", f"the plug-in planner pair {entry.trajectory} + {entry.gaze} raised "
+                                  f"{one_line(exc)} at t = {view.t:g} s", None, show_value=False) from exc
             except BaseException as exc:
                 entry = self.spec.planner
                 raise ConfigError("planner", f"the planner pair {entry.trajectory} + {entry.gaze} raised "

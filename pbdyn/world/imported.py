@@ -237,7 +237,7 @@ def build_world_bodies(scenario: Scenario, times: np.ndarray) -> WorldBodies:
     names, paths, scales, moving, positions, quats, centres, radii = [], [], [], [], [], [], [], []
     for i, body in enumerate(scenario.bodies):
         where = f"bodies[{i}]"
-        path = scenario.resolve_path(body.urdf)
+        path = scenario.resolve_path(body.urdf, f"{where}.urdf")
         if not path.is_file():
             raise ConfigError(f"{where}.urdf", "file not found", body.urdf)
         prims = body_primitives(path, body.scale, f"{where}.urdf")

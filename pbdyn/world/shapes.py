@@ -22,6 +22,7 @@ import numpy as np
 
 from pbdyn.errors import ConfigError
 from pbdyn.urdf import check_urdf
+from pbdyn.usercode import stdout_fd_to
 
 PRIMITIVES = ("box", "sphere", "cylinder", "mesh")
 
@@ -130,7 +131,8 @@ class _MeshScene:
     def __init__(self, path: str, scale: tuple[float, float, float]):
         import open3d as o3d  # lazy: only worlds with <mesh> geometry need it
 
-        mesh = o3d.io.read_triangle_mesh(path)
+        with stdout_fd_to(2):   # open3d prints its read warnings on stdout
+            mesh = o3d.io.read_triangle_mesh(path)
         if len(mesh.triangles) == 0:
             raise ConfigError("mesh", "has no triangles (or cannot be read)", path)
         v = np.asarray(mesh.vertices, dtype=float) * np.asarray(scale, dtype=float)
