@@ -14,7 +14,6 @@ import dataclasses
 import hashlib
 import io
 import json
-import operator
 import os
 import traceback
 from collections.abc import Iterator, Sequence
@@ -26,7 +25,7 @@ from pbdyn.config import PlannerEntry, Scenario, canonical_json
 from pbdyn.errors import one_line
 from pbdyn.metrics.catalog import BATCH
 from pbdyn.sim.outcome import Outcome
-from pbdyn.world.maps import MapSpec, enumerate_maps
+from pbdyn.world.maps import MapSpec, enumerate_maps, sequence_index
 
 METRIC_SET = BATCH
 """The metrics of the thesis' table 4-5, computed once per map (pbdyn.metrics.catalog)."""
@@ -176,12 +175,7 @@ class TrialSequence(Sequence):
             if step == 1:
                 return list(self.iter_range(start, stop))
             return [self[i] for i in range(start, stop, step)]
-        n = len(self)
-        i = operator.index(index)
-        if i < 0:
-            i += n
-        if not 0 <= i < n:
-            raise IndexError("trial index out of range")
+        i = sequence_index(index, len(self), "trial")
         return next(self.iter_range(i, i + 1))
 
     def __iter__(self) -> Iterator[Trial]:

@@ -27,6 +27,17 @@ def stable_hash64(text: str) -> int:
     return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:8], "big")
 
 
+def sequence_index(index, n: int, what: str) -> int:
+    """``index`` (an int, negative counting from the end) as a position in a sequence of ``n``; IndexError naming
+    ``what`` if out of range (the lazy map and trial enumerations)."""
+    i = operator.index(index)
+    if i < 0:
+        i += n
+    if not 0 <= i < n:
+        raise IndexError(f"{what} index out of range")
+    return i
+
+
 @dataclass(frozen=True)
 class MapSpec:
     """One map: its setup values, replicate, position in the enumeration and seed entropy."""
@@ -90,12 +101,7 @@ class MapSequence(Sequence):
     def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        n = len(self)
-        i = operator.index(index)
-        if i < 0:
-            i += n
-        if not 0 <= i < n:
-            raise IndexError("map index out of range")
+        i = sequence_index(index, len(self), "map")
         s, rep = divmod(i, self._reps)
         return MapSpec(i, self.setup(s), rep, self._root_seed)
 
