@@ -10,7 +10,6 @@ rollout and PyBullet world for the next trial of the same map, and one PyBullet 
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json
@@ -305,7 +304,6 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
         except BaseException:
             _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state: rebuild it
             raise
-        res = dataclasses.replace(res, planner_fingerprint=_fingerprint(spec.planner))
         return task.key, res.to_dict(), None
     except Exception as exc:  # any failure of a trial is recorded as an "error" row, never stops the batch
         msg = one_line(exc)
