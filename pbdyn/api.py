@@ -16,12 +16,11 @@ import contextlib
 import inspect
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import replace
 from pathlib import Path
 
 from typing import TYPE_CHECKING
 
-from pbdyn.config import PlannerEntry, Scenario, parse_scenario
+from pbdyn.config import Scenario, parse_scenario
 from pbdyn.config import load_scenario as _load_file
 from pbdyn.errors import ConfigError
 
@@ -86,7 +85,7 @@ def _planner_name(obj, kind: str) -> str | None:
         what = "trajectory" if kind == "planner" else "gaze"
         raise ConfigError(kind, f"is not a {what} planner: missing method(s) {', '.join(missing)}",
                           obj if inspect.isclass(obj) else type(obj))
-    from pbdyn.sim.checker import plugin_name
+    from pbdyn.sim.spec import plugin_name
 
     return plugin_name(obj)
 
@@ -103,7 +102,7 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     speed limit (m/s; default: the first drone.v_max); trace: write per-step arrays to this .npz file; gui: show
     the PyBullet GUI in real time; observers: extra step observers (pbdyn.sim.observers.Observer).
     """
-    from pbdyn.sim.spec import make_trial_spec
+    from pbdyn.sim.spec import make_trial_spec, with_planner_objects
     from pbdyn.sim.trial import run_trial as fly
 
     sc = load_scenario(scenario)
@@ -120,12 +119,7 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     spec = make_trial_spec(sc, ms, planner=None if tobj is not None else tname,
                            gaze=None if gobj is not None else gname, v_max=v_max,
                            start=_point(start, "start"), goal=_point(goal, "goal"))
-    if tobj is not None or gobj is not None:
-        e = spec.planner
-        spec = replace(spec, planner=PlannerEntry(tname if tobj is not None else e.trajectory,
-                                                  gname if gobj is not None else e.gaze,
-                                                  {} if tobj is not None else e.trajectory_params,
-                                                  {} if gobj is not None else e.gaze_params))
+    spec = with_planner_objects(spec, tobj, gobj)
     from pbdyn.world.rollout import get_rollout
 
     return fly(spec, get_rollout(sc, ms), gui=gui, trace_path=trace, gui_sleep=sc.world.dt if gui else 0.0,

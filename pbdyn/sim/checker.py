@@ -3,22 +3,15 @@ Gymnasium's ``check_env`` for trajectory planners; DESIGN.md "The plan contract"
 
 from __future__ import annotations
 
-import inspect
 from collections import Counter
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
-from pbdyn.config import PlannerEntry, Scenario
+from pbdyn.config import Scenario
 from pbdyn.errors import ConfigError
 from pbdyn.sim.contract import PlanViolation
 from pbdyn.sim.outcome import Outcome
-from pbdyn.sim.spec import make_trial_spec
+from pbdyn.sim.spec import make_trial_spec, plugin_name, with_planner_objects
 from pbdyn.sim.trial import run_trial
-
-
-def plugin_name(obj) -> str:
-    """The "module:QualName" a planner class or instance is recorded under."""
-    cls = obj if inspect.isclass(obj) else type(obj)
-    return f"{cls.__module__}:{cls.__qualname__}"
 
 
 @dataclass(frozen=True)
@@ -98,8 +91,7 @@ def check_planner(planner, scenario: Scenario, *, maps=3, pairs: int = 4, gaze: 
         for i, j in (all_pairs[(7 * m + s * step) % len(all_pairs)] for s in range(min(pairs, len(all_pairs)))):
             spec = make_trial_spec(scenario, ms, planner=planner if named else None, gaze=gaze, v_max=v_max,
                                    start=cands[i], goal=cands[j])
-            if not named:
-                spec = replace(spec, planner=PlannerEntry(name, spec.planner.gaze, {}, spec.planner.gaze_params))
+            spec = with_planner_objects(spec, None if named else planner)
             watch = _Violations()
             res = run_trial(spec, ro, trajectory_planner=None if named else planner, observers=[watch])
             outcomes[res.outcome] += 1

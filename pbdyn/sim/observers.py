@@ -16,7 +16,9 @@ from typing import Protocol
 
 import numpy as np
 
-SPLITS = ("wall_world_s", "wall_rays_s", "wall_tracking_s", "wall_planning_s", "wall_gaze_s", "wall_collision_s")
+from pbdyn.sim.env import SENSE_SPLITS
+
+SPLITS = SENSE_SPLITS + ("wall_planning_s", "wall_gaze_s", "wall_collision_s")
 """Wall-time splits of one step: (1) world, (2) rays, (3) tracking, (4) planning, (5) gaze, (6)-(7) collision."""
 
 

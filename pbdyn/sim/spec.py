@@ -7,8 +7,9 @@ cached; everything a trial does is a function of its spec and its map's rollout.
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 from pbdyn.config import PlannerEntry, Scenario, canonical_json
@@ -111,3 +112,21 @@ def make_trial_spec(scenario: Scenario, map_spec: MapSpec, *, planner: str | Non
                 raise ConfigError(name, f"must lie inside the arena with the MAV's radius ({r:g} m) to spare",
                                   ",".join(f"{c:g}" for c in pt))
     return TrialSpec(scenario, map_spec, entry, v, tuple(map(float, s)), tuple(map(float, g)))
+
+
+def plugin_name(obj) -> str:
+    """The "module:QualName" a planner class or instance is recorded under."""
+    cls = obj if inspect.isclass(obj) else type(obj)
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def with_planner_objects(spec: TrialSpec, trajectory=None, gaze=None) -> TrialSpec:
+    """``spec`` with its entry's trajectory and/or gaze planner given as a class or instance (not None) instead:
+    recorded under plugin_name, without the replaced planner's params table."""
+    if trajectory is None and gaze is None:
+        return spec
+    e = spec.planner
+    return replace(spec, planner=PlannerEntry(
+        e.trajectory if trajectory is None else plugin_name(trajectory),
+        e.gaze if gaze is None else plugin_name(gaze),
+        e.trajectory_params if trajectory is None else {}, e.gaze_params if gaze is None else {}))
