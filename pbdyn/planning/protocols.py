@@ -25,6 +25,8 @@ class PlannerContext:
         limits: MAV radius (m), v_max (m/s), a_max (m/s^2), yaw-rate limit (rad/s).
         bounds_lo, bounds_hi: arena box [d] (m).
         seed: a per-trial integer seed; a planner that needs randomness makes np.random.default_rng(seed).
+        physical: True under the "physical" profile (every plan must keep |v| <= v_max and |a| <= a_max, see
+            pbdyn.sim.contract); False under "thesis_program", whose plans are checked for continuity only.
     """
 
     dims: int
@@ -33,6 +35,7 @@ class PlannerContext:
     bounds_lo: np.ndarray
     bounds_hi: np.ndarray
     seed: int = 0
+    physical: bool = True
 
 
 @runtime_checkable
