@@ -26,6 +26,22 @@ MOTIONS = ("cvm", "rvo")
 BODY_MOTIONS = ("static", "constant_velocity", "waypoints")
 """Built-in motions of an imported body; any other value must be "package.module:function"."""
 COLLISION_CHECKS = ("swept", "sampled")
+PROFILES = ("physical", "thesis_program")
+"""Profiles (DESIGN.md "Profiles"): "physical" enforces the MAV's limits on every plan; "thesis_program" reproduces
+the thesis' program (README "Profiles")."""
+START_RULES = ("first_clear", "immediate", "program")
+"""When and where a trial starts (TaskConfig.start_rule; pbdyn.sim.start)."""
+
+PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
+    "physical": {},
+    "thesis_program": {
+        ("task", "start_rule"): "program",
+        ("task", "start_clearance"): 7.0,
+    },
+}
+"""Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);
+README "Profiles" lists them (tests/test_config_defaults.py). thesis_program: the program spawned its obstacles
+outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc)."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -265,12 +281,19 @@ class TrackingConfig:
 @dataclass(frozen=True)
 class TaskConfig:
     """Start/goal candidates [[x, y(, z)], ...] (m; () = default_candidates(world)), goal_radius (m), spawn_clearance
-    (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest)."""
+    (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest), and the start rule
+    (pbdyn.sim.start): start_rule (START_RULES), start_clearance (m between the MAV disc at the start and every
+    obstacle), start_window_s (s the start must stay clear, "first_clear"), start_wait_max_s (s a trial may wait
+    for a clear start, "first_clear")."""
 
     candidates: tuple[tuple[float, ...], ...] = ()
     goal_radius: float = 1.0
     spawn_clearance: float = 1.0
     deadlock_steps: int = 10
+    start_rule: str = "first_clear"
+    start_clearance: float = 1.0
+    start_window_s: float = 1.0
+    start_wait_max_s: float = 10.0
 
     def pairs(self) -> list[tuple[int, int]]:
         """All ordered (start, goal) index pairs with start != goal (72 for 9 candidates)."""
@@ -313,6 +336,12 @@ class Scenario:
     collision_check: str = "swept"
     source: str = ""  # path of the file it was loaded from (not part of the resolved spec)
     bodies: tuple[BodyConfig, ...] = ()
+    profile: str = "physical"
+
+    @property
+    def physical(self) -> bool:
+        """True under the "physical" profile (the plan contract enforces the MAV's limits)."""
+        return self.profile == "physical"
 
     @property
     def is_world(self) -> bool:
@@ -731,7 +760,8 @@ def default_candidates(world: WorldConfig) -> tuple[tuple[float, ...], ...]:
 
 def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskConfig:
     t = _table(doc, "task")
-    _no_unknown(t, ("candidates", "goal_radius", "spawn_clearance", "deadlock_steps"), "task")
+    _no_unknown(t, ("candidates", "goal_radius", "spawn_clearance", "deadlock_steps", "start_rule", "start_clearance",
+                    "start_window_s", "start_wait_max_s"), "task")
     d = _defaults(TaskConfig)
     if "candidates" in t:
         raw = t["candidates"]
@@ -751,7 +781,12 @@ def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskCon
     goal_radius = _number(t, "goal_radius", "task", d["goal_radius"], lo=0.0, lo_open=True)
     clearance = _number(t, "spawn_clearance", "task", d["spawn_clearance"], lo=0.0)
     deadlock = _integer(t, "deadlock_steps", "task", d["deadlock_steps"], lo=1)
-    return TaskConfig(cands, goal_radius, clearance, deadlock)
+    rule = _string(t, "start_rule", "task", d["start_rule"], START_RULES)
+    start_clearance = _number(t, "start_clearance", "task", d["start_clearance"], lo=0.0,
+                              hi=max(world.size))
+    window = _number(t, "start_window_s", "task", d["start_window_s"], lo=0.0, hi=limits.MAX_START_WAIT_S)
+    wait = _number(t, "start_wait_max_s", "task", d["start_wait_max_s"], lo=0.0, hi=limits.MAX_START_WAIT_S)
+    return TaskConfig(cands, goal_radius, clearance, deadlock, rule, start_clearance, window, wait)
 
 
 def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:
@@ -843,14 +878,40 @@ def _check_urdfs(scenario: "Scenario") -> None:
         check_urdf(path, field_name, scale)
 
 
-def _check_rollout_size(world: WorldConfig, obstacles: ObstacleConfig, bodies: tuple) -> None:
-    """A map's rollout (default horizon) must fit limits.MAX_ROLLOUT_BYTES: positions and velocities of every
-    obstacle (steps x N x d x 8 bytes x 2), plus an imported world's body poses (steps x B x 7 x 8 bytes)."""
-    steps = (max(world.time_limit, limits.METRICS_HORIZON_S) + world.dt) / world.dt + 1
+def rollout_span_s(world: WorldConfig, task: TaskConfig) -> float:
+    """Seconds of obstacle motion a map's default rollout covers (before its extra step): the longest of the trial
+    (time limit, after at most start_wait_max_s of waiting for a clear start), the start rule's look-ahead and the
+    default metrics (limits.METRICS_HORIZON_S)."""
+    span = max(world.time_limit, limits.METRICS_HORIZON_S)
+    if task.start_rule == "first_clear":
+        span = max(span, task.start_wait_max_s + max(world.time_limit, task.start_window_s))
+    return span
+
+
+def _check_rollout_size(world: WorldConfig, obstacles: ObstacleConfig, bodies: tuple, task: TaskConfig) -> None:
+    """A map's rollout (default horizon) must fit limits.MAX_STEPS and limits.MAX_ROLLOUT_BYTES: positions and
+    velocities of every obstacle (steps x N x d x 8 bytes x 2), plus an imported world's body poses (steps x B x 7 x
+    8 bytes)."""
+    steps = (rollout_span_s(world, task) + world.dt) / world.dt + 1
+    limits.check_limit("task.start_wait_max_s", "rollout steps (time limit + start wait + dt) / dt", steps,
+                       limits.MAX_STEPS, task.start_wait_max_s)
     n = max(max(obstacles.count), len(bodies))
     nbytes = steps * (n * world.dims * 8 * 2 + len(bodies) * 7 * 8)
     limits.check_limit("world.dt", f"bytes for a rollout of {steps:.0f} steps x {n} obstacles", nbytes,
                        limits.MAX_ROLLOUT_BYTES, world.dt)
+
+
+def with_profile_defaults(doc: Mapping, profile: str) -> Mapping:
+    """``doc`` with the omitted fields that ``profile`` sets (PROFILE_DEFAULTS) filled in; given fields win."""
+    extra = PROFILE_DEFAULTS.get(profile, {})
+    if not extra:
+        return doc
+    out = dict(doc)
+    for (section, key), value in extra.items():
+        table = out.get(section, {})
+        if isinstance(table, Mapping) and key not in table:
+            out[section] = {**table, key: value}
+    return out
 
 
 def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
@@ -859,8 +920,10 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
         raise ConfigError("scenario", "must be a table", doc)
     _check_nesting(doc)
     _no_unknown(doc, ("name", "world", "obstacles", "static_obstacles", "drone", "sensor", "tracking", "task",
-                      "planners", "collision_check", "bodies"), "")
+                      "planners", "collision_check", "bodies", "profile"), "")
     name = _string(doc, "name", "", Path(source).stem if source else Scenario.DEFAULT_NAME)
+    profile = _string(doc, "profile", "", _defaults(Scenario)["profile"], PROFILES)
+    doc = with_profile_defaults(doc, profile)
     world = _parse_world(doc)
     bodies = _parse_bodies(doc, world)
     if bodies:
@@ -880,8 +943,12 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     _check_static_candidates(static, task, drone)
     planners = _parse_planners(doc)
     check = _string(doc, "collision_check", "", _defaults(Scenario)["collision_check"], COLLISION_CHECKS)
-    _check_rollout_size(world, obstacles, bodies)
-    scenario = Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies)
+    _check_rollout_size(world, obstacles, bodies, task)
+    if bodies and task.start_rule == "program":
+        raise ConfigError("task.start_rule", "\"program\" re-spawns generated obstacles around the start; an imported "
+                          "world's bodies cannot move (use \"first_clear\" or \"immediate\")", task.start_rule)
+    scenario = Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies,
+                        profile)
     _check_urdfs(scenario)
     return scenario
 

@@ -22,6 +22,7 @@ and the limit. The limits are generous: every bundled scenario and dataset uses 
   MAX_PLAN_HORIZON_S = 1 000 s for any planning/prediction horizon or primitive duration, MAX_PLAN_COUNT =
   100 000 for counts of candidates, expansions, tracks, cells or rates, and MAX_PLAN_DISTANCE_M = 10 000 m for a
   primitive's length; a local primitive whose duration would exceed MAX_PLAN_HORIZON_S is not built.
+- MAX_START_WAIT_S = 1 000 s: task.start_window_s and task.start_wait_max_s.
 - MAX_METRIC_SAMPLES = 10 000 000: points or cells of a metric's sample grid over the arena (checked when the metric
   runs: its spacing / cell is a metric parameter, named in the error).
 
@@ -50,6 +51,7 @@ MAX_PLAN_COUNT = 100_000
 MAX_PLAN_DISTANCE_M = 10_000.0
 MAX_NESTING = 32
 MAX_METRIC_SAMPLES = 10_000_000
+MAX_START_WAIT_S = 1_000.0
 
 METRICS_HORIZON_S = 44.0
 """Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s). A map's rollout

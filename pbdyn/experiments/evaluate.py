@@ -12,19 +12,26 @@ from pbdyn.experiments.store import ResultsStore
 def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], str]:
     """(trials, maps, controlled dataset name) from one or more stores: the first store's scenario is the
     reference (controlled) set, the others are compared with it (e.g. the uncontrolled sets). Map ids are prefixed
-    with their store's scenario name so that maps of different stores never collide."""
+    with their store's scenario name so that maps of different stores never collide. Stores of different profiles
+    ("physical", "thesis_program") are refused: their rows are never pooled."""
     trials: list[dict] = []
     maps: dict[str, dict] = {}
     names: list[str] = []
+    profiles: dict[str, str] = {}
     for path in paths:
         store = ResultsStore.open(path)
         try:
             rows, store_maps, raw = store.results(), store.maps(), store.get_meta("scenario")
         finally:
             store.close()
-        name = (json.loads(raw).get("name") if raw else None) or Path(path).stem
+        doc = json.loads(raw) if raw else {}
+        name = doc.get("name") or Path(path).stem
         if name in names:
             raise ConfigError("RESULTS", f"two stores hold the same scenario {name!r}", str(path))
+        profiles[str(path)] = doc.get("profile", "physical")
+        if len(set(profiles.values())) > 1:
+            listed = ", ".join(f"{Path(p).name}: {v}" for p, v in profiles.items())
+            raise ConfigError("RESULTS", f"mixes profiles ({listed}); evaluate one profile at a time", str(path))
         names.append(name)
         for mid, m in store_maps.items():
             maps[f"{name}/{mid}"] = {"setup": m["setup"], "dataset": name, "metrics": m["metrics"],

@@ -154,7 +154,13 @@ def check_scenario(store: ResultsStore, scenario: Scenario, extend: bool, write:
         return
     import json
 
-    allowed, refused = scenario_changes(json.loads(old_json), doc)
+    old = json.loads(old_json)
+    old_profile = old.get("profile", "physical")
+    if old_profile != scenario.profile:
+        raise ConfigError("SCENARIO", f"has profile {scenario.profile!r} but {store.path.name} holds "
+                          f"{old_profile!r} rows; a store holds one profile (use a new --out file)",
+                          scenario.source or scenario.name)
+    allowed, refused = scenario_changes(old, doc)
     if refused:
         raise ConfigError("SCENARIO", f"differs from the scenario {store.path.name} was made with in "
                           f"{', '.join(refused)}; --extend only accepts added grid values, planners, MAV speeds or "

@@ -18,7 +18,8 @@ disk I/O errors, locked past the timeout, a full disk) become one-line ConfigErr
 ("RESULTS" when reading, "out" when a batch writes it) with a hint; a damaged row found while reading (bytes that
 are not UTF-8 or not JSON) likewise.
 
-Schema versions: 2 added trials.planner_fingerprint. Older stores are read as they are (a column they lack reads as
+Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_time_s, max_speed_mps,
+max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.runner.check_scenario). Older stores are read as they are (a column they lack reads as
 NULL) and upgraded in place when `pbdyn batch` writes to them (ResultsStore.create adds the missing columns); a
 store from a newer schema is refused.
 """
@@ -38,7 +39,7 @@ from pathlib import Path
 from pbdyn.errors import ConfigError, check_path_length
 from pbdyn.sim.result import TrialResult
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 _SQL_TYPES = {bool: "INTEGER", int: "INTEGER", float: "REAL", str: "TEXT"}
 

@@ -60,10 +60,22 @@ def resolve_backend(scenario: Scenario, backend: str) -> str:
     return backend
 
 
+PROFILE_METRIC_PARAMS: dict[str, dict[str, dict]] = {
+    "physical": {},
+    "thesis_program": {
+        "vo_feasibility": {"mav_radius": 0.5},
+        "vo_feasibility_dense": {"mav_radius": 0.5},
+    },
+}
+"""Per profile and metric, parameters that replace the scenario-derived ones. thesis_program: the thesis' program
+computed VO feasibility with an MAV radius of 0.5 m (issue 13; README "Profiles")."""
+
+
 def metric_params(scenario: Scenario, name: str, backend: str) -> dict:
     """The parameters a scenario's map metric runs with: the scenario's MAV radius, and the (resolved) backend for
-    the survivability-type metrics; every other parameter at its default."""
-    params = {"mav_radius": scenario.drone.radius}
+    the survivability-type metrics, then the profile's replacements (PROFILE_METRIC_PARAMS); every other parameter
+    at its default."""
+    params = {"mav_radius": scenario.drone.radius, **PROFILE_METRIC_PARAMS[scenario.profile].get(name, {})}
     if name in BACKEND_METRICS:
         params["backend"] = backend
     return params

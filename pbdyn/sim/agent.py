@@ -45,12 +45,20 @@ def planner_context(spec: TrialSpec) -> PlannerContext:
     sc = spec.scenario
     limits = MAVLimits(sc.drone.radius, spec.v_max, sc.drone.a_max, sc.drone.yaw_rate_limit)
     return PlannerContext(sc.world.dims, sc.world.dt, limits, np.zeros(sc.world.dims),
-                          np.asarray(sc.world.size, dtype=float), spec.seed)
+                          np.asarray(sc.world.size, dtype=float), spec.seed, sc.physical)
+
+
+def profile_params(cls: type, params: dict, physical: bool) -> dict:
+    """A planner's parameters under the profile: under thesis_program a built-in class's PROGRAM_PARAMS (the
+    thesis program's values) fill in what the scenario's table omits; under physical the table as it is."""
+    program = getattr(cls, "PROGRAM_PARAMS", None) if not physical and cls.__module__.startswith("pbdyn.") else None
+    return {**program, **params} if program else params
 
 
 def build_planners(spec: TrialSpec, trajectory=None, gaze=None):
     """(context, trajectory planner, gaze planner) of a trial. ``trajectory``/``gaze``: a planner class (built
-    with the context and the entry's params) or an instance (used as it is) instead of the spec's named ones."""
+    with the context and the entry's params) or an instance (used as it is) instead of the spec's named ones.
+    Under the thesis_program profile built-in planners get their PROGRAM_PARAMS (profile_params)."""
     ctx = planner_context(spec)
     idx = next((i for i, e in enumerate(spec.scenario.planners) if e == spec.planner), 0)
     objs = []
@@ -62,7 +70,8 @@ def build_planners(spec: TrialSpec, trajectory=None, gaze=None):
             objs.append(given)
             continue
         cls = given if given is not None else resolve(name, f"planners[{idx}].{kind}")
-        objs.append(build_planner(cls, ctx, params, f"planners[{idx}].{kind}_params"))
+        objs.append(build_planner(cls, ctx, profile_params(cls, dict(params), ctx.physical),
+                                  f"planners[{idx}].{kind}_params"))
     return ctx, objs[0], objs[1]
 
 
@@ -85,17 +94,18 @@ class Decision:
 
 class Agent:
     """A trial's decision maker: its trajectory and gaze planners, the plan contract, braking and the MAV's
-    planning state ("PLANNING" or "EXECUTING"). ``physical``: enforce the MAV's limits on every plan (the
-    default profile); False checks only a plan's form and continuity. ``violations``: every broken check of the
-    plan that ended the trial (empty while plans are valid)."""
+    planning state ("PLANNING" or "EXECUTING"). ``physical`` (default: the scenario's profile): True enforces the
+    MAV's limits on every plan and on the executed state; False (thesis_program) checks only a plan's form and
+    continuity and executes its samples as they are, as the thesis' program did. ``violations``: every broken
+    check of the plan that ended the trial (empty while plans are valid)."""
 
-    def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool = True):
+    def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool | None = None):
         self.spec = spec
         with quiet_user_code():  # plug-ins' prints while they are built go to stderr (Python and C level)
             self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze)
         self.limits = self.context.limits
         self._plugin = any(not type(x).__module__.startswith("pbdyn.") for x in (self.planner, self.gaze))
-        self.physical = physical
+        self.physical = spec.scenario.physical if physical is None else bool(physical)
         self.fov_deg = getattr(self.gaze, "fov_deg", None)
         self.trajectory: Trajectory | None = None
         self.state = "PLANNING"
@@ -161,8 +171,9 @@ class Agent:
         traj = self.trajectory
         if traj is not None and traj.covers(t1) and traj.index_at(t1) >= 1:
             p1, v1, a1 = (np.array(x, dtype=float) for x in traj.state_at(t1))
-            v1 = _project(v1, limits.v_max)
-            a1 = _project(a1, limits.a_max)
+            if self.physical:
+                v1 = _project(v1, limits.v_max)
+                a1 = _project(a1, limits.a_max)
         else:
             if traj is not None:
                 self.trajectory = None

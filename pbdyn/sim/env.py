@@ -22,6 +22,7 @@ from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.collision import sampled_dynamic, sampled_static, swept_dynamic, swept_static
 from pbdyn.sim.outcome import Outcome
 from pbdyn.sim.spec import TrialSpec
+from pbdyn.sim.start import trial_start
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
@@ -74,19 +75,29 @@ class TrialEnv:
     """One trial's environment. After ``reset()`` and each ``step()``: ``k`` (step index), ``t`` (s), the MAV state
     ``position``/``velocity``/``acceleration``/``yaw``, ``detections`` (this step's sensing), ``outcome`` (None
     while running), ``reason``, ``min_clearance`` (m), ``sense_timings`` (SENSE_SPLITS of the last sensing, s) and
-    ``collision_wall_s`` (the last step's (6)-(7) time, s)."""
+    ``collision_wall_s`` (the last step's (6)-(7) time, s), ``max_speed`` (m/s) and ``max_accel`` (m/s^2: the
+    largest of the executed samples' |a| and |v_k+1 - v_k| / dt) of the flight so far. ``start`` (pbdyn.sim.start
+    .TrialStart): the rollout flown and the rollout step ``k0`` at which the trial's t = 0 lies (the start rule).
+    Times (``t``, the views' times) are trial times: t = 0 at the start."""
 
     def __init__(self, spec: TrialSpec, rollout: Rollout, *, gui: bool = False, fov_deg: float | None = None,
                  world: PyBulletWorld | None = None):
         sc = spec.scenario
         self.spec = spec
-        self.rollout = rollout
         self.dims = sc.world.dims
         self.dt = sc.world.dt
         self.n_steps = sc.world.n_steps
-        if rollout.n_steps < self.n_steps + 1:
-            raise ConfigError("rollout", f"covers {rollout.horizon:g} s, the trial needs {self.n_steps * self.dt:g} s",
-                              rollout.n_steps)
+        task = sc.task
+        if task.start_rule == "first_clear":
+            need = round(task.start_wait_max_s / self.dt) + max(self.n_steps, round(task.start_window_s / self.dt))
+        else:
+            need = self.n_steps
+        if rollout.n_steps < need + 1:
+            raise ConfigError("rollout", f"covers {rollout.horizon:g} s, the trial needs {need * self.dt:g} s "
+                              f"(time limit and start rule {task.start_rule!r})", rollout.n_steps)
+        self.start = trial_start(spec, rollout)
+        self.rollout = rollout = self.start.rollout
+        self.k0 = self.start.k0
         self.radii = rollout.radii
         self.limits = MAVLimits(sc.drone.radius, spec.v_max, sc.drone.a_max, sc.drone.yaw_rate_limit)
         self.goal = np.asarray(spec.goal, dtype=float)
@@ -104,6 +115,8 @@ class TrialEnv:
         self.tracker: KalmanTracks | None = None
         self.k = 0
         self.outcome: Outcome | None = None
+        self.max_speed = 0.0
+        self.max_accel = 0.0
 
     # -------------------------------------------------------------------------------------------- episode
     def reset(self) -> None:
@@ -128,6 +141,8 @@ class TrialEnv:
         self.outcome = None
         self.reason = ""
         self.min_clearance = math.inf
+        self.max_speed = 0.0
+        self.max_accel = 0.0
         self.collision_wall_s = 0.0
         self._sense()
 
@@ -149,7 +164,7 @@ class TrialEnv:
     def _sense(self) -> None:
         """Steps (1)-(3) at t_k: obstacle poses from the rollout, MAV pose, ray sensing, tracker update."""
         c0 = time.perf_counter()
-        obs_p, _ = self.rollout.at(self.k)
+        obs_p, _ = self.rollout.at(self.k0 + self.k)
         self.world.set_obstacle_positions(obs_p)                       # (1)
         self.world.set_mav_pose(self.position, self.yaw)
         c1 = time.perf_counter()
@@ -181,6 +196,9 @@ class TrialEnv:
         hit, clearance = self.check(self.k, self.position, p1)         # (7)
         self.collision_wall_s = time.perf_counter() - c5
         self.min_clearance = min(self.min_clearance, clearance)
+        dv = v1 - self.velocity
+        self.max_speed = max(self.max_speed, math.sqrt(float(v1 @ v1)))
+        self.max_accel = max(self.max_accel, math.sqrt(float(a1 @ a1)), math.sqrt(float(dv @ dv)) / self.dt)
         self.position, self.velocity, self.acceleration, self.yaw = p1, v1, a1, yaw1
         self.k += 1
         if hit is not None:
@@ -200,9 +218,10 @@ class TrialEnv:
         self.reason = outcome.reason if reason is None else reason
 
     def check(self, k: int, p0: np.ndarray, p1: np.ndarray) -> tuple[Outcome | None, float]:
-        """Step (7) collision part for the move p0 (t_k) -> p1 (t_k+1): (static/dynamic outcome or None, clearance m)."""
-        obs0, _ = self.rollout.at(k)
-        obs1, _ = self.rollout.at(k + 1)
+        """Step (7) collision part for the move p0 (t_k) -> p1 (t_k+1) of trial step k: (static/dynamic outcome or
+        None, clearance m)."""
+        obs0, _ = self.rollout.at(self.k0 + k)
+        obs1, _ = self.rollout.at(self.k0 + k + 1)
         if self.swept:
             st = swept_static(self.world, p0, p1)
             dy = swept_dynamic(p0, p1, obs0, obs1, self.radii, self.spec.scenario.drone.radius)

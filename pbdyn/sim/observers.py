@@ -122,13 +122,18 @@ class TraceObserver:
         self.seen.append(seen)
 
     def on_end(self, env, agent) -> None:
-        save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome)
+        k0, s = env.k0, len(self.t)
+        obstacles = {"obstacle_p": np.asarray(env.rollout.positions[k0:k0 + s + 1]),
+                     "obstacle_r": np.asarray(env.rollout.radii), "start_step": np.array(k0)}
+        save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome, obstacles)
 
 
-def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome) -> None:
+def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | None = None) -> None:
     """Write the trace .npz atomically: per-step t [S], p/v/a [S, d], yaw [S], yaw_rate [S], plan_ok [S],
     plan [S, Kmax, d] (NaN-padded remaining plan at each step), track_mean [S, N, d] (NaN if inactive),
-    track_active [S, N], seen [S, N], final_p/v/a [d], final_yaw, outcome."""
+    track_active [S, N], seen [S, N], final_p/v/a [d], final_yaw, outcome; ``extra`` arrays (run_trial: the
+    obstacles' true positions obstacle_p [S + 1, N, d] at trial steps 0..S and radii obstacle_r [N], and
+    start_step, the rollout step of the trial's t = 0, pbdyn.sim.start)."""
     kmax = max([0] + [x.shape[0] for x in trace.planned if x is not None])
     d = p.shape[0]
     plans = np.full((len(trace.t), max(kmax, 1), d), np.nan)
@@ -144,6 +149,7 @@ def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome) -> None:
         "track_active": np.asarray(trace.track_active, dtype=bool).reshape(len(trace.t), n),
         "seen": np.asarray(trace.seen, dtype=bool).reshape(len(trace.t), n),
         "final_p": p, "final_v": v, "final_a": a, "final_yaw": np.array(yaw), "outcome": np.array(outcome.value),
+        **(extra or {}),
     }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

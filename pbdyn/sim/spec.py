@@ -49,7 +49,7 @@ class TrialSpec:
             "planner": {"trajectory": self.planner.trajectory, "gaze": self.planner.gaze,
                         "trajectory_params": dict(self.planner.trajectory_params),
                         "gaze_params": dict(self.planner.gaze_params)},
-            "collision_check": self.scenario.collision_check,
+            "collision_check": self.scenario.collision_check, "profile": self.scenario.profile,
             **({"bodies": bodies_fingerprint(self.scenario)} if self.scenario.is_world else {}),
         }
 

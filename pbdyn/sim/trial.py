@@ -103,10 +103,38 @@ def _result(spec: TrialSpec, rollout: Rollout, env: TrialEnv, agent: Agent, grid
         obstacle_radius=radius, obstacle_speed=speed, mav_speed=float(spec.v_max),
         start=tuple(spec.start), goal=tuple(spec.goal), flight_time_s=round(env.steps * env.dt, 10),
         grid_discovered=grid_discovered, obstacles_tracked=tracked, tracked_time_s=round(tracked_time, 10),
-        outcome=env.outcome.value, final_state=agent.state, reason=env.reason,
+        outcome=env.outcome.value, final_state=agent.state, reason=_reason(env),
         min_clearance_m=float(env.min_clearance), planning_failures=agent.total_failures, steps=env.steps,
         planner_label=spec.planner.label, scenario=sc.name, map_key=ms.key, config_hash=spec.config_hash,
-        planner_fingerprint=_fingerprint(spec), wall_time_s=wall, wall_timings=timings)
+        planner_fingerprint=_fingerprint(spec), profile=sc.profile, start_time_s=round(env.start.time_s, 10),
+        max_speed_mps=env.max_speed, max_accel_mps2=env.max_accel,
+        limits_exceeded=limits_exceeded(env.max_speed, env.max_accel, env.limits.v_max, env.limits.a_max),
+        wall_time_s=wall, wall_timings=timings)
+
+
+LIMIT_TOL = 1e-6
+"""Relative tolerance before an executed speed or acceleration counts as exceeding its limit (rounding of the
+braking step and of the samples' finite differences)."""
+
+
+def limits_exceeded(max_speed: float, max_accel: float, v_max: float, a_max: float) -> str:
+    """"" if max_speed <= v_max and max_accel <= a_max (relative tolerance LIMIT_TOL), else e.g.
+    "acceleration 31.2 m/s^2 > a_max 4 m/s^2 (7.80x)"; "; "-separated when both were exceeded."""
+    out = []
+    for name, value, limit, unit in (("speed", max_speed, v_max, "m/s"), ("acceleration", max_accel, a_max, "m/s^2")):
+        if value > limit * (1.0 + LIMIT_TOL):
+            sym = "v_max" if name == "speed" else "a_max"
+            out.append(f"{name} {value:.3g} {unit} > {sym} {limit:g} {unit} ({value / limit:.2f}x)")
+    return "; ".join(out)
+
+
+def _reason(env: TrialEnv) -> str:
+    """The outcome's reason, with a note when the "first_clear" start rule found no clear start."""
+    if env.start.clear:
+        return env.reason
+    task = env.spec.scenario.task
+    return (f"{env.reason} (the start was not clear for {task.start_window_s:g} s within {task.start_wait_max_s:g} "
+            f"s: began at the clearest moment, t = {env.start.time_s:g} s)")
 
 
 def _fingerprint(spec: TrialSpec) -> str:

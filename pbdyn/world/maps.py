@@ -154,13 +154,17 @@ def random_unit_vectors(rng: np.random.Generator, n: int, dims: int) -> np.ndarr
     return v / norm
 
 
-def spawn_obstacles(scenario: Scenario, spec: MapSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def spawn_obstacles(scenario: Scenario, spec: MapSpec,
+                    keep_out: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Initial centres [N, d] (m), velocities [N, d] (m/s) and radii [N] (m) of a map's obstacles.
 
     Radii: setup radius +- radius_jitter (uniform) or drawn from a range; speeds: exactly the setup speed or drawn
     from a range; headings uniform; centres uniform inside the walls, rejection-sampled so that no obstacle overlaps
     another, a static body, or any start/goal candidate's MAV disc plus the spawn clearance (thesis 2-3; unlike the
-    thesis' program, the layout never depends on which start is flown).
+    thesis' program, the layout never depends on which start is flown). ``keep_out`` = (points [m, d], gap m)
+    replaces the candidates and spawn_clearance: obstacle discs stay ``gap`` m beyond the MAV disc at each point
+    (the "program" start rule, pbdyn.sim.start). Radii, speeds and headings are drawn before the centres, so they
+    do not depend on keep_out.
     """
     rng = spec.rng()
     dims = scenario.world.dims
@@ -170,8 +174,12 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec) -> tuple[np.ndarray, np.n
     speeds = _draw(spec.setup["speed"], rng, n, 0.0)
     dirs = random_unit_vectors(rng, n, dims)
     velocities = dirs * speeds[:, None]
-    cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
-    keep_out = scenario.drone.radius + scenario.task.spawn_clearance
+    if keep_out is None:
+        cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
+        keep_out = scenario.drone.radius + scenario.task.spawn_clearance
+    else:
+        cands = np.asarray(keep_out[0], dtype=float).reshape(-1, dims)
+        keep_out = scenario.drone.radius + float(keep_out[1])
     bodies = static_bodies(scenario)
     centres = np.zeros((n, dims))
     for i in range(n):

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn import limits
-from pbdyn.config import Scenario, canonical_json
+from pbdyn.config import Scenario, canonical_json, rollout_span_s
 from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
@@ -154,13 +154,16 @@ METRICS_HORIZON = limits.METRICS_HORIZON_S
 
 
 def default_horizon(scenario: Scenario) -> float:
-    """The longest default consumer plus one step: the trial time limit (the collision check at t_k+1 of the last
-    step needs one more sample) or the default metrics (global survivability: 20 s + 24 s)."""
-    return max(scenario.world.time_limit, METRICS_HORIZON) + scenario.world.dt
+    """The longest default consumer plus one step: a trial (its time limit after the start rule's longest wait; the
+    collision check at t_k+1 of the last step needs one more sample) or the default metrics (global survivability:
+    20 s + 24 s); pbdyn.config.rollout_span_s."""
+    return rollout_span_s(scenario.world, scenario.task) + scenario.world.dt
 
 
-def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None) -> Rollout:
-    """Compute a map's rollout from (scenario, map spec) over [0, horizon] s."""
+def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None, *,
+                  keep_out: tuple | None = None) -> Rollout:
+    """Compute a map's rollout from (scenario, map spec) over [0, horizon] s. ``keep_out``: (points [m, d], gap m)
+    to spawn around instead of the start/goal candidates (pbdyn.world.maps.spawn_obstacles)."""
     horizon = default_horizon(scenario) if horizon is None else float(horizon)
     if not 0 < horizon < float("inf"):
         raise ConfigError("horizon", "must be a finite number > 0", horizon)
@@ -174,7 +177,7 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     size = np.asarray(scenario.world.size, dtype=float)
     if scenario.is_world:
         return _world_rollout(scenario, spec, times, size)
-    p0, v0, radii = spawn_obstacles(scenario, spec)
+    p0, v0, radii = spawn_obstacles(scenario, spec, keep_out)
     if scenario.obstacles.motion == "cvm":
         pos, vel = cvm_fold(p0, v0, radii, size, times)
     elif scenario.obstacles.motion == "rvo":
