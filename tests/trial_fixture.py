@@ -1,7 +1,8 @@
 """The trial-row fixture: built-in planner pairs on the bundled quickstart (2D) and spheres_3d (3D) maps.
 
 tests/data/trial_rows.json holds the rows these cases produced before the trial loop was split into a steppable
-core (main at 145e667); test_trial_fixture.py re-flies them and requires bit-identical rows (all fields but wall
+core (main at 145e667), regenerated when the default start rule became "first_clear" (issue 13; with
+start_rule = "immediate" the old rows were reproduced bit-identically); test_trial_fixture.py re-flies them and requires bit-identical rows (all fields but wall
 times). Regenerate only for an intended behaviour change: python -m tests.trial_fixture
 """
 
