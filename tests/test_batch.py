@@ -17,7 +17,7 @@ import pytest
 from pbdyn.config import load_scenario
 from pbdyn.errors import ConfigError
 from pbdyn.experiments.runner import BatchOptions, run_batch
-from pbdyn.experiments.store import ResultsStore
+from pbdyn.experiments.store import SCHEMA_VERSION, ResultsStore
 from tests.conftest import ROOT, SCENARIOS, pbdyn_cmd
 
 SMALL = """
@@ -368,7 +368,7 @@ def test_store_columns_follow_the_trial_result_fields(reference):
     with sqlite3.connect(f"file:{out}?mode=ro", uri=True) as c:
         cols = [(r[1], r[2]) for r in c.execute("PRAGMA table_info(trials)")]
         version = c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
-    assert int(version) == SCHEMA_VERSION == 2
+    assert int(version) == SCHEMA_VERSION == 3
     assert cols == [("trial_key", "TEXT")] + [(n, "TEXT" if t == "JSON" else t) for n, t in TRIAL_COLUMNS] + \
         [("error", "TEXT"), ("result_json", "TEXT"), ("finished", "REAL")]
     store = ResultsStore.open(out)
@@ -402,7 +402,7 @@ def test_a_version_1_store_is_read_and_upgraded_and_its_rows_count_as_changed(re
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["rerun"] == 1
     with sqlite3.connect(f"file:{v1}?mode=ro", uri=True) as c:   # a batch that runs upgrades the store in place
-        assert c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+        assert c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == str(SCHEMA_VERSION)
         assert "planner_fingerprint" in {r[1] for r in c.execute("PRAGMA table_info(trials)")}
 
 

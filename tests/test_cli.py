@@ -105,7 +105,7 @@ def test_rollout_command_writes_npz(tmp_path):
     info = json.loads(proc.stdout)
     assert info["map_index"] == 3 and info["obstacles"] == 10
     with np.load(out) as z:
-        assert z["positions"].shape == (802, 10, 2)
+        assert z["positions"].shape == (902, 10, 2)   # 80 s + the start rule's 10 s wait + 1 step
     bad = _run(["rollout", SCENARIOS / "controlled_2d.toml", "--map", "540", "--out", tmp_path / "x.npz"])
     assert bad.returncode == 2 and not (tmp_path / "x.npz").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["map3.npz"]

@@ -160,12 +160,12 @@ def test_first_clear_waits_for_an_obstacle_crossing_the_start():
     assert st.clear and st.k0 > 0
     assert np.all(gaps[st.k0:st.k0 + 11] >= 1.0) and np.any(gaps[st.k0 - 1:st.k0 + 10] < 1.0)
     r = run_trial(spec, rollout)
-    assert r.start_time_s == pytest.approx(st.time_s) and r.start_time_s == pytest.approx(1.8)
+    assert r.start_delay_s == pytest.approx(st.time_s) and r.start_delay_s == pytest.approx(1.8)
     assert r.outcome == "success"
     immediate = open_scenario(obstacles={"count": 1}, task={"start_rule": "immediate"})
     spec0 = make_trial_spec(immediate, first_map(immediate), planner="lookahead+local_primitives", start=(4.0, 25.0),
                             goal=(46.0, 25.0))
-    assert trial_start(spec0, rollout).k0 == 0 and run_trial(spec0, rollout).start_time_s == 0.0
+    assert trial_start(spec0, rollout).k0 == 0 and run_trial(spec0, rollout).start_delay_s == 0.0
 
 
 def test_the_program_rule_respawns_around_the_flown_start_only():
@@ -207,7 +207,7 @@ def test_the_trace_holds_the_obstacles_of_the_flown_steps(tmp_path):
     r = run_trial(spec, rollout, trace_path=tmp_path / "t.npz")
     tr = np.load(tmp_path / "t.npz")
     k0 = int(tr["start_step"])
-    assert k0 == round(r.start_time_s / 0.1) > 0
+    assert k0 == round(r.start_delay_s / 0.1) > 0
     np.testing.assert_array_equal(tr["obstacle_p"], rollout.positions[k0:k0 + r.steps + 1])
 
 

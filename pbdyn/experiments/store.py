@@ -18,7 +18,7 @@ disk I/O errors, locked past the timeout, a full disk) become one-line ConfigErr
 ("RESULTS" when reading, "out" when a batch writes it) with a hint; a damaged row found while reading (bytes that
 are not UTF-8 or not JSON) likewise.
 
-Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_time_s, max_speed_mps,
+Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_delay_s, max_speed_mps,
 max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.runner.check_scenario). Older stores are read as they are (a column they lack reads as
 NULL) and upgraded in place when `pbdyn batch` writes to them (ResultsStore.create adds the missing columns); a
 store from a newer schema is refused.

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError
-from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, NAMES, SPARSE
+from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, METRIC_TABLE, NAMES, SPARSE
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
 
@@ -62,10 +62,7 @@ def resolve_backend(scenario: Scenario, backend: str) -> str:
 
 PROFILE_METRIC_PARAMS: dict[str, dict[str, dict]] = {
     "physical": {},
-    "thesis_program": {
-        "vo_feasibility": {"mav_radius": 0.5},
-        "vo_feasibility_dense": {"mav_radius": 0.5},
-    },
+    "thesis_program": {m.name: {"mav_radius": 0.5} for m in METRIC_TABLE if m.module.endswith(".vo")},
 }
 """Per profile and metric, parameters that replace the scenario-derived ones. thesis_program: the thesis' program
 computed VO feasibility with an MAV radius of 0.5 m (issue 13; README "Profiles")."""

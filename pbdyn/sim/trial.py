@@ -106,7 +106,7 @@ def _result(spec: TrialSpec, rollout: Rollout, env: TrialEnv, agent: Agent, grid
         outcome=env.outcome.value, final_state=agent.state, reason=_reason(env),
         min_clearance_m=float(env.min_clearance), planning_failures=agent.total_failures, steps=env.steps,
         planner_label=spec.planner.label, scenario=sc.name, map_key=ms.key, config_hash=spec.config_hash,
-        planner_fingerprint=_fingerprint(spec), profile=sc.profile, start_time_s=round(env.start.time_s, 10),
+        planner_fingerprint=_fingerprint(spec), profile=sc.profile, start_delay_s=round(env.start.time_s, 10),
         max_speed_mps=env.max_speed, max_accel_mps2=env.max_accel,
         limits_exceeded=limits_exceeded(env.max_speed, env.max_accel, env.limits.v_max, env.limits.a_max),
         wall_time_s=wall, wall_timings=timings)
