@@ -124,7 +124,7 @@ def _dataset(name: str, time_limit: float):
     return parse_scenario(doc)
 
 
-TRAJECTORY = ("local_primitives", "global_primitives", "mpc", "straight_line")
+TRAJECTORY = ("local_primitives", "global_primitives", "mpc", "straight_line", "local_primitives_minjerk")
 GAZES = ("lookahead", "fullrange", "finean")
 MAPS = list(range(0, 540, 27))     # 20 maps over every (count, radius, speed) setup of the controlled datasets
 

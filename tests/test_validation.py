@@ -354,6 +354,8 @@ def test_every_bundled_scenario_and_dataset_is_within_the_limits():
     ({"trajectory": "local_primitives", "trajectory_params": {"sphere_spacing_deg": 1e-9}}, "sphere_spacing_deg"),
     ({"trajectory": "local_primitives", "trajectory_params": {"n_candidates": 10 ** 9}}, "n_candidates"),
     ({"trajectory": "local_primitives", "trajectory_params": {"step_m": 1e12}}, "step_m"),
+    ({"trajectory": "local_primitives_minjerk", "trajectory_params": {"n_candidates": 10 ** 9}}, "n_candidates"),
+    ({"trajectory": "local_primitives_minjerk", "trajectory_params": {"duration": 1e12}}, "duration"),
     ({"trajectory": "mpc", "trajectory_params": {"horizon": 10 ** 6}}, "horizon"),
     ({"trajectory": "straight_line", "trajectory_params": {"horizon_s": 1e9}}, "horizon_s"),
 ])

@@ -61,6 +61,38 @@ def static_clear(view: View, points: np.ndarray, margin: float = 0.5) -> np.ndar
     return ~_static_bad(view, np.asarray(points, dtype=float), margin, grid=True)
 
 
+def batch_conflicts(view: View, p: np.ndarray, times: np.ndarray, margin: float = 0.5) -> np.ndarray:
+    """Per candidate of positions p [n, K, d] (m) at absolute times [K] (s): True if any sample meets a wall (c) or
+    a track's constant-velocity prediction (a); the grid (b) is left to grid_conflicts. One array evaluation over
+    candidates x samples x tracks: [n, K, M, d] floats."""
+    p = np.asarray(p, dtype=float)
+    n, k = p.shape[0], p.shape[1]
+    if n == 0 or k == 0:
+        return np.zeros(n, dtype=bool)
+    wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
+    bad = np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=(1, 2))
+    tracks = view.tracks
+    if len(tracks):
+        tau = np.asarray(times, dtype=float) - view.t
+        centres = tracks.position[None, :, :] + tau[:, None, None] * tracks.velocity[None, :, :]   # [K, M, d]
+        rel = p[:, :, None, :] - centres[None]                                                      # [n, K, M, d]
+        dist2 = rel[..., 0] * rel[..., 0]
+        for i in range(1, rel.shape[-1]):
+            dist2 = dist2 + rel[..., i] * rel[..., i]
+        reach = tracks.radius + (view.limits.radius + margin)
+        bad |= np.any(dist2 < reach * reach, axis=(1, 2))
+    return bad
+
+
+def grid_conflicts(view: View, p: np.ndarray, margin: float = 0.5) -> np.ndarray:
+    """Per candidate of positions p [n, K, d] (m): True if any sample's MAV ball meets an OCCUPIED cell (b)."""
+    p = np.asarray(p, dtype=float)
+    n, k, d = p.shape
+    if n == 0 or k == 0:
+        return np.zeros(n, dtype=bool)
+    return view.grid.collides(p.reshape(n * k, d), view.limits.radius + margin).reshape(n, k).any(axis=1)
+
+
 def _static_bad(view: View, p: np.ndarray, margin: float, grid: bool) -> np.ndarray:
     wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
     bad = np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=1)

@@ -52,6 +52,29 @@ def sphere_directions(spacing_deg: float) -> np.ndarray:
     return np.concatenate(out)
 
 
+def candidate_directions(dims: int, n_candidates: int, spacing_deg: float) -> np.ndarray:
+    """Unit directions [n, d] of the candidate end points (thesis eq. A-4). 2D: n_candidates angles 2 pi k / n,
+    k = 0..n-1; 3D: sphere_directions(spacing_deg) (n_candidates is ignored)."""
+    if dims == 2:
+        ang = 2.0 * np.pi * np.arange(n_candidates) / n_candidates
+        return np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    if dims == 3:
+        return sphere_directions(spacing_deg)
+    raise ValueError(f"dims must be 2 or 3, got {dims}")
+
+
+def rank_by_goal_angle(directions: np.ndarray, to_goal: np.ndarray) -> np.ndarray:
+    """Indices of unit ``directions`` [n, d] sorted by their angle to the vector ``to_goal`` [d] (m; goal minus
+    MAV position), ascending; ties (angles equal to 1e-12 rad) by index; index order when the MAV is at the goal
+    (thesis Algorithm 3, line 7, with the angle as the heuristic cost)."""
+    g = np.asarray(to_goal, dtype=float)
+    dist = math.sqrt(float(g @ g))
+    if dist < 1e-12:
+        return np.arange(directions.shape[0])
+    angle = np.arccos(np.clip(directions @ (g / dist), -1.0, 1.0))
+    return np.argsort(np.round(angle, 12), kind="stable")
+
+
 def frame_basis(u: np.ndarray) -> np.ndarray:
     """An orthonormal basis [d, d] (rows) whose first row is the unit vector u (2D or 3D), deterministic."""
     u = np.asarray(u, dtype=float)
@@ -127,14 +150,9 @@ class LocalPrimitives:
         2D: angles 2 pi k / n, k = 0..n-1. 3D: rings of constant elevation every sphere_spacing_deg (see the class
         docstring), horizontal ring first, azimuths starting at 0.
         """
-        if dims == 2:
-            ang = 2.0 * np.pi * np.arange(self.n_candidates) / self.n_candidates
-            return np.stack([np.cos(ang), np.sin(ang)], axis=1)
-        if dims == 3:
-            dirs = sphere_directions(self.sphere_spacing_deg)
-            self.n_candidates = dirs.shape[0]
-            return dirs
-        raise ValueError(f"dims must be 2 or 3, got {dims}")
+        dirs = candidate_directions(dims, self.n_candidates, self.sphere_spacing_deg)
+        self.n_candidates = dirs.shape[0]
+        return dirs
 
     def replan_check(self, view: View) -> bool:
         """Always True: the thesis program replans every step and executes one sample."""
@@ -142,12 +160,7 @@ class LocalPrimitives:
 
     def ranked_candidates(self, view: View) -> np.ndarray:
         """Candidate indices sorted by the angle between candidate and goal direction (ascending, ties by index)."""
-        g = view.goal - view.position
-        dist = math.sqrt(float(g @ g))
-        if dist < 1e-12:
-            return np.arange(self.n_candidates)
-        angle = np.arccos(np.clip(self.directions @ (g / dist), -1.0, 1.0))
-        return np.argsort(np.round(angle, 12), kind="stable")
+        return rank_by_goal_angle(self.directions, view.goal - view.position)
 
     def plan(self, view: View) -> Trajectory | None:
         """The first clear, limit-respecting primitive in rank order, sampled at view.dt; None if none exists.

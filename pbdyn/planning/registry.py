@@ -14,12 +14,14 @@ from pbdyn.planning.gaze_finean import Finean
 from pbdyn.planning.gaze_owl import Owl
 from pbdyn.planning.global_primitives import GlobalPrimitives
 from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.local_primitives_minjerk import LocalPrimitivesMinJerk
 from pbdyn.planning.mpc import MPC
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.straight_line import StraightLine
 
 TRAJECTORY_PLANNERS: dict[str, type] = {"local_primitives": LocalPrimitives, "straight_line": StraightLine,
-                                        "mpc": MPC, "global_primitives": GlobalPrimitives}
+                                        "mpc": MPC, "global_primitives": GlobalPrimitives,
+                                        "local_primitives_minjerk": LocalPrimitivesMinJerk}
 GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange, "lookgoal": LookGoal,
                                   "lookgoal_unexplored": LookGoalUnexplored, "rotating": Rotating,
                                   "finean": Finean, "owl": Owl}
