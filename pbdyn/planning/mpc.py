@@ -29,6 +29,21 @@ price, and only what goes beyond that is slack. The problem is therefore always 
 brakes) when the solve is not optimal or a slack exceeds max_slack within the first slack_window_s. Unused rows are
 padding (zero normal), so the problem's structure never changes and the solver is built once.
 
+Program prediction (``prediction = "program"``, an interpretation): the thesis program's obstacle predictions
+"drifted quadratically because of an aliasing bug" (implementation-facts.md "MPC"). Its loop over the horizon steps
+added k dt v to an obstacle's position list in place, so the list it started step k from already held step k - 1's
+prediction; step k therefore got p + (1 + 2 + ... + k) dt v = p + k (k + 1) / 2 dt v instead of p + k dt v (A-10).
+That prediction replaces the constant-velocity one for the track rows only (the choice of the M nearest tracks
+included, as the program ranked the drifted positions); the reference path, the cells and the walls are unchanged.
+The program's constraints were soft and a plan failed only when its solver did not converge, so PROGRAM_PARAMS
+also sets max_slack = MAX_PLAN_DISTANCE_M (a slack never fails a plan). Not reproduced: the program's obstacles
+were ellipses (tracks as discs of radius + 1 m, occupied cells within 10 m clustered into ellipses) in a nonlinear
+problem solved by a proprietary solver (FORCES Pro), the 5 nearest of tracks and clusters together chosen per step;
+here they are the linearised discs of the M nearest tracks and the n_cells nearest cells (a convex problem). Its
+cost (0.1 |x - goal|^2 plus slack, implementation-facts.md) is not adopted: the generated solver's weights, units
+(the program worked in pixels) and any acceleration term are unknown, so w_goal, w_acc and ref_dist keep pbdyn's
+values.
+
 Limits: the solver gets v_max (1 - limit_eps) and a_max (1 - limit_eps). The returned trajectory is rebuilt from the
 solver's accelerations, each first projected onto the a_max ball, by exact integration of A-5 from the current
 state, so it satisfies the dynamics to round-off; a velocity above v_max (possible only beyond the solver's
@@ -43,7 +58,7 @@ import time
 import numpy as np
 
 from pbdyn.perception.grid import OCCUPIED
-from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_HORIZON_S
+from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.checks import WALL_MARGIN_CAP
 from pbdyn.planning.mpc_problem import (INACTIVE_RHS, ClarabelMPC, CvxpyMPC, MPCData, MPCShape, MPCSolution,
@@ -90,6 +105,9 @@ def bias_normals(normals: np.ndarray, side: np.ndarray, gdir: np.ndarray, bias_d
     return np.where(hit[..., None], turned, normals)
 
 
+PREDICTIONS = ("constant_velocity", "program")
+
+
 class MPC:
     """MPC trajectory planner (registry name "mpc"; thesis A-3, eqs. A-5..A-11; Zhu & Alonso-Mora 2019).
 
@@ -116,18 +134,27 @@ class MPC:
         backend: "clarabel" (the problem written directly in Clarabel's form, a persistent solver whose data is
             updated each step) or "cvxpy" (the same problem built once in cvxpy with Parameters and re-solved with
             Clarabel); a test checks that they agree.
+        prediction: the tracks' predicted centres in the track rows: "constant_velocity" (default, p + k dt v,
+            A-10) or "program" (p + k (k + 1) / 2 dt v, the thesis program's aliasing bug; see the module doc).
+
+    PROGRAM_PARAMS: the parameters that reproduce the thesis program (merged under a scenario's own params under the
+    "thesis_program" profile): its prediction, and no plan failure on slack (its constraints were soft). Its horizon
+    (25 x 0.1 s), its 5 nearest obstacles and |v| <= v_max are the defaults already; see the module doc for what
+    is not reproduced.
 
     Diagnostics of the last plan() call: last_data (MPCData), last_solution (MPCSolution), last_max_slack (m, over
     the slack window), last_fail_reason (None on success), last_solve_wall_s (problem set-up and solves, s),
     last_relinearisations, last_track_index (indices into view.tracks of the constrained tracks, in row order).
     """
 
+    PROGRAM_PARAMS: dict = {"prediction": "program", "max_slack": MAX_PLAN_DISTANCE_M}
+
     def __init__(self, context: PlannerContext, *, horizon: int = 25, n_tracks: int = 5, n_cells: int = 6,
                  margin: float = 0.5, hard_margin: float = 0.1, wall_margin: float = WALL_MARGIN_CAP,
                  w_goal: float = 1.0, w_acc: float = 0.1, w_slack: float = 1.0e4, w_band: float = 1.0e3,
                  ref_dist: float | None = None, bias_deg: float = 15.0,
                  max_slack: float = 0.05, slack_window_s: float = 1.0, relinearise: int = 0,
-                 limit_eps: float = 1.0e-6, backend: str = "clarabel"):
+                 limit_eps: float = 1.0e-6, backend: str = "clarabel", prediction: str = "constant_velocity"):
         horizon = params.integer("horizon", horizon, lo=2, hi=int(MAX_PLAN_HORIZON_S))
         n_tracks = params.integer("n_tracks", n_tracks, lo=0, hi=MAX_PLAN_COUNT)
         n_cells = params.integer("n_cells", n_cells, lo=0, hi=MAX_PLAN_COUNT)
@@ -144,6 +171,8 @@ class MPC:
         limit_eps = params.number("limit_eps", limit_eps, lo=0.0, hi=0.1, hi_open=True)
         if backend not in ("clarabel", "cvxpy"):
             raise ValueError(f"backend must be 'clarabel' or 'cvxpy', got {backend!r}")
+        if prediction not in PREDICTIONS:
+            raise ValueError(f"prediction must be one of {', '.join(PREDICTIONS)}, got {prediction!r}")
         self.dims = d = int(context.dims)
         if d not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {d}")
@@ -164,10 +193,14 @@ class MPC:
         self.slack_steps = int(math.floor(slack_window_s / self.dt + 1e-9))
         self.limit_eps = float(limit_eps)
         self.backend = backend
+        self.prediction = prediction
         self.weights = MPCWeights(float(w_goal), float(w_acc), float(w_slack), float(w_band))
         self.shape = MPCShape(d, self.horizon, self.dt, self.n_tracks + self.n_cells)
         self._solver = (ClarabelMPC if backend == "clarabel" else CvxpyMPC)(self.shape, self.weights)
         self._k = np.arange(1, self.horizon + 1)
+        k = self._k.astype(float)
+        # seconds ahead at which the track rows read the tracks' constant-velocity predictions, per step k = 1..N
+        self._pred_tau = (k * self.dt) if prediction == "constant_velocity" else (0.5 * k * (k + 1.0)) * self.dt
         self.last_data: MPCData | None = None
         self.last_solution: MPCSolution | None = None
         self.last_max_slack = math.nan
@@ -211,6 +244,11 @@ class MPC:
         u, n = _unit(x)
         return np.where((n > _DEGENERATE)[..., None], u, lateral_axis(self.goal_direction(view)))
 
+    def obstacle_prediction(self, tracks) -> np.ndarray:
+        """Predicted track centres [N, M, d] (m) used by the track rows at steps k = 1..N: p + k dt v, or under
+        prediction = "program" p + k (k + 1) / 2 dt v (module doc)."""
+        return tracks.predict(self._pred_tau)
+
     def track_rows(self, view: View, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rows of the M nearest tracks: unit normals [M, N, d] (0 for padding), predicted centres [M, N, d] (m) and
         inflated radii [M] (track radius + MAV radius + margin, m). Nearest = smallest surface distance to the
@@ -223,7 +261,7 @@ class MPC:
         self.last_track_index = np.zeros(0, np.int64)
         if m == 0 or len(tracks) == 0:
             return normals, centres, reach
-        pred = tracks.predict(self._k * self.dt)                              # [N, T, d]
+        pred = self.obstacle_prediction(tracks)                               # [N, T, d]
         nrm, dist = _unit(ref[:, None, :] - pred)
         score = (dist - tracks.radius[None, :]).min(axis=0)
         sel = np.argsort(score, kind="stable")[:m]
