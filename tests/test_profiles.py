@@ -234,3 +234,23 @@ def test_a_store_holds_one_profile_and_evaluate_refuses_to_pool_profiles(tmp_pat
     with pytest.raises(ConfigError) as e:
         load_results([tmp_path / "a.sqlite", tmp_path / "b.sqlite"])
     assert "mixes profiles" in str(e.value)
+
+
+def test_thesis_program_gives_built_in_planners_their_program_parameters():
+    from pbdyn.planning.global_primitives import GlobalPrimitives
+    from pbdyn.planning.mpc import MPC
+    from pbdyn.sim.agent import Agent
+
+    for profile in ("physical", "thesis_program"):
+        for traj, cls in (("global_primitives", GlobalPrimitives), ("mpc", MPC)):
+            sc = parse_scenario({
+                "profile": profile, "planners": [{"trajectory": traj, "gaze": "fullrange",
+                                                  "trajectory_params": {"margin": 0.4}}]})
+            agent = Agent(make_trial_spec(sc, get_map(sc, 0)))
+            assert agent.context.physical == (profile == "physical") and agent.physical == agent.context.physical
+            assert agent.planner.margin == 0.4                       # an explicit parameter wins
+            if traj == "global_primitives":
+                assert (agent.planner.max_expansions == cls.PROGRAM_PARAMS["max_expansions"]) == \
+                    (profile == "thesis_program")
+            else:
+                assert (agent.planner.prediction == "program") == (profile == "thesis_program")
