@@ -251,16 +251,23 @@ class DroneConfig:
 @dataclass(frozen=True)
 class SensorConfig:
     """Depth sensor: horizontal fov_deg, vertical vfov_deg (3D only), range (m), ray resolution_deg (both axes),
-    Gaussian position noise_std (m). 3D defaults: RESOLUTION_3D_DEG, VFOV_3D_DEG (vfov_deg is None in 2D)."""
+    Gaussian position noise_std (m). 3D defaults: RESOLUTION_3D_DEG, VFOV_3D_DEG (vfov_deg is None in 2D).
+    model: "raycast" (PyBullet rays, exact hits) or "marching" (the thesis program's sensor: points every
+    march_step m along each ray, the first one inside a body is the hit; pbdyn.perception.perceive); rays: with
+    "marching", rays per horizontal fan (None: from resolution_deg; the program used 50)."""
 
     RESOLUTION_3D_DEG: ClassVar[float] = 2.0
     VFOV_3D_DEG: ClassVar[float] = 60.0
+    MODELS: ClassVar[tuple[str, ...]] = ("raycast", "marching")
 
     fov_deg: float = 90.0
     range: float = 8.0
     resolution_deg: float = 1.0
     noise_std: float = 0.0
     vfov_deg: float | None = None
+    model: str = "raycast"
+    rays: int | None = None
+    march_step: float = 0.9
 
 
 @dataclass(frozen=True)
@@ -687,7 +694,8 @@ def _parse_drone(doc: Mapping) -> DroneConfig:
 
 def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
     t = _table(doc, "sensor")
-    _no_unknown(t, ("fov_deg", "vfov_deg", "range", "resolution_deg", "noise_std"), "sensor")
+    _no_unknown(t, ("fov_deg", "vfov_deg", "range", "resolution_deg", "noise_std", "model", "rays", "march_step"),
+                "sensor")
     d = _defaults(SensorConfig)
     fov = _number(t, "fov_deg", "sensor", d["fov_deg"], lo=0.0, lo_open=True, hi=360.0)
     rng = _number(t, "range", "sensor", d["range"], lo=0.0, lo_open=True)
@@ -706,7 +714,21 @@ def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
     rays = (360.0 / res + 1) * ((vfov / res + 1) if vfov is not None else 1)
     limits.check_limit("sensor.resolution_deg", "rays per scan (at 360 deg: a gaze planner may widen the fov)", rays,
                        limits.MAX_SENSOR_RAYS, res)
-    return SensorConfig(fov, rng, res, noise, vfov)
+    model = _string(t, "model", "sensor", d["model"], SensorConfig.MODELS)
+    n_rays, step = d["rays"], d["march_step"]
+    if model == "marching":
+        n_rays = _integer(t, "rays", "sensor", d["rays"], lo=1)
+        step = _number(t, "march_step", "sensor", d["march_step"], lo=0.0, lo_open=True, hi=rng)
+        if n_rays is not None:
+            rays = n_rays * ((vfov / res + 1) if vfov is not None else 1)
+            limits.check_limit("sensor.rays", "rays per scan", rays, limits.MAX_SENSOR_RAYS, n_rays)
+        limits.check_limit("sensor.march_step", "march points per scan", rays * math.ceil(rng / step),
+                           limits.MAX_SENSOR_MARCH_POINTS, step)
+    else:
+        for key in ("rays", "march_step"):
+            if key in t:
+                raise ConfigError(f"sensor.{key}", 'is only used with sensor.model = "marching"', t[key])
+    return SensorConfig(fov, rng, res, noise, vfov, model, n_rays, step)
 
 
 def _check_resolution(sensor: SensorConfig, obstacles: ObstacleConfig,

@@ -13,6 +13,8 @@ and the limit. The limits are generous: every bundled scenario and dataset uses 
   an imported world adds steps x bodies x 7 x 8 bytes (poses).
 - MAX_GRID_CELLS = 100 000 000: occupancy-grid cells, prod(world.size / world.grid_resolution + 2).
 - MAX_SENSOR_RAYS = 100 000: rays of one scan at 360 deg (a gaze planner may widen the fov to 360 deg).
+- MAX_SENSOR_MARCH_POINTS = 1 000 000: march points of one scan of the marching sensor (rays x range /
+  march_step).
 - MAX_RVO_CANDIDATES = 100 000: obstacles.rvo n_headings x n_speeds.
 - MAX_RVO_CONTACT_ITERATIONS = 1 000: obstacles.rvo.contact_iterations.
 - MAX_NESTING = 32: levels of tables and arrays in a scenario document.
@@ -43,6 +45,7 @@ MAX_STEPS = 1_000_000
 MAX_ROLLOUT_BYTES = 2 * 1024 ** 3
 MAX_GRID_CELLS = 100_000_000
 MAX_SENSOR_RAYS = 100_000
+MAX_SENSOR_MARCH_POINTS = 1_000_000
 MAX_RVO_CANDIDATES = 100_000
 MAX_RVO_CONTACT_ITERATIONS = 1_000
 MAX_MAGNITUDE = 1e9

@@ -36,6 +36,7 @@ COMPUTED = {
     ("", "name"): "file stem",
     ("obstacles.rvo", "wall_time_horizon"): "dt",
     ("task", "candidates"): "`{4, 25, 46}^2` (3D: z = 10)",
+    ("sensor", "rays"): "from `resolution_deg`",
 }
 """Defaults computed at parse time (the field's default is a sentinel): README text expected for each."""
 

@@ -8,10 +8,23 @@ cuboids, intersected exactly) or a wall (a coordinate reaching r_mav or L - r_ma
 ``time``. Imported worlds: the bodies' real shapes (static and moving) instead of discs/balls, the touching
 distance found by sphere tracing on their exact signed-distance field (pbdyn.world.shapes; tolerance 1e-4 m).
 
-Grid mode (the thesis' cell walk): cells of ``cell`` m; a cell is blocked if its centre lies inside an obstacle
-(distance < r_i, no MAV inflation) or a static body, or outside the arena; from the start's cell walk along one of
-the neighbour directions to the first blocked cell; d = cells walked x cell (x sqrt 2 diagonally, x sqrt 3 on 3D
-space diagonals).
+Grid mode (the thesis' cell walk): cells of ``cell`` m; from the start's cell walk along one of the neighbour
+directions to the first blocked cell; d = cells walked x cell (x sqrt 2 diagonally, x sqrt 3 on 3D space
+diagonals). Which cells are blocked is the ``marking``:
+
+- ``"centre_inside"`` (default): a cell is blocked if its centre lies inside an obstacle (distance < r_i, no MAV
+  inflation) or a static body, or outside the arena.
+- ``"program"``: the thesis' own program (implementation-facts.md "Metrics as computed for the thesis' tables";
+  read from its public code, smoggy-P/gym-Drone2D-ActivePerception). Its ground-truth grid covered the arena with
+  the arena's walls in the outermost ring of cells (those cells are blocked), and it marked dynamic obstacles in
+  two ways. A freshly built map (what its traversability, eq. 3-2, read at t = 0) blocks a cell whose centre is
+  inside or on an obstacle's disc. A map stepped forward (what its dynamic traversability, eq. 3-3, read) blocks
+  the square of cells within floor(r_i / cell) cells (per axis) of the cell holding the obstacle's centre: one
+  cell for r_i < cell, 3 x 3 cells for cell <= r_i < 2 cell. traversability uses the first rule,
+  dynamic_traversability the second. (The program also took its dynamic samples one step late, at t + dt; that
+  is a choice of ``times``, not of marking, and is not applied.) Static bodies are marked as in
+  ``"centre_inside"`` (centre inside or on them); imported worlds' moving bodies are marked by their bounding
+  spheres, static ones by their real shapes.
 """
 
 from __future__ import annotations
@@ -29,6 +42,10 @@ from pbdyn.metrics.survivability import jsonable, positive, summary
 from pbdyn.world.geometry import StaticBody
 
 MODES = ("exact", "grid")
+MARKINGS = ("centre_inside", "program")
+"""Grid-mode cell marking of the metrics (module doc)."""
+CELL_RULES = ("centre_inside", "program_reset", "program_step")
+"""blocked_cells' rules: the default, and the program's freshly built and stepped maps (module doc)."""
 DYNAMIC_TIMES = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
 CHUNK_ELEMENTS = 4_000_000
 
@@ -206,30 +223,73 @@ def shape_distances(rollout, k: int, starts: np.ndarray, dirs: np.ndarray, infla
 # ----------------------------------------------------------------------------------------------------------------
 # grid mode
 # ----------------------------------------------------------------------------------------------------------------
-def blocked_cells(rollout, k: int, cell: float, include_static: bool = True) -> np.ndarray:
-    """Boolean grid (shape ceil(L / cell) per axis): True where the cell centre lies inside an obstacle at step k
-    (distance < r_i), inside a static body, or outside the arena."""
+def _cell_indices(shape: tuple[int, ...]) -> np.ndarray:
+    """Integer indices [C, d] of every cell of a grid of ``shape``, in C order."""
+    return np.indices(shape).reshape(len(shape), -1).T
+
+
+def _mark_discs(blocked: np.ndarray, centres: np.ndarray, pos: np.ndarray, radii: np.ndarray,
+                closed: bool) -> None:
+    """blocked[c] |= cell centre c [C, d] lies inside obstacle i (distance < r_i; ``closed``: <= r_i)."""
+    n = pos.shape[0]
+    step = max(1, CHUNK_ELEMENTS // max(1, centres.shape[0] * centres.shape[1]))
+    for s in range(0, n, step):
+        d2 = np.zeros((centres.shape[0], min(step, n - s)))
+        for a in range(centres.shape[1]):
+            diff = centres[:, None, a] - pos[None, s:s + step, a]
+            d2 += diff * diff
+        r2 = radii[None, s:s + step] ** 2
+        blocked |= np.any(d2 <= r2 if closed else d2 < r2, axis=1)
+
+
+def _mark_squares(blocked: np.ndarray, idx: np.ndarray, pos: np.ndarray, radii: np.ndarray, cell: float) -> None:
+    """blocked[c] |= cell c (indices [C, d]) is within floor(r_i / cell) cells, on every axis, of the cell holding
+    obstacle i's centre (the thesis program's per-step marking of a dynamic obstacle)."""
+    n = pos.shape[0]
+    home = np.floor(pos / cell).astype(np.int64)                              # [N, d]
+    reach = np.floor(radii / cell).astype(np.int64)                           # [N]
+    step = max(1, CHUNK_ELEMENTS // max(1, idx.shape[0] * idx.shape[1]))
+    for s in range(0, n, step):
+        near = np.abs(idx[:, None, :] - home[None, s:s + step, :]) <= reach[None, s:s + step, None]
+        blocked |= np.any(np.all(near, axis=2), axis=1)
+
+
+def blocked_cells(rollout, k: int, cell: float, include_static: bool = True,
+                  rule: str = "centre_inside") -> np.ndarray:
+    """Boolean grid (shape ceil(L / cell) per axis) of the cells blocked at step k under ``rule`` (module doc):
+    "centre_inside": the cell centre lies inside an obstacle (distance < r_i), inside a static body, or outside
+    the arena; "program_reset" / "program_step": the thesis program's freshly built / stepped map (the outermost
+    ring of cells blocked as walls; obstacles by centre inside or on the disc / by the floor(r_i / cell) square)."""
+    if rule not in CELL_RULES:
+        raise ConfigError("rule", f"must be one of {', '.join(CELL_RULES)}", rule)
     limits.check_limit("cell", "grid cells (the arena's extents / cell)", limits.grid_count(rollout.arena_size, cell),
                        limits.MAX_METRIC_SAMPLES, cell)
     shape = tuple(int(np.ceil(L / cell - 1e-9)) for L in rollout.arena_size)
-    axes = [(np.arange(n) + 0.5) * cell for n in shape]
-    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, rollout.dims)
+    idx = _cell_indices(shape)
+    centres = (idx + 0.5) * cell
     blocked = np.any(centres > rollout.arena_size[None, :], axis=1)
     pos, _ = rollout.at(k)
-    step = max(1, CHUNK_ELEMENTS // max(1, centres.shape[0] * rollout.dims))
     bodies = getattr(rollout, "bodies", None)
-    if bodies is not None:
-        which = "all" if include_static else "moving"
-        blocked |= bodies.field().distance(plane_points(rollout, centres), k, which) < 0.0
-    for s in range(0, rollout.n_obstacles if bodies is None else 0, step):
-        d2 = np.zeros((centres.shape[0], min(step, rollout.n_obstacles - s)))
-        for a in range(rollout.dims):
-            diff = centres[:, None, a] - pos[None, s:s + step, a]
-            d2 += diff * diff
-        blocked |= np.any(d2 < rollout.radii[None, s:s + step] ** 2, axis=1)
+    if rule == "centre_inside":
+        if bodies is not None:
+            which = "all" if include_static else "moving"
+            blocked |= bodies.field().distance(plane_points(rollout, centres), k, which) < 0.0
+        else:
+            _mark_discs(blocked, centres, pos, rollout.radii, closed=False)
+        if include_static:
+            for body in rollout.static:
+                blocked |= body.footprint_distance(centres) < 0.0
+        return blocked.reshape(shape)
+    blocked |= np.any((idx == 0) | (idx == np.asarray(shape) - 1), axis=1)   # the program's walls
+    if bodies is not None and include_static and not bodies.moving.all():
+        blocked |= bodies.field().distance(plane_points(rollout, centres), k, "static") <= 0.0
+    if rule == "program_reset":
+        _mark_discs(blocked, centres, pos, rollout.radii, closed=True)
+    else:
+        _mark_squares(blocked, idx, pos, rollout.radii, cell)
     if include_static:
         for body in rollout.static:
-            blocked |= body.footprint_distance(centres) < 0.0
+            blocked |= body.footprint_distance(centres) <= 0.0
     return blocked.reshape(shape)
 
 
@@ -263,40 +323,48 @@ def _starts(rollout, starts, spacing, margin, mav_radius) -> tuple[np.ndarray, i
     return pts[keep], int(np.count_nonzero(~keep))
 
 
-def _distances_at(rollout, k, pts, horizontal, mode, cell, mav_radius, include_static) -> np.ndarray:
+def _distances_at(rollout, k, pts, horizontal, mode, cell, mav_radius, include_static,
+                  rule: str = "centre_inside") -> np.ndarray:
     if mode == "exact":
         return free_distances(rollout, k, pts, unit_directions(rollout.dims, horizontal), mav_radius, include_static)
-    blocked = blocked_cells(rollout, k, cell, include_static)
+    blocked = blocked_cells(rollout, k, cell, include_static, rule)
     return walk_distances(blocked, pts, neighbour_steps(rollout.dims, horizontal), cell)
 
 
-def _check(mode: str, cell: float) -> float:
+def _check(mode: str, cell: float, marking: str = "centre_inside") -> float:
     if mode not in MODES:
         raise ConfigError("mode", f"must be one of {', '.join(MODES)}", mode)
+    if marking not in MARKINGS:
+        raise ConfigError("marking", f"must be one of {', '.join(MARKINGS)}", marking)
+    if marking != "centre_inside" and mode != "grid":
+        raise ConfigError("marking", 'marks grid cells: it needs mode = "grid"', marking)
     return positive("cell", cell)
 
 
 def traversability(rollout, *, time: float = 0.0, starts=None, spacing: float | None = None, margin: float = 5.0,
                    mav_radius: float = 1.0, horizontal: bool = False, mode: str = "exact", cell: float = 1.0,
-                   include_static: bool = True, name: str = "traversability") -> MetricResult:
+                   include_static: bool = True, marking: str = "centre_inside",
+                   name: str = "traversability") -> MetricResult:
     """Traversability (thesis eq. 3-2, m): mean free straight-line distance over starts x directions at ``time``.
 
     Starts: ``starts`` [n, d], else with ``spacing`` None the 9 start/goal candidates {4, L/2, L - 4}^2 (3D at
     z = L_z / 2), else grid_samples(arena, spacing, margin); starts whose MAV overlaps static geometry are left out
     (n_excluded). Directions: 8 at 45 deg (3D: 26, or the 8 horizontal ones with ``horizontal``). Modes "exact"
     (ray casting, see module doc) and "grid" (the thesis' cell walk with ``cell`` m cells; mav_radius then only
-    excludes starts). per_sample: distances [n, m] (m); stderr = std / sqrt(n m).
+    excludes starts). marking (grid mode): "centre_inside" or "program" (the thesis program's freshly built map:
+    wall ring, centre inside or on a disc; module doc). per_sample: distances [n, m] (m); stderr = std / sqrt(n m).
     """
     t0 = _time.perf_counter()
-    cell = _check(mode, cell)
+    cell = _check(mode, cell, marking)
     mav_radius = positive("mav_radius", mav_radius)
     k = rollout.step_index(float(time))
     pts, n_excl = _starts(rollout, starts, spacing, margin, mav_radius)
-    per_sample = _distances_at(rollout, k, pts, horizontal, mode, cell, mav_radius, include_static)
+    rule = "program_reset" if marking == "program" else marking
+    per_sample = _distances_at(rollout, k, pts, horizontal, mode, cell, mav_radius, include_static, rule)
     value, err = summary(per_sample)
     params = {"time": float(time), "starts": jsonable(pts), "spacing": None if spacing is None else float(spacing),
               "margin": float(margin), "mav_radius": mav_radius, "horizontal": bool(horizontal), "mode": mode,
-              "cell": cell, "include_static": bool(include_static),
+              "cell": cell, "include_static": bool(include_static), "marking": marking,
               "n_directions": int(per_sample.shape[1]) if per_sample.ndim == 2 else 0}
     per_sample.setflags(write=False)
     return MetricResult(name, value, params, int(pts.shape[0]), n_excl, per_sample, err, {},
@@ -305,34 +373,38 @@ def traversability(rollout, *, time: float = 0.0, starts=None, spacing: float | 
 
 def traversability_dense(rollout, *, time: float = 0.0, starts=None, spacing: float | None = 5.0,
                          margin: float = 5.0, mav_radius: float = 1.0, horizontal: bool = False, mode: str = "exact",
-                         cell: float = 1.0, include_static: bool = True) -> MetricResult:
+                         cell: float = 1.0, include_static: bool = True,
+                         marking: str = "centre_inside") -> MetricResult:
     """Dense traversability (thesis eq. 3-2, m): starts on the 5 m grid 5, 10, ..., L - 5 (81 in 2D); see
     traversability()."""
     return traversability(rollout, time=time, starts=starts, spacing=spacing, margin=margin, mav_radius=mav_radius,
                           horizontal=horizontal, mode=mode, cell=cell, include_static=include_static,
-                          name="traversability_dense")
+                          marking=marking, name="traversability_dense")
 
 
 def dynamic_traversability(rollout, *, times=DYNAMIC_TIMES, starts=None, spacing: float | None = None,
                            margin: float = 5.0, mav_radius: float = 1.0, horizontal: bool = False,
-                           mode: str = "exact", cell: float = 1.0, include_static: bool = True) -> MetricResult:
+                           mode: str = "exact", cell: float = 1.0, include_static: bool = True,
+                           marking: str = "centre_inside") -> MetricResult:
     """Dynamic traversability (thesis eq. 3-3, m): traversability at each of ``times`` (default 0, 2, ..., 10 s),
-    averaged over times x starts x directions. per_sample: distances [n_times, n, m] (m). Other parameters as in
+    averaged over times x starts x directions. per_sample: distances [n_times, n, m] (m). marking "program": the
+    thesis program's stepped maps (wall ring, floor(r / cell) squares; module doc). Other parameters as in
     traversability()."""
     t0 = _time.perf_counter()
-    cell = _check(mode, cell)
+    cell = _check(mode, cell, marking)
+    rule = "program_step" if marking == "program" else marking
     mav_radius = positive("mav_radius", mav_radius)
     ts = [float(t) for t in np.atleast_1d(np.asarray(times, dtype=float))]
     if not ts:
         raise ConfigError("times", "must not be empty", jsonable(times))
     ks = [rollout.step_index(t) for t in ts]
     pts, n_excl = _starts(rollout, starts, spacing, margin, mav_radius)
-    per_sample = np.stack([_distances_at(rollout, k, pts, horizontal, mode, cell, mav_radius, include_static)
+    per_sample = np.stack([_distances_at(rollout, k, pts, horizontal, mode, cell, mav_radius, include_static, rule)
                            for k in ks])
     value, err = summary(per_sample)
     params = {"times": ts, "starts": jsonable(pts), "spacing": None if spacing is None else float(spacing),
               "margin": float(margin), "mav_radius": mav_radius, "horizontal": bool(horizontal), "mode": mode,
-              "cell": cell, "include_static": bool(include_static)}
+              "cell": cell, "include_static": bool(include_static), "marking": marking}
     per_sample.setflags(write=False)
     return MetricResult("dynamic_traversability", value, params, int(pts.shape[0]), n_excl, per_sample, err, {},
                         _time.perf_counter() - t0)

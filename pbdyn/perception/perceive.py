@@ -5,6 +5,12 @@ real). A dynamic obstacle hit by any ray is detected, and its measurement is its
 (plus optional Gaussian noise) -- the thesis' "no perception error" with perfect data association. Every ray frees
 the cells of samples taken every <= res/4 along it up to its hit (or full range); a ray ending on a static body or
 wall marks the cell just behind its hit point OCCUPIED; dynamic obstacles are tracked, never mapped.
+
+``model="marching"`` is the thesis program's sensor instead (implementation-facts.md "MAV, sensing, tracking";
+pbdyn.perception.marching): ``rays`` rays over the FOV, each a sequence of points ``march_step`` apart, the first
+point inside an obstacle, static body or beyond a wall is the hit; every obstacle holding it is detected (true
+centre); the cells of the points before it become FREE, a static or wall hit point's cell OCCUPIED. It is computed
+in numpy from the world's obstacle positions (as last set) and its generated static bodies, with the same outputs.
 """
 
 from __future__ import annotations
@@ -14,8 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pbdyn.config import SensorConfig
 from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import OccupancyGrid
+from pbdyn.perception.marching import NONE, OBSTACLE, STATIC, WALL, march, march_distances, static_bounds
 from pbdyn.perception.sensor import ray_directions
 
 OCCUPIED_NUDGE = 1e-3
@@ -45,11 +53,15 @@ class Perception:
     range_m: sensor range (m). noise_std: std (m) of the Gaussian noise added to each measured centre (needs rng).
     vfov_deg / vresolution_deg (3D only): vertical field of view and spacing (deg); defaults 60 and resolution_deg.
     Free space is sampled along each ray every <= grid.res / 4.
+    model: "raycast" (PyBullet rays) or "marching" (module doc): rays = rays per horizontal fan (None: from
+    resolution_deg; 3D rows as "raycast"), march_step = spacing of the march points (m). "marching" needs a world
+    whose static bodies are all generated ones (pillars, boxes), not imported URDFs.
     """
 
     def __init__(self, world, grid: OccupancyGrid, *, fov_deg: float, range_m: float, resolution_deg: float,
                  noise_std: float = 0.0, rng: np.random.Generator | None = None, vfov_deg: float | None = None,
-                 vresolution_deg: float | None = None):
+                 vresolution_deg: float | None = None, model: str = "raycast", rays: int | None = None,
+                 march_step: float = 0.9):
         for name, value in (("sensor.fov_deg", fov_deg), ("sensor.range", range_m),
                             ("sensor.resolution_deg", resolution_deg)):
             if not (math.isfinite(float(value)) and float(value) > 0):
@@ -62,6 +74,17 @@ class Perception:
             raise ConfigError("sensor.noise_std", "needs an np.random.Generator (rng) when > 0", noise_std)
         if grid.dims != world.dims:
             raise ConfigError("grid", f"has {grid.dims} dimensions, the world {world.dims}", grid.dims)
+        if model not in SensorConfig.MODELS:
+            raise ConfigError("sensor.model", f"must be one of {', '.join(SensorConfig.MODELS)}", model)
+        if rays is not None and (not isinstance(rays, (int, np.integer)) or isinstance(rays, bool) or rays < 1):
+            raise ConfigError("sensor.rays", "must be an integer >= 1 (or None)", rays)
+        if (isinstance(march_step, bool) or not isinstance(march_step, (int, float))
+                or not (math.isfinite(float(march_step)) and float(march_step) > 0)):
+            raise ConfigError("sensor.march_step", "must be a finite number > 0", march_step)
+        self.model = model
+        self.march_step = float(march_step)
+        if model == "marching":
+            self._check_marching_world(world)
         self.world = world
         self.grid = grid
         self.dims = world.dims
@@ -75,7 +98,11 @@ class Perception:
             self.vresolution_deg = self.resolution_deg if vresolution_deg is None else float(vresolution_deg)
         else:
             self.vfov_deg = self.vresolution_deg = None
-        base = ray_directions(0.0, self.fov_deg, self.resolution_deg, self.dims, self.vfov_deg, self.vresolution_deg)
+        self.rays = None if rays is None or model != "marching" else int(rays)
+        base = ray_directions(0.0, self.fov_deg, self.resolution_deg, self.dims, self.vfov_deg, self.vresolution_deg,
+                              self.rays)
+        self._march_t = march_distances(self.range_m, self.march_step) if model == "marching" else None
+        self._static_bounds = static_bounds(tuple(world.static_bodies), self.dims) if model == "marching" else None
         self.n_rays = int(base.shape[0])
         self._base_t = np.ascontiguousarray(base.T)                 # [d, R], yaw 0
         n_samples = int(math.ceil(self.range_m / (grid.res / 4.0)))
@@ -95,6 +122,14 @@ class Perception:
         self._slab = grid.cells.size // grid.shape[0]                 # cells per index along axis 0
         self._grid_top = np.asarray(grid.shape, dtype=float)
         self._obstacle_seen = np.zeros(world.obstacle_ids.shape[0] + 1, dtype=bool)
+
+    @staticmethod
+    def _check_marching_world(world) -> None:
+        """ConfigError naming sensor.model when the world holds static bodies the marching sensor cannot see."""
+        n_urdf = int(world.static_ids.shape[0]) - len(world.static_bodies)
+        if n_urdf:
+            raise ConfigError("sensor.model", f"\"marching\" marches through discs/balls, pillars and boxes; this "
+                              f"world has {n_urdf} static URDF bodies (use \"raycast\")", "marching")
 
     def _rotated(self, yaw: float) -> np.ndarray:
         """Ray directions as [d, R] for ``yaw`` (rad)."""
@@ -170,6 +205,8 @@ class Perception:
         world, grid = self.world, self.grid
         o = np.asarray(position, dtype=float).reshape(self.dims)
         dirs_t = self._rotated(yaw)                                       # [d, R]
+        if self.model == "marching":
+            return self._sense_marching(o, dirs_t)
         hits, frac = world.cast_fan(o, dirs_t.T, self.range_m)
         ranges = frac * self.range_m
         self._mark_free(o, dirs_t, np.where(hits >= 0, ranges, np.inf))
@@ -186,3 +223,26 @@ class Perception:
         if self.noise_std > 0 and ids.shape[0]:
             centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
         return Detections(ids.astype(np.int64), centers, int(hits.shape[0]), hits, ranges)
+
+    def _sense_marching(self, o: np.ndarray, dirs_t: np.ndarray) -> Detections:
+        """The marching sensor's scan from ``o`` [d] (m) along ``dirs_t`` [d, R] (module doc; thesis 2-4-2)."""
+        world, grid = self.world, self.grid
+        self._check_marching_world(world)
+        ts = self._march_t
+        m = march(o, dirs_t, ts, world.obstacle_positions, world.obstacle_radii, world.arena_size,
+                  tuple(world.static_bodies), self._static_bounds)
+        n_pts = ts.shape[0]
+        before = np.arange(n_pts)[None, :] < m.first[:, None]                          # [R, K]
+        grid.mark_free(m.points[before])
+        ends = np.flatnonzero((m.kind == STATIC) | (m.kind == WALL))
+        if ends.shape[0]:
+            grid.mark_occupied(m.points[ends, m.first[ends]])
+        hits = np.full(m.kind.shape[0], -1, dtype=np.int64)
+        for kind, ids in ((OBSTACLE, world.obstacle_ids), (STATIC, world.static_ids), (WALL, world.wall_ids)):
+            rows = np.flatnonzero(m.kind == kind)
+            hits[rows] = ids[m.index[rows]]
+        ranges = np.where(m.kind != NONE, ts[np.minimum(m.first, n_pts - 1)], self.range_m)
+        centers = np.asarray(world.obstacle_positions, dtype=float)[m.seen]
+        if self.noise_std > 0 and m.seen.shape[0]:
+            centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
+        return Detections(m.seen, centers, int(hits.shape[0]), hits, ranges)

@@ -13,22 +13,25 @@ import math
 import numpy as np
 
 
-def _fan(fov_deg: float, resolution_deg: float) -> np.ndarray:
-    """Angles (rad, relative to the centre) of a fan: round(fov/res)+1 rays edge to edge, or round(360/res) for 360."""
+def _fan(fov_deg: float, resolution_deg: float, rays: int | None = None) -> np.ndarray:
+    """Angles (rad, relative to the centre) of a fan: round(fov/res)+1 rays edge to edge, or round(360/res) for 360;
+    with ``rays``: that many rays, edge to edge (one: the centre), or evenly spaced for 360."""
     if fov_deg <= 0 or resolution_deg <= 0:
         raise ValueError(f"fov_deg and resolution_deg must be > 0 (got {fov_deg}, {resolution_deg})")
+    if rays is not None and rays < 1:
+        raise ValueError(f"rays must be >= 1 (got {rays})")
     if fov_deg >= 360.0:
-        n = max(1, int(round(360.0 / resolution_deg)))
+        n = max(1, int(round(360.0 / resolution_deg))) if rays is None else rays
         return -math.pi + 2.0 * math.pi * np.arange(n) / n
-    n = int(round(fov_deg / resolution_deg)) + 1
+    n = int(round(fov_deg / resolution_deg)) + 1 if rays is None else rays
     half = math.radians(fov_deg) / 2.0
     return np.linspace(-half, half, n) if n > 1 else np.zeros(1)
 
 
 @functools.lru_cache(maxsize=64)
 def _base_directions(fov_deg: float, resolution_deg: float, dims: int, vfov_deg: float | None,
-                     vresolution_deg: float | None) -> np.ndarray:
-    az = _fan(fov_deg, resolution_deg)
+                     vresolution_deg: float | None, rays: int | None = None) -> np.ndarray:
+    az = _fan(fov_deg, resolution_deg, rays)
     if dims == 2:
         out = np.stack([np.cos(az), np.sin(az)], axis=-1)
     else:
@@ -47,18 +50,20 @@ def _base_directions(fov_deg: float, resolution_deg: float, dims: int, vfov_deg:
 
 
 def ray_directions(yaw: float, fov_deg: float, resolution_deg: float, dims: int, vfov_deg: float | None = None,
-                   vresolution_deg: float | None = None) -> np.ndarray:
+                   vresolution_deg: float | None = None, rays: int | None = None) -> np.ndarray:
     """Unit ray directions [R, d] (world frame) of a sensor looking along ``yaw`` (rad).
 
     2D: n = round(fov/res) + 1 rays from yaw - fov/2 to yaw + fov/2 inclusive; fov >= 360: round(360/res) rays
-    with no duplicate. 3D: the azimuth fan above x n_el = round(vfov/vres) + 1 elevations in [-vfov/2, vfov/2],
-    azimuth-major. The yaw-independent fan is cached; only the rotation by yaw is computed per call.
+    with no duplicate. ``rays`` given: n = rays instead (the marching sensor's count). 3D: the azimuth fan above x
+    n_el = round(vfov/vres) + 1 elevations in [-vfov/2, vfov/2], azimuth-major. The yaw-independent fan is cached;
+    only the rotation by yaw is computed per call.
     """
     if dims not in (2, 3):
         raise ValueError(f"dims must be 2 or 3 (got {dims})")
     base = _base_directions(float(fov_deg), float(resolution_deg), int(dims),
                             None if vfov_deg is None else float(vfov_deg),
-                            None if vresolution_deg is None else float(vresolution_deg))
+                            None if vresolution_deg is None else float(vresolution_deg),
+                            None if rays is None else int(rays))
     c, s = math.cos(yaw), math.sin(yaw)
     out = np.empty_like(base)
     out[:, 0] = c * base[:, 0] - s * base[:, 1]

@@ -128,7 +128,8 @@ class TrialEnv:
         self.perception = Perception(self.world, self.grid, fov_deg=self.fov_deg, range_m=sc.sensor.range,
                                      resolution_deg=sc.sensor.resolution_deg, noise_std=sc.sensor.noise_std,
                                      rng=np.random.default_rng(self.spec.seed), vfov_deg=sc.sensor.vfov_deg,
-                                     vresolution_deg=sc.sensor.resolution_deg if self.dims == 3 else None)
+                                     vresolution_deg=sc.sensor.resolution_deg if self.dims == 3 else None,
+                                     model=sc.sensor.model, rays=sc.sensor.rays, march_step=sc.sensor.march_step)
         tr = sc.tracking
         self.tracker = KalmanTracks(self.rollout.n_obstacles, self.dims, self.dt, q=tr.q, r=tr.r, p0_pos=tr.p0_pos,
                                     p0_vel=tr.p0_vel, drop_pos_var=tr.drop_pos_var, bounds_lo=lo, bounds_hi=hi)
