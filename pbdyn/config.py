@@ -37,6 +37,8 @@ PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
     "thesis_program": {
         ("task", "start_rule"): "program",
         ("task", "start_clearance"): 7.0,
+        ("sensor", "model"): "marching",
+        ("sensor", "rays"): 50,
     },
 }
 """Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);

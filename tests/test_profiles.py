@@ -69,9 +69,13 @@ def test_readme_lists_the_profiles_metric_parameters():
             row = next((ln for ln in section.splitlines() if f"`{profile}`" in ln and f"`{name}`" in ln), None)
             assert row, f"README Profiles: no row for {profile} {name}"
             for k, v in params.items():
-                assert f"`{k} = {v}`" in row
+                assert f"`{k} = {v}`" in row, (row, k, v)
+    for traj in ("global_primitives", "mpc"):
+        row = next(ln for ln in section.splitlines() if f"trajectory `{traj}`" in ln)
+        assert "PROGRAM_PARAMS" in row
     sc = _scenario("thesis_program")
     assert metric_params(sc, "vo_feasibility", "analytic")["mav_radius"] == 0.5
+    assert metric_params(sc, "dynamic_traversability", "analytic")["marking"] == "program"
     assert metric_params(_scenario(), "vo_feasibility", "analytic")["mav_radius"] == 1.0
 
 

@@ -62,10 +62,14 @@ def resolve_backend(scenario: Scenario, backend: str) -> str:
 
 PROFILE_METRIC_PARAMS: dict[str, dict[str, dict]] = {
     "physical": {},
-    "thesis_program": {m.name: {"mav_radius": 0.5} for m in METRIC_TABLE if m.module.endswith(".vo")},
+    "thesis_program": {
+        **{m.name: {"mav_radius": 0.5} for m in METRIC_TABLE if m.module.endswith(".vo")},
+        **{m.name: {"mode": "grid", "marking": "program"} for m in METRIC_TABLE if m.module.endswith(".traversability")},
+    },
 }
 """Per profile and metric, parameters that replace the scenario-derived ones. thesis_program: the thesis' program
-computed VO feasibility with an MAV radius of 0.5 m (issue 13; README "Profiles")."""
+computed VO feasibility with an MAV radius of 0.5 m, and (dynamic) traversability by walking grid cells with the
+MAV's centre, cells marked by its own rules (pbdyn.metrics.traversability, marking "program"; README "Profiles")."""
 
 
 def metric_params(scenario: Scenario, name: str, backend: str) -> dict:
