@@ -258,3 +258,24 @@ def test_thesis_program_gives_built_in_planners_their_program_parameters():
                     (profile == "thesis_program")
             else:
                 assert (agent.planner.prediction == "program") == (profile == "thesis_program")
+
+
+def test_every_thesis_combo_flies_under_the_thesis_program_profile():
+    """scenarios/thesis: each of the 18 program combos flies a trial with the program's sensor and start rule."""
+    from pbdyn.config import load_scenario
+    from pbdyn.world.rollout import get_rollout
+
+    sc = load_scenario(ROOT / "scenarios" / "thesis" / "controlled_2d.toml")
+    assert sc.profile == "thesis_program" and sc.sensor.model == "marching" and sc.sensor.rays == 50
+    assert len(sc.planners) == 18 and all("+" in e.name for e in sc.planners)
+    ms = get_map(sc, 0)
+    rollout = get_rollout(sc, ms)
+    outcomes = {}
+    for entry in sc.planners:
+        spec = make_trial_spec(sc, ms, planner=entry.name, v_max=4.0, start=(4.0, 25.0), goal=(46.0, 25.0))
+        assert spec.planner == entry
+        r = run_trial(spec, rollout)
+        assert r.profile == "thesis_program" and r.planner_label == entry.name and r.start_delay_s == 0.0
+        assert r.outcome in ("success", "dynamic_collision", "static_collision", "deadlock", "freezing"), r.reason
+        outcomes[entry.name] = r.outcome
+    assert sum(o == "success" for o in outcomes.values()) >= 12, outcomes
