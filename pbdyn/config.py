@@ -39,11 +39,14 @@ PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
         ("task", "start_clearance"): 7.0,
         ("sensor", "model"): "marching",
         ("sensor", "rays"): 50,
+        ("", "collision_check"): "sampled",
+        ("drone", "yaw_rate_limit"): 1.3962634015954636,
     },
 }
 """Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);
 README "Profiles" lists them (tests/test_config_defaults.py). thesis_program: the program spawned its obstacles
-outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc)."""
+outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc) and limited the yaw rate to 80 deg/s
+(the thesis text: 1.4 rad/s)."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -932,6 +935,9 @@ def with_profile_defaults(doc: Mapping, profile: str) -> Mapping:
         return doc
     out = dict(doc)
     for (section, key), value in extra.items():
+        if not section:
+            out.setdefault(key, value)
+            continue
         table = out.get(section, {})
         if isinstance(table, Mapping) and key not in table:
             out[section] = {**table, key: value}

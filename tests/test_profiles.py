@@ -49,12 +49,12 @@ def test_profile_defaults_apply_to_omitted_fields_only_and_the_readme_lists_them
     sc = _scenario("thesis_program")
     assert sc.profile == "thesis_program" and not sc.physical
     for (section, key), value in PROFILE_DEFAULTS["thesis_program"].items():
-        assert getattr(getattr(sc, section), key) == value
+        assert getattr(getattr(sc, section) if section else sc, key) == value
     given = _scenario("thesis_program", task={"start_rule": "immediate", "start_clearance": 2.0})
     assert (given.task.start_rule, given.task.start_clearance) == ("immediate", 2.0)
     phys = _scenario()
     assert phys.profile == "physical" and phys.physical and phys.task.start_rule == "first_clear"
-    rows = re.findall(r"^\| `(\w+)` \| `([a-z_]+)\.([a-z_]+)` \| `([^`]+)` \|", _readme_section("Profiles"), re.M)
+    rows = re.findall(r"^\| `(\w+)` \| `(?:([a-z_]+)\.)?([a-z_]+)` \| `([^`]+)` \|", _readme_section("Profiles"), re.M)
     listed = {(p, (s, k)): v for p, s, k, v in rows}
     expected = {(p, sk): v for p, table in PROFILE_DEFAULTS.items() for sk, v in table.items()}
     assert set(listed) == set(expected)
