@@ -511,6 +511,18 @@ def test_evaluate_prints_the_table_writes_figures_and_json(reference, tmp_path):
     assert set(doc["metrics"]) >= {"survivability", "survivability_dense", "global_survivability", "setup_model"}
     per_map = doc["success"]
     assert per_map
+    figs = doc["figures"]                       # the numbers behind figs 5-9, 5-10 and 5-14
+    store = ResultsStore.open(out)
+    rows = [r for r in store.results() if r["outcome"] not in (None, "error")]
+    store.close()
+    assert sum(c["n"] for row in figs["fig_5_14"]["success"].values() for c in row) == len(rows)
+    for traj, series in figs["fig_5_9"].items():
+        sel = [r for r in rows if r["planner"] == traj]
+        assert sum(c["n"] for c in series["success"]) == len(sel)
+        assert sum(round(c["rate"] * c["n"]) for c in series["success"] if c["n"]) == \
+            sum(r["outcome"] == "success" for r in sel)
+        assert sum(round(c["rate"] * c["n"]) for c in series["deadlock"] if c["n"]) == \
+            sum(r["outcome"] == "deadlock" for r in sel)
     missing = subprocess.run(pbdyn_cmd() + ["evaluate", str(tmp_path / "none.sqlite")], capture_output=True,
                              text=True, timeout=60)
     assert missing.returncode == 2 and "RESULTS: file not found" in missing.stderr

@@ -303,4 +303,43 @@ def format_side_by_side(reports: Mapping[str, dict | None], agreements: Mapping[
             cells = [combo, f"{float(speed):g}", " / ".join(_f(float(ref[o])) for o in compared)]
             cells += [_rates_cell(agreements.get(p), combo, float(speed), compared) for p in profiles]
             lines.append("| " + " | ".join(cells) + " |")
+    lines += figure_sections(reports)
     return "\n".join(lines) + "\n"
+
+
+def _rate_cells(row: Sequence[dict]) -> list[str]:
+    return [f"{c['rate']:.2f}" if c.get("n") else "" for c in row]
+
+
+def figure_sections(reports: Mapping[str, dict | None]) -> list[str]:
+    """Markdown tables of figs 5-9, 5-10 and 5-14 (report["figures"], pbdyn.analysis.figure_tables) per profile:
+    success rates per survivability difficulty level (0 = easiest) or velocity ratio; empty cells: no trials."""
+    lines: list[str] = []
+    figs = {p: (rep or {}).get("figures") for p, rep in reports.items()}
+    if not any(figs.values()):
+        return lines
+    levels = next(f["levels"] for f in figs.values() if f)
+    head = ["profile", "planner"] + [str(k) for k in levels]
+    lines += ["", "## Figure 5-9: success (deadlock) rate per survivability difficulty level", "",
+              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for p, f in figs.items():
+        for traj, series in ((f or {}).get("fig_5_9") or {}).items():
+            cells = [f"{a} ({b})" if a else "" for a, b in zip(_rate_cells(series["success"]),
+                                                              _rate_cells(series["deadlock"]))]
+            lines.append("| " + " | ".join([p, traj] + cells) + " |")
+    lines += ["", "## Figure 5-10: success rate per gaze planner and survivability difficulty level", "",
+              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for p, f in figs.items():
+        for traj, per in ((f or {}).get("fig_5_10") or {}).items():
+            for gaze, row in per.items():
+                lines.append("| " + " | ".join([p, f"{gaze} + {traj}"] + _rate_cells(row)) + " |")
+    for p, f in figs.items():
+        fig = (f or {}).get("fig_5_14") or {}
+        if not fig.get("ratios"):
+            continue
+        head = ["pair"] + [f"{x:g}" for x in fig["ratios"]]
+        lines += ["", f"## Figure 5-14 ({p}): success rate per velocity ratio v_obs / v_max", "",
+                  "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for pair, row in fig["success"].items():
+            lines.append("| " + " | ".join([pair] + _rate_cells(row)) + " |")
+    return lines

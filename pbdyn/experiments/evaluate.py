@@ -55,11 +55,14 @@ def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], 
 
 def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None, n_boot: int = 1000,
                     seed: int = 0) -> tuple[dict, str, list[Path]]:
-    """(report dict, formatted table, figure paths) of the stores (see load_results)."""
+    """(report dict, formatted table, figure paths) of the stores (see load_results); report["figures"] holds the
+    numbers of figs 5-9, 5-10 and 5-14 (pbdyn.analysis.figure_tables)."""
+    from pbdyn.analysis.figure_tables import figure_tables
     from pbdyn.analysis.report import evaluate, format_table
 
     trials, maps, controlled = load_results(paths)
     report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
+    report["figures"] = figure_tables(trials, maps, report)
     figures: list[Path] = []
     if plots is not None:
         from pbdyn.analysis.plots import write_plots
