@@ -45,8 +45,8 @@ def figure_tables(trials: list[dict], maps: dict, report: dict) -> dict:
         ok = _cells(g, success, nt * LEVELS)
         dl = _cells(g, ta.is_outcome(Outcome.DEADLOCK), nt * LEVELS)
         for i, traj in enumerate(ta.trajectories):
-            out["fig_5_9"][traj] = {"success": ok[i * LEVELS:(i + 1) * LEVELS],
-                                    "deadlock": dl[i * LEVELS:(i + 1) * LEVELS]}
+            out["fig_5_9"][traj] = {Outcome.SUCCESS.value: ok[i * LEVELS:(i + 1) * LEVELS],
+                                    Outcome.DEADLOCK.value: dl[i * LEVELS:(i + 1) * LEVELS]}
         g = np.where(on_c & (lev >= 0), (ta.trajectory_idx * ng + ta.gaze_idx) * LEVELS + lev, -1)
         cells = _cells(g, success, nt * ng * LEVELS)
         for i, traj in enumerate(ta.trajectories):

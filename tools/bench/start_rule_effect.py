@@ -22,6 +22,7 @@ sys.path.insert(0, str(ROOT))
 from pbdyn.config import parse_scenario  # noqa: E402
 from pbdyn.experiments.runner import BatchOptions, run_batch  # noqa: E402
 from pbdyn.experiments.store import ResultsStore  # noqa: E402
+from pbdyn.sim.outcome import Outcome  # noqa: E402
 
 PAIRS = ({"trajectory": "local_primitives", "gaze": "fullrange"},
          {"trajectory": "local_primitives", "gaze": "lookahead"})
@@ -45,10 +46,10 @@ def summarise(rows: list[dict], early: float) -> dict[str, dict]:
     for label in sorted({r["planner_label"] for r in rows}):
         sel = [r for r in rows if r["planner_label"] == label and r["outcome"] not in (None, "error")]
         n = len(sel)
-        coll = [r for r in sel if r["outcome"] in ("dynamic_collision", "static_collision")]
+        coll = [r for r in sel if r["outcome"] in (Outcome.DYNAMIC_COLLISION.value, Outcome.STATIC_COLLISION.value)]
         delays = sorted(r.get("start_delay_s") or 0.0 for r in sel)
         delayed = [d for d in delays if d > 0]
-        out[label] = {"n": n, "success": sum(r["outcome"] == "success" for r in sel) / n,
+        out[label] = {"n": n, "success": sum(r["outcome"] == Outcome.SUCCESS.value for r in sel) / n,
                       "collision": len(coll) / n,
                       "early_collisions": sum(r["flight_time_s"] <= early + 1e-9 for r in coll),
                       "delayed": len(delayed) / n,
