@@ -96,8 +96,8 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     """Fly one trial and return its TrialResult (``result.outcome``, ``result.to_dict()``).
 
     planner: a trajectory planner — a registry name ("local_primitives", "global_primitives", "mpc",
-        "straight_line"), a scenario entry's label, "package.module:Class", a class or an instance (default: the
-        scenario's first [[planners]] entry). gaze: a gaze planner, likewise (default: the entry's).
+        "straight_line", "local_primitives_minjerk"), a scenario entry's label, "package.module:Class", a class or
+        an instance (default: the scenario's first [[planners]] entry). gaze: a gaze planner, likewise (default: the entry's).
     map: the map index; start, goal: (x, y[, z]) in m (default: the first and the last candidate); v_max: the MAV's
     speed limit (m/s; default: the first drone.v_max); trace: write per-step arrays to this .npz file; gui: show
     the PyBullet GUI in real time; observers: extra step observers (pbdyn.sim.observers.Observer).
