@@ -158,21 +158,6 @@ def test_rank_order_is_the_angle_to_the_goal():
     assert list(planner.ranked_candidates(tie)[:2]) == [7, 8]
 
 
-def test_goal_within_step_is_tried_first_and_reached_at_rest():
-    ctx = _ctx()
-    planner = LocalPrimitivesMinJerk(ctx)
-    goal = np.array([12.0, 11.0])
-    tr = planner.plan(_view(ctx, [10, 10], goal))
-    assert planner.last_rank == 0
-    np.testing.assert_allclose(planner.last_target, goal)
-    np.testing.assert_allclose(tr.p[-1], goal, atol=1e-9)
-    np.testing.assert_allclose(tr.v[-1], 0.0, atol=1e-9)
-    # blocked goal: the fan follows, its ranks counted after the goal's
-    blocker = make_tracks([goal], [[0.0, 0.0]], 0.5)
-    tr = planner.plan(_view(ctx, [10, 10], goal, tracks=blocker))
-    assert tr is not None and planner.last_rank >= 1 and planner.last_candidates_tried >= 2
-
-
 def _reference_choice(planner, view, physical):
     """The first clear (and, physical, contract-respecting) candidate in rank order, one candidate at a time, with
     min_jerk_states, checks.trajectory_clear and contract.plan_violations: (rank, target) or None."""

@@ -171,15 +171,23 @@ def test_local_primitives_primitive_ends_at_candidate_with_end_velocity():
         np.testing.assert_allclose(tr.p[k], np.add(p, [10.0, 10.0])), np.testing.assert_allclose(tr.v[k], v)
 
 
-def test_local_primitives_goal_within_step_is_first_candidate_at_rest():
-    ctx = _context()
-    planner = LocalPrimitives(ctx)
+@pytest.mark.parametrize("minjerk", [False, True], ids=["ruckig", "minjerk"])
+def test_local_primitives_goal_within_step_is_first_candidate_at_rest(minjerk):
+    from dataclasses import replace
+
+    from pbdyn.planning.local_primitives_minjerk import LocalPrimitivesMinJerk
+
+    ctx = replace(_context(), physical=not minjerk)
+    planner = (LocalPrimitivesMinJerk if minjerk else LocalPrimitives)(ctx)
     goal = np.array([12.0, 11.0])
     tr = planner.plan(_view(ctx, [10, 10], goal))
     assert planner.last_rank == 0
     np.testing.assert_allclose(planner.last_target, goal)
     np.testing.assert_allclose(tr.p[-1], goal, atol=1e-9)
     np.testing.assert_allclose(tr.v[-1], 0.0, atol=1e-9)
+    if minjerk:   # blocked goal: the fan follows, its ranks counted after the goal's
+        tr = planner.plan(_view(ctx, [10, 10], goal, tracks=make_tracks([goal], [[0.0, 0.0]], 0.5)))
+        assert tr is not None and planner.last_rank >= 1 and planner.last_candidates_tried >= 2
 
 
 def test_local_primitives_avoid_occupied_wall():
