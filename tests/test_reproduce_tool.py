@@ -408,3 +408,15 @@ def test_a_compare_smoke_run_resumes_and_adds_combos(tmp_path, capsys):
     assert (out / "report.json").is_file() and (out / "table.txt").is_file()
     assert "| combo | pbdyn label |" in capsys.readouterr().out
     assert rp.main(common + ["--combos", "NoControl+MPC"]) == 2     # narrower than the store: refused, one line
+
+
+def test_maps_sets_the_main_compare_stores_maps_under_its_own_name(tmp_path, capsys):
+    jobs = rp.store_jobs("physical", "compare", combos=("NoControl+Jerk_Primitive",), maps=1)
+    main = next(j for j in jobs if j.role == "controlled")
+    assert main.name == "controlled_2d_compare_maps1" and main.doc["obstacles"]["maps_per_setup"] == 1
+    default = next(j for j in rp.store_jobs("physical", "compare", combos=("NoControl+Jerk_Primitive",))
+                   if j.role == "controlled")
+    assert default.name == "controlled_2d_compare" and default.doc["obstacles"]["maps_per_setup"] == rp.COMPARE_MAPS
+    for bad in (["--maps", "0", "--scale", "compare"], ["--maps", "2", "--scale", "quick"]):
+        assert rp.main(bad + ["--out", str(tmp_path)]) == 2
+        assert "maps" in capsys.readouterr().err

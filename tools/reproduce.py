@@ -226,14 +226,16 @@ def quick_doc(name: str, profile: str = "physical", combos=None) -> dict:
     return doc
 
 
-def compare_docs(name: str, profile: str = "physical", combos=None) -> list[tuple[str, dict]]:
+def compare_docs(name: str, profile: str = "physical", combos=None, maps: int | None = None) -> list[tuple[str, dict]]:
     """(role, document) of the stores of dataset ``name`` at scale compare (see the module docstring): the
     controlled set gives ("controlled", NAME_compare) and ("controlled_more", NAME_compare_more), an uncontrolled
-    set ("uncontrolled", NAME_compare). ``combos`` (None: all) restricts their planners."""
+    set ("uncontrolled", NAME_compare). ``combos`` (None: all) restricts their planners; ``maps`` (None:
+    COMPARE_MAPS) sets the main controlled store's maps per setup (another number: store NAME_compare_mapsN)."""
     base = dataset_doc(name, profile)
     out = []
     if name.startswith("controlled"):
-        parts = (("controlled", "compare", COMPARE_MAPS, COMPARE_COMBOS),
+        main = "compare" if maps in (None, COMPARE_MAPS) else f"compare_maps{maps}"
+        parts = (("controlled", main, maps or COMPARE_MAPS, COMPARE_COMBOS),
                  ("controlled_more", "compare_more", COMPARE_MORE_MAPS, COMPARE_MORE_COMBOS))
     else:
         parts = (("uncontrolled", "compare", COMPARE_UNCONTROLLED_MAPS, None),)
@@ -264,9 +266,9 @@ class StoreJob:
         return self.doc["name"]
 
 
-def store_jobs(profile: str, scale: str, dims: int = 2, combos=None) -> list[StoreJob]:
+def store_jobs(profile: str, scale: str, dims: int = 2, combos=None, maps: int | None = None) -> list[StoreJob]:
     """Every store of ``scale`` under ``profile`` (``combos``: None = all; stores left without planners are
-    dropped), controlled first."""
+    dropped; ``maps``: compare_docs), controlled first."""
     jobs = []
     for name in (f"{s}_{dims}d" for s in SETS):
         role = "controlled" if name.startswith("controlled") else "uncontrolled"
@@ -280,7 +282,7 @@ def store_jobs(profile: str, scale: str, dims: int = 2, combos=None) -> list[Sto
                 doc["planners"] = select(doc, combos, profile, in_given_order=False)
                 jobs.append(StoreJob(role, doc))
         else:
-            jobs += [StoreJob(r, d) for r, d in compare_docs(name, profile, combos)]
+            jobs += [StoreJob(r, d) for r, d in compare_docs(name, profile, combos, maps)]
     return [j for j in jobs if j.doc["planners"]]
 
 
@@ -420,6 +422,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--combos", type=_combos_arg, help="fly only these program combos (comma-separated, e.g. "
                     "LookAhead+Jerk_Primitive,NoControl+Jerk_Primitive)")
     ap.add_argument("--skip-uncontrolled", action="store_true", help="fly the controlled set only")
+    ap.add_argument("--maps", type=int, help="compare: maps per setup of the main controlled store (default "
+                    f"{COMPARE_MAPS}; another number writes NAME_compare_mapsN)")
     ap.add_argument("--limit", type=int, help="fly only the first N trials of each store (smoke runs)")
     ap.add_argument("--side-by-side", nargs=2, metavar=("DIR_PHYSICAL", "DIR_THESIS"),
                     help="write side_by_side.md (into --out, default DIR_THESIS) from two output folders and stop")
@@ -459,12 +463,14 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     """The batches, then table 4-5 and the agreement report of every store of the scale in the output folder."""
+    if args.maps is not None and (args.scale != "compare" or args.maps < 1):
+        raise ConfigError("maps", "is an integer >= 1 and only for --scale compare", args.maps)
     out = Path(args.out) if args.out else default_out(args.profile, args.scale, args.dims)
     out.mkdir(parents=True, exist_ok=True)
     command = f"tools/reproduce.py --profile {args.profile} --scale {args.scale}"
     t0 = time.perf_counter()
-    every = store_jobs(args.profile, args.scale, args.dims)
-    run = [j for j in store_jobs(args.profile, args.scale, args.dims, args.combos)
+    every = store_jobs(args.profile, args.scale, args.dims, maps=args.maps)
+    run = [j for j in store_jobs(args.profile, args.scale, args.dims, args.combos, args.maps)
            if not (args.skip_uncontrolled and j.role == "uncontrolled")]
     for job in run:
         store = out / f"{job.name}.sqlite"
