@@ -905,14 +905,19 @@ def _check_urdfs(scenario: "Scenario") -> None:
         check_urdf(path, field_name, scale)
 
 
-def rollout_span_s(world: WorldConfig, task: TaskConfig) -> float:
-    """Seconds of obstacle motion a map's default rollout covers (before its extra step): the longest of the trial
-    (time limit, after at most start_wait_max_s of waiting for a clear start), the start rule's look-ahead and the
-    default metrics (limits.METRICS_HORIZON_S)."""
-    span = max(world.time_limit, limits.METRICS_HORIZON_S)
+def trial_span_s(world: WorldConfig, task: TaskConfig) -> float:
+    """Seconds of obstacle motion one trial may need (before the extra step of its last collision check): the time
+    limit, and with "first_clear" after at most start_wait_max_s of waiting, or the start rule's look-ahead
+    window if that is longer."""
     if task.start_rule == "first_clear":
-        span = max(span, task.start_wait_max_s + max(world.time_limit, task.start_window_s))
-    return span
+        return task.start_wait_max_s + max(world.time_limit, task.start_window_s)
+    return world.time_limit
+
+
+def rollout_span_s(world: WorldConfig, task: TaskConfig) -> float:
+    """Seconds of obstacle motion a map's default rollout covers (before its extra step): the longest of a trial
+    (trial_span_s) and the default metrics (limits.METRICS_HORIZON_S)."""
+    return max(trial_span_s(world, task), limits.METRICS_HORIZON_S)
 
 
 def _check_rollout_size(world: WorldConfig, obstacles: ObstacleConfig, bodies: tuple, task: TaskConfig) -> None:

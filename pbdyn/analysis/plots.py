@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 
 from pbdyn.analysis.bands import band_curve
 from pbdyn.analysis.cv import LEVELS, difficulty_level, level_stats
+from pbdyn.analysis.figure_tables import figure_tables
 from pbdyn.analysis.regression import setup_features
 from pbdyn.analysis.report import difficulty_table
 from pbdyn.analysis.success import grouped_rate, success_table, trial_arrays
@@ -120,15 +121,22 @@ def _uncontrolled_figures(report: dict, band: str, d: np.ndarray, st, map_ids, m
         _save(fig, out_dir, f"uncontrolled_{name}", out)
 
 
+def _rates(cells: list[dict]) -> list[float]:
+    """The rates of figure_tables cells, NaN where a cell has no trials."""
+    return [np.nan if c["rate"] is None else c["rate"] for c in cells]
+
+
 def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[Path]:
     """Write the evaluation figures as PNG files into ``out_dir`` (created) and return their paths:
     metric_<name>.png per report metric (figs 4-5..4-12), survivability_trajectory.png (fig 5-9),
     survivability_gaze.png (fig 5-10) and uncontrolled_<dataset>.png per non-controlled dataset (figs 4-14..4-16)
     when the report has a sigma-band metric, velocity_ratio.png (fig 5-14). File names are figure_name()s: only
     [A-Za-z0-9._-], never outside ``out_dir``.
-    ``report`` is the dict from pbdyn.analysis.report.evaluate on the same trials and maps."""
+    ``report`` is the dict from pbdyn.analysis.report.evaluate on the same trials and maps; the bars of fig 5-9
+    and the ratio panel of fig 5-14 draw report["figures"] (pbdyn.analysis.figure_tables; computed here if absent)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    tables = report.get("figures") or figure_tables(trials, maps, report)
     map_ids, diff = difficulty_table(maps, report)
     ta = trial_arrays(trials, map_ids)
     st = success_table(ta)
@@ -147,10 +155,10 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
         fig, (a1, a2) = _figure(12.0, 4.5, 2)
         _group_lines(a1, ta.trajectory_idx, nt, ta.trajectories, success, lev, on_c, "success rate")
         a1.set_title("success rate per trajectory planner")
-        g = np.where(on_c & (lev >= 0), ta.trajectory_idx * LEVELS + lev, -1)
-        ps, _, n = grouped_rate(g, success, nt * LEVELS)
-        pdl, _, _ = grouped_rate(g, ta.is_outcome(Outcome.DEADLOCK), nt * LEVELS)
-        ps, pdl, n = (a.reshape(nt, LEVELS) for a in (ps, pdl, n))
+        fig_5_9 = tables["fig_5_9"]
+        ps = np.array([_rates(fig_5_9[lab][Outcome.SUCCESS.value]) for lab in ta.trajectories])
+        pdl = np.array([_rates(fig_5_9[lab][Outcome.DEADLOCK.value]) for lab in ta.trajectories])
+        n = np.array([[c["n"] for c in fig_5_9[lab][Outcome.SUCCESS.value]] for lab in ta.trajectories])
         width = 0.8 / max(nt, 1)
         for i, (lab, col) in enumerate(zip(ta.trajectories, _colours(nt))):
             ok = n[i] > 0
@@ -181,11 +189,20 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
     keep = on_c & np.isfinite(ratio)
     fig, (a1, a2) = _figure(12.0, 4.5, 2)
     cols = _colours(len(ta.pairs))
-    for a, x, sel, xl in ((a1, ratio, keep, "velocity ratio v_obs / v_max"),
+    fig_5_14 = tables["fig_5_14"]
+    for a, x, sel, xl in ((a1, ratio, None, "velocity ratio v_obs / v_max"),
                           (a2, v_obs, keep & (np.abs(ratio - 1.0) < 1e-6), "obstacle speed v_obs [m/s] at ratio 1")):
-        xs, xi = np.unique(np.where(sel, x, np.inf), return_inverse=True)
-        grp = np.where(sel, ta.pair_idx * len(xs) + xi.reshape(-1), -1)
-        p, se, n = (v.reshape(len(ta.pairs), len(xs)) for v in grouped_rate(grp, success, len(ta.pairs) * len(xs)))
+        if sel is None:      # success per ratio: the numbers of pbdyn.analysis.figure_tables
+            xs = np.array(fig_5_14["ratios"], dtype=float)
+            rows = [fig_5_14["success"][pair] for pair in ta.pairs]
+            p = np.array([_rates(r) for r in rows]).reshape(len(ta.pairs), len(xs))
+            se = np.array([[np.nan if c["se"] is None else c["se"] for c in r] for r in rows]).reshape(p.shape)
+            n = np.array([[c["n"] for c in r] for r in rows], dtype=np.int64).reshape(p.shape)
+        else:
+            xs, xi = np.unique(np.where(sel, x, np.inf), return_inverse=True)
+            grp = np.where(sel, ta.pair_idx * len(xs) + xi.reshape(-1), -1)
+            p, se, n = (v.reshape(len(ta.pairs), len(xs))
+                        for v in grouped_rate(grp, success, len(ta.pairs) * len(xs)))
         for j, pair in enumerate(ta.pairs):
             ok = n[j] > 0
             if ok.any():

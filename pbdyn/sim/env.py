@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pbdyn.config import trial_span_s
 from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import OccupancyGrid
 from pbdyn.perception.perceive import Perception
@@ -88,10 +89,7 @@ class TrialEnv:
         self.dt = sc.world.dt
         self.n_steps = sc.world.n_steps
         task = sc.task
-        if task.start_rule == "first_clear":
-            need = round(task.start_wait_max_s / self.dt) + max(self.n_steps, round(task.start_window_s / self.dt))
-        else:
-            need = self.n_steps
+        need = int(round(trial_span_s(sc.world, task) / self.dt))
         if rollout.n_steps < need + 1:
             raise ConfigError("rollout", f"covers {rollout.horizon:g} s, the trial needs {need * self.dt:g} s "
                               f"(time limit and start rule {task.start_rule!r})", rollout.n_steps)
