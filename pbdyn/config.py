@@ -41,12 +41,19 @@ PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
         ("sensor", "rays"): 50,
         ("", "collision_check"): "sampled",
         ("drone", "yaw_rate_limit"): 1.3962634015954636,
+        ("sensor", "obstacles_at"): "next",
+        ("sensor", "march_rule"): "program",
+        ("tracking", "drop_rule"): "program",
+        ("task", "start_yaw_deg"): 90.0,
     },
 }
 """Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);
 README "Profiles" lists them (tests/test_config_defaults.py). thesis_program: the program spawned its obstacles
 outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc) and limited the yaw rate to 80 deg/s
-(the thesis text: 1.4 rad/s)."""
+(the thesis text: 1.4 rad/s); it moved the obstacles to t_k+1 before the MAV sensed at t_k
+(sensor.obstacles_at = "next"), dropped a track whose predicted disc of the setup radius reached a wall and restarted
+it one step later with the setup radius (tracking.drop_rule = "program"), and started the MAV facing +y (its initial
+yaw of -90 deg in its y-down screen frame; task.start_yaw_deg = 90)."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -259,11 +266,18 @@ class SensorConfig:
     Gaussian position noise_std (m). 3D defaults: RESOLUTION_3D_DEG, VFOV_3D_DEG (vfov_deg is None in 2D).
     model: "raycast" (PyBullet rays, exact hits) or "marching" (the thesis program's sensor: points every
     march_step m along each ray, the first one inside a body is the hit; pbdyn.perception.perceive); rays: with
-    "marching", rays per horizontal fan (None: from resolution_deg; the program used 50)."""
+    "marching", rays per horizontal fan (None: from resolution_deg; the program used 50). obstacles_at: which
+    obstacle poses the scan at t_k sees, "current" (t_k, DESIGN.md step order) or "next" (t_k+1: the thesis program
+    moved its obstacles before sensing, so its MAV at t_k saw them one step ahead). march_rule ("marching" only): "ray"
+    (points march_step apart along each ray, a fan symmetric about the yaw) or "program" (the program's stepping along each ray's
+    dominant axis, pbdyn.perception.marching.program_march_distances, and in 2D its fan from -fov/2 in fov/rays
+    steps)."""
 
     RESOLUTION_3D_DEG: ClassVar[float] = 2.0
     VFOV_3D_DEG: ClassVar[float] = 60.0
     MODELS: ClassVar[tuple[str, ...]] = ("raycast", "marching")
+    OBSTACLES_AT: ClassVar[tuple[str, ...]] = ("current", "next")
+    MARCH_RULES: ClassVar[tuple[str, ...]] = ("ray", "program")
 
     fov_deg: float = 90.0
     range: float = 8.0
@@ -273,11 +287,19 @@ class SensorConfig:
     model: str = "raycast"
     rays: int | None = None
     march_step: float = 0.9
+    obstacles_at: str = "current"
+    march_rule: str = "ray"
 
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """Kalman filter (thesis eq. 2-1..2-9): Q = q I, R = r I, P0 = diag(p0_pos, p0_vel), drop above drop_pos_var m^2."""
+    """Kalman filter (thesis eq. 2-1..2-9): Q = q I, R = r I, P0 = diag(p0_pos, p0_vel), drop above drop_pos_var m^2.
+    drop_rule (pbdyn.perception.tracker.KalmanTracks): "arena" drops a track whose updated mean leaves the arena;
+    "program" (the thesis program) drops a track whose predicted mean comes within the setup radius of a wall,
+    before the update, restarts it at the next detection after that step, and gives a restarted track the setup
+    radius instead of the obstacle's own."""
+
+    DROP_RULES: ClassVar[tuple[str, ...]] = ("arena", "program")
 
     MIN_VARIANCE: ClassVar[float] = 1e-12
     """Smallest positive q, r, p0_pos, p0_vel (0 is allowed for q or r, not both): below it a float64 covariance
@@ -288,6 +310,7 @@ class TrackingConfig:
     p0_pos: float = 0.01
     p0_vel: float = 0.1
     drop_pos_var: float = 1.5
+    drop_rule: str = "arena"
 
 
 @dataclass(frozen=True)
@@ -296,7 +319,8 @@ class TaskConfig:
     (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest), and the start rule
     (pbdyn.sim.start): start_rule (START_RULES), start_clearance (m between the MAV disc at the start and every
     obstacle), start_window_s (s the start must stay clear, "first_clear"), start_wait_max_s (s a trial may wait
-    for a clear start, "first_clear")."""
+    for a clear start, "first_clear"), start_yaw_deg (the MAV's yaw at the start, deg in the world frame; None, "goal"
+    in TOML: facing the goal)."""
 
     candidates: tuple[tuple[float, ...], ...] = ()
     goal_radius: float = 1.0
@@ -306,6 +330,7 @@ class TaskConfig:
     start_clearance: float = 1.0
     start_window_s: float = 1.0
     start_wait_max_s: float = 10.0
+    start_yaw_deg: float | None = None
 
     def pairs(self) -> list[tuple[int, int]]:
         """All ordered (start, goal) index pairs with start != goal (72 for 9 candidates)."""
@@ -699,8 +724,8 @@ def _parse_drone(doc: Mapping) -> DroneConfig:
 
 def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
     t = _table(doc, "sensor")
-    _no_unknown(t, ("fov_deg", "vfov_deg", "range", "resolution_deg", "noise_std", "model", "rays", "march_step"),
-                "sensor")
+    _no_unknown(t, ("fov_deg", "vfov_deg", "range", "resolution_deg", "noise_std", "model", "rays", "march_step",
+                    "obstacles_at", "march_rule"), "sensor")
     d = _defaults(SensorConfig)
     fov = _number(t, "fov_deg", "sensor", d["fov_deg"], lo=0.0, lo_open=True, hi=360.0)
     rng = _number(t, "range", "sensor", d["range"], lo=0.0, lo_open=True)
@@ -720,8 +745,9 @@ def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
     limits.check_limit("sensor.resolution_deg", "rays per scan (at 360 deg: a gaze planner may widen the fov)", rays,
                        limits.MAX_SENSOR_RAYS, res)
     model = _string(t, "model", "sensor", d["model"], SensorConfig.MODELS)
-    n_rays, step = d["rays"], d["march_step"]
+    n_rays, step, march_rule = d["rays"], d["march_step"], d["march_rule"]
     if model == "marching":
+        march_rule = _string(t, "march_rule", "sensor", d["march_rule"], SensorConfig.MARCH_RULES)
         n_rays = _integer(t, "rays", "sensor", d["rays"], lo=1)
         step = _number(t, "march_step", "sensor", d["march_step"], lo=0.0, lo_open=True, hi=rng)
         if n_rays is not None:
@@ -730,10 +756,11 @@ def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
         limits.check_limit("sensor.march_step", "march points per scan", rays * math.ceil(rng / step),
                            limits.MAX_SENSOR_MARCH_POINTS, step)
     else:
-        for key in ("rays", "march_step"):
+        for key in ("rays", "march_step", "march_rule"):
             if key in t:
                 raise ConfigError(f"sensor.{key}", 'is only used with sensor.model = "marching"', t[key])
-    return SensorConfig(fov, rng, res, noise, vfov, model, n_rays, step)
+    obstacles_at = _string(t, "obstacles_at", "sensor", d["obstacles_at"], SensorConfig.OBSTACLES_AT)
+    return SensorConfig(fov, rng, res, noise, vfov, model, n_rays, step, obstacles_at, march_rule)
 
 
 def _check_resolution(sensor: SensorConfig, obstacles: ObstacleConfig,
@@ -756,7 +783,7 @@ def _check_resolution(sensor: SensorConfig, obstacles: ObstacleConfig,
 
 def _parse_tracking(doc: Mapping) -> TrackingConfig:
     t = _table(doc, "tracking")
-    _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var"), "tracking")
+    _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var", "drop_rule"), "tracking")
     d = _defaults(TrackingConfig)
     out = TrackingConfig(
         q=_number(t, "q", "tracking", d["q"], lo=0.0),
@@ -764,6 +791,7 @@ def _parse_tracking(doc: Mapping) -> TrackingConfig:
         p0_pos=_number(t, "p0_pos", "tracking", d["p0_pos"], lo=TrackingConfig.MIN_VARIANCE),
         p0_vel=_number(t, "p0_vel", "tracking", d["p0_vel"], lo=TrackingConfig.MIN_VARIANCE),
         drop_pos_var=_number(t, "drop_pos_var", "tracking", d["drop_pos_var"], lo=0.0, lo_open=True),
+        drop_rule=_string(t, "drop_rule", "tracking", d["drop_rule"], TrackingConfig.DROP_RULES),
     )
     tiny = TrackingConfig.MIN_VARIANCE
     for key in ("q", "r"):
@@ -788,7 +816,7 @@ def default_candidates(world: WorldConfig) -> tuple[tuple[float, ...], ...]:
 def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskConfig:
     t = _table(doc, "task")
     _no_unknown(t, ("candidates", "goal_radius", "spawn_clearance", "deadlock_steps", "start_rule", "start_clearance",
-                    "start_window_s", "start_wait_max_s"), "task")
+                    "start_window_s", "start_wait_max_s", "start_yaw_deg"), "task")
     d = _defaults(TaskConfig)
     if "candidates" in t:
         raw = t["candidates"]
@@ -813,7 +841,9 @@ def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskCon
                               hi=max(world.size))
     window = _number(t, "start_window_s", "task", d["start_window_s"], lo=0.0, hi=limits.MAX_START_WAIT_S)
     wait = _number(t, "start_wait_max_s", "task", d["start_wait_max_s"], lo=0.0, hi=limits.MAX_START_WAIT_S)
-    return TaskConfig(cands, goal_radius, clearance, deadlock, rule, start_clearance, window, wait)
+    yaw = None if t.get("start_yaw_deg") == "goal" else _number(t, "start_yaw_deg", "task", d["start_yaw_deg"],
+                                                                 lo=-360.0, hi=360.0)
+    return TaskConfig(cands, goal_radius, clearance, deadlock, rule, start_clearance, window, wait, yaw)
 
 
 def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:

@@ -37,6 +37,7 @@ COMPUTED = {
     ("obstacles.rvo", "wall_time_horizon"): "dt",
     ("task", "candidates"): "`{4, 25, 46}^2` (3D: z = 10)",
     ("sensor", "rays"): "from `resolution_deg`",
+    ("task", "start_yaw_deg"): '`"goal"`',
 }
 """Defaults computed at parse time (the field's default is a sentinel): README text expected for each."""
 

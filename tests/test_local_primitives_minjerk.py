@@ -12,7 +12,8 @@ from pbdyn.perception.grid import OCCUPIED
 from pbdyn.planning import registry
 from pbdyn.planning.checks import batch_conflicts, grid_conflicts, trajectory_clear
 from pbdyn.planning.local_primitives_minjerk import (LocalPrimitivesMinJerk, min_jerk_coefficients,
-                                                     min_jerk_matrix, min_jerk_states, program_duration)
+                                                     min_jerk_matrix, min_jerk_states, program_duration,
+                                                     program_sample_counts)
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import Tracks
 from pbdyn.sim.contract import plan_violations
@@ -160,23 +161,26 @@ def test_rank_order_is_the_angle_to_the_goal():
 
 def _reference_choice(planner, view, physical):
     """The first clear (and, physical, contract-respecting) candidate in rank order, one candidate at a time, with
-    min_jerk_states, checks.trajectory_clear and contract.plan_violations: (rank, target) or None."""
+    min_jerk_states, checks.trajectory_clear (on the samples the planner checks) and contract.plan_violations:
+    (rank, target) or None."""
     d, t_end = view.dims, planner.duration
     g = view.goal - view.position
     dist = np.linalg.norm(g)
-    cands = [(view.position + 3.0 * planner.directions[i], planner.end_speed * g / dist)
-             for i in planner.ranked_candidates(view)]
-    if dist < 3.0:
-        cands.insert(0, (view.goal, np.zeros(d)))
     times = planner.sample_times(view.dt)
+    every = times.size - 1
+    cands = [(view.position + 3.0 * planner.directions[i], planner.end_speed * g / dist,
+              every if planner.checked is None else int(planner.checked[i]))
+             for i in planner.ranked_candidates(view)]
+    if dist < 3.0 and planner.goal_first:
+        cands.insert(0, (view.goal, np.zeros(d), every))
     tau = np.minimum(times, t_end)
-    for rank, (target, vel) in enumerate(cands):
+    for rank, (target, vel, n_checked) in enumerate(cands):
         p, v, a = min_jerk_states(t_end, (view.position, view.velocity, view.acceleration),
                                   (target, vel, np.zeros(d)), tau)
         past = times > t_end
         p[past] = target + (times[past] - t_end)[:, None] * vel
         v[past], a[past] = vel, 0.0
-        if not trajectory_clear(view, p[1:], view.t + times[1:], 0.5):
+        if not trajectory_clear(view, p[1:n_checked + 1], view.t + times[1:n_checked + 1], 0.5):
             continue
         if physical and plan_violations(Trajectory(view.t, view.dt, p, v, a), t=view.t, dt=view.dt,
                                         position=view.position, velocity=view.velocity,
@@ -186,13 +190,15 @@ def _reference_choice(planner, view, physical):
     return None
 
 
-@pytest.mark.parametrize("physical, v_max", [(False, 4.0), (True, 2.0)])
-def test_choice_is_exactly_the_first_clear_candidate_in_rank_order(physical, v_max):
+@pytest.mark.parametrize("physical, v_max, program", [(False, 4.0, False), (True, 2.0, False), (False, 6.0, True),
+                                                      (False, 2.0, True)])
+def test_choice_is_exactly_the_first_clear_candidate_in_rank_order(physical, v_max, program):
     """Cluttered random scenes (tracks near the MAV, occupied cells): the vectorised choice equals a candidate-by-
-    candidate search."""
+    candidate search (program: the program's per-candidate sample counts, no goal-first candidate)."""
     rng = np.random.default_rng(7)
     ctx = _ctx(v_max=v_max, physical=physical)
-    planner = LocalPrimitivesMinJerk(ctx)
+    planner = LocalPrimitivesMinJerk(ctx, **(LocalPrimitivesMinJerk.PROGRAM_PARAMS if program else {}))
+    assert (planner.checked is not None) == program
     n_found, ranks = 0, set()
     for _ in range(120 if physical else 40):   # physical: the program's primitives rarely fit the limits
         p0 = rng.uniform(6.0, 44.0, 2)
@@ -336,7 +342,10 @@ def test_parameters_are_validated():
         registry.build_planner(cls, ctx, {"step_m": 0.0}, "planners[0].params")
     with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.jerk_max: unknown parameter"):
         registry.build_planner(cls, ctx, {"jerk_max": 20.0}, "planners[0].params")
-    assert cls.PROGRAM_PARAMS == {}
+    assert cls.PROGRAM_PARAMS == {"goal_first": False, "samples": "program"}
+    for bad in ({"goal_first": 1}, {"samples": "some"}):
+        with pytest.raises(ValueError):
+            LocalPrimitivesMinJerk(ctx, **bad)
     planner = LocalPrimitivesMinJerk(ctx, n_candidates=8, step_m=2.0, end_speed_frac=0.25, duration=1.0)
     assert planner.n_candidates == 8 and planner.end_speed == 1.0 and planner.duration == 1.0
 
@@ -405,3 +414,40 @@ def test_physical_profile_trial_never_breaks_the_contract():
     res = pbdyn.run_trial(open_scenario(2, world={"time_limit": 5.0}), planner="local_primitives_minjerk",
                           gaze="lookahead", start=(4.0, 25.0), goal=(46.0, 25.0))
     assert res.outcome == "deadlock" and res.planning_failures >= 10 and res.planner == "local_primitives_minjerk"
+
+
+@pytest.mark.parametrize("v_max, counts", [(2.0, {18: 55, 17: 17}), (4.0, {9: 55, 8: 17}), (6.0, {5: 72})])
+def test_program_sample_counts_reproduce_the_programs_floating_point_floor(v_max, counts):
+    """The program checked floor(T / dt) samples with T = 1.2 |d| / v_max in its pixels: 1.8 / 0.1 and 0.6 / 0.1
+    floor to 17 and 5, and |d| = 29.999999999999996 px at 17 of the 72 angles (so 0.9 / 0.1 -> 8 there)."""
+    got = program_sample_counts(72, 3.0, v_max, 0.1)
+    assert dict(zip(*np.unique(got, return_counts=True))) == counts
+    assert got[0] == max(counts)            # along +x |d| is exactly 30 px
+
+
+def test_program_samples_leave_the_primitives_end_unchecked_at_6_mps():
+    """At v_max 6 m/s the program never checked the sample at T = 0.6 s: a resting track that meets only the end of
+    the best candidate blocks it with samples = "all" and not with samples = "program"."""
+    ctx = _ctx(v_max=6.0)
+    p0, goal = np.array([20.0, 20.0]), np.array([40.0, 20.0])
+    every = LocalPrimitivesMinJerk(ctx)
+    prog = LocalPrimitivesMinJerk(ctx, samples="program", goal_first=False)
+    free = every.plan(_view(ctx, p0, goal))
+    assert free.p.shape[0] == 7 and every.last_rank == 0
+    obstacle = np.array([24.99, 20.0])              # reach: 0.5 m radius + 1 m MAV + 0.5 m margin = 2 m
+    dist = np.linalg.norm(free.p - obstacle, axis=1)
+    assert dist[6] < 2.0 and dist[1:6].min() > 2.0
+    view = _view(ctx, p0, goal, tracks=make_tracks([obstacle], [[0.0, 0.0]], 0.5))
+    assert every.plan(view) is not None and every.last_rank == 1
+    assert prog.plan(view) is not None and prog.last_rank == 0
+
+
+def test_goal_first_is_pbdyns_addition_and_off_in_the_programs_parameters():
+    ctx = _ctx(v_max=4.0)
+    p0, goal = np.array([20.0, 20.0]), np.array([21.5, 20.0])
+    pb = LocalPrimitivesMinJerk(ctx)
+    pb.plan(_view(ctx, p0, goal))
+    np.testing.assert_allclose(pb.last_target, goal)
+    prog = LocalPrimitivesMinJerk(ctx, **LocalPrimitivesMinJerk.PROGRAM_PARAMS)
+    prog.plan(_view(ctx, p0, goal))
+    np.testing.assert_allclose(prog.last_target, p0 + [3.0, 0.0], atol=1e-12)

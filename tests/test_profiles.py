@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from pathlib import Path
@@ -177,23 +178,63 @@ def test_the_program_rule_respawns_around_the_flown_start_only():
     ms = get_map(sc, 0)
     base = build_rollout(sc, ms)
     starts = [(4.0, 4.0), (25.0, 25.0)]
-    variants = []
+    variants, inner = [], 0
     for s in starts:
         spec = make_trial_spec(sc, ms, start=s, goal=(46.0, 46.0))
         st = trial_start(spec, base)
         assert st.k0 == 0 and st.rollout is not base
-        gaps = start_gaps(st.rollout, np.array(s), 1.0, 1)
-        assert gaps[0] >= 7.0                                   # the 8 m circle around the start is clear
+        centre = np.linalg.norm(st.rollout.positions[0] - np.array(s), axis=1)
+        assert centre.min() > 8.0                              # no obstacle CENTRE within 8 m of the start
+        inner += int(np.sum(centre - st.rollout.radii < 8.0))  # discs may reach into the circle (the program's rule)
         np.testing.assert_array_equal(st.rollout.radii, base.radii)
         speeds = np.linalg.norm(st.rollout.velocities[0], axis=1)
         np.testing.assert_allclose(speeds, np.linalg.norm(base.velocities[0], axis=1))
         assert trial_start(spec, base).rollout is st.rollout   # cached per process
         variants.append(st.rollout)
+    for seed in range(1, 6):    # and over more maps, some disc does reach into the 8 m circle
+        other = _scenario("thesis_program", obstacles={"count": 30, "radius": 1.5, "root_seed": seed})
+        st = trial_start(make_trial_spec(other, get_map(other, 0), start=(25.0, 25.0), goal=(46.0, 46.0)),
+                         build_rollout(other, get_map(other, 0)))
+        centre = np.linalg.norm(st.rollout.positions[0] - 25.0, axis=1)
+        assert centre.min() > 8.0
+        inner += int(np.sum(centre - st.rollout.radii < 8.0))
+    assert inner > 0
     assert not np.array_equal(variants[0].positions[0], variants[1].positions[0])
     # the map the metrics see keeps every candidate's 1 m clearance and is not the flown layout
     assert not np.array_equal(variants[0].positions[0], base.positions[0])
     again = build_rollout(sc, ms, keep_out=(np.array([starts[0]]), 7.0))
     np.testing.assert_array_equal(again.positions, variants[0].positions)
+
+
+def test_start_yaw_faces_the_goal_or_the_given_angle():
+    from pbdyn.sim.env import TrialEnv
+
+    for task, want in (({}, math.atan2(21.0, 42.0)), ({"start_yaw_deg": 90.0}, math.pi / 2),
+                       ({"start_yaw_deg": -270.0}, math.pi / 2), ({"start_yaw_deg": "goal"}, math.atan2(21.0, 42.0))):
+        sc = open_scenario(task=task)
+        spec = make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 25.0))
+        env = TrialEnv(spec, handmade_rollout(sc, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)))
+        env.reset()
+        assert env.yaw == pytest.approx(want), task
+        env.close()
+    assert _scenario("thesis_program").task.start_yaw_deg == 90.0
+
+
+@pytest.mark.parametrize("where, k", [("current", 0), ("next", 1)])
+def test_obstacles_at_next_senses_the_obstacles_one_step_ahead(where, k):
+    """The program moved its obstacles before the MAV sensed: with sensor.obstacles_at = "next" the scan at t_k
+    measures the centres at t_k+1; the collision check still uses t_k+1 against the MAV at t_k+1."""
+    from pbdyn.sim.env import TrialEnv
+
+    sc = open_scenario(obstacles={"count": 1}, sensor={"obstacles_at": where, "fov_deg": 360.0})
+    rollout = handmade_rollout(sc, [[10.0, 4.0]], [[0.0, 3.0]], [1.0])
+    spec = make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 4.0))
+    env = TrialEnv(spec, rollout)
+    env.reset()
+    np.testing.assert_allclose(env.detections.centers, rollout.at(k)[0])
+    np.testing.assert_allclose(env.tracks.position, rollout.at(k)[0])
+    env.close()
+    assert _scenario("thesis_program").sensor.obstacles_at == "next"
 
 
 def test_imported_worlds_refuse_the_program_rule():
@@ -279,3 +320,35 @@ def test_every_thesis_combo_flies_under_the_thesis_program_profile():
         assert r.outcome in ("success", "dynamic_collision", "static_collision", "deadlock", "freezing"), r.reason
         outcomes[entry.name] = r.outcome
     assert sum(o == "success" for o in outcomes.values()) >= 12, outcomes
+
+
+def test_program_brake_and_pixel_positions():
+    """thesis_program executes plans as the program did: positions on its 0.1 m pixels; a failed plan brakes as its
+    Drone2D.brake (stop when |v| <= a_max dt, else v -= a_max dt v/|v| and p += v_new dt; a kept)."""
+    from pbdyn.sim.agent import Agent, program_brake
+    from pbdyn.sim.env import TrialEnv
+
+    p, a = np.array([10.0, 10.0]), np.array([3.0, -1.0])
+    p1, v1, a1 = program_brake(p, np.array([3.0, 4.0]), a, 4.0, 0.1)
+    np.testing.assert_allclose(v1, [2.76, 3.68])
+    np.testing.assert_allclose(p1, p + 0.1 * v1)
+    np.testing.assert_array_equal(a1, a)
+    p1, v1, a1 = program_brake(p, np.array([0.3, 0.0]), a, 4.0, 0.1)
+    np.testing.assert_array_equal(p1, p) and np.testing.assert_array_equal(v1, [0.0, 0.0])
+    np.testing.assert_array_equal(a1, a)
+
+    sc = _scenario("thesis_program", obstacles={"count": 0})
+    spec = make_trial_spec(sc, get_map(sc, 0), planner="local_primitives_minjerk", gaze="lookahead",
+                           start=(4.0, 4.0), goal=(46.0, 46.0))
+    agent = Agent(spec)
+    env = TrialEnv(spec, build_rollout(sc, get_map(sc, 0)), fov_deg=agent.fov_deg)
+    env.reset()
+    off_grid = 0
+    for _ in range(30):
+        d = agent.act(env.view(agent.trajectory))
+        env.step(d.action)
+        pix = env.position * 10.0
+        np.testing.assert_array_equal(pix, np.round(pix))
+        off_grid += int(np.any(np.abs(agent.trajectory.p[1] * 10.0 - np.round(agent.trajectory.p[1] * 10.0)) > 1e-6))
+    env.close()
+    assert off_grid > 0          # the plans themselves are not on the pixel grid

@@ -363,7 +363,12 @@ def test_thesis_files_copy_the_datasets_with_the_programs_combo_names(s):
     assert "The profile supplies the program's sensor" in header and "start clearance, planner parameters" in header
     mine, theirs = _parsed(doc), parse_scenario(rp.dataset_doc(f"{s}_2d"), s)
     a, b = mine.to_dict(), theirs.to_dict()
-    assert {k for k in a if a[k] != b[k]} == {"name", "planners"}      # same grid, seeds, sensor, drone, task
+    assert {k for k in a if a[k] != b[k]} == {"name", "planners", "world", "task"}   # same grid, seeds, sensor, drone
+    # the program's arena: the 48 m between its 1 m wall cells, its candidates 4, 25, 46 m at 3, 24, 45 m
+    assert {k for k in a["world"] if a["world"][k] != b["world"][k]} == {"size"}
+    assert tuple(a["world"]["size"]) == (48.0, 48.0) and tuple(b["world"]["size"]) == (50.0, 50.0)
+    assert {k for k in a["task"] if a["task"][k] != b["task"][k]} == {"candidates"}
+    np.testing.assert_array_equal(np.asarray(a["task"]["candidates"]), np.asarray(b["task"]["candidates"]) - 1.0)
     assert [(m.key, m.seed) for m in enumerate_maps(mine)] == [(m.key, m.seed) for m in enumerate_maps(theirs)]
     combos = [rp.entry_combo(e, "physical") for e in rp.dataset_doc(f"{s}_2d")["planners"]]
     assert [p.label for p in mine.planners] == combos                   # the datasets' combos, same order

@@ -37,15 +37,18 @@ def sensor(world, model="marching", fov=90.0, **kw):
                       **kw), grid
 
 
-def reference_scan(world, directions, o, range_m, step):
-    """A plain per-ray, per-point loop of the program's rule: (free points, occupied points, seen obstacle ids)."""
+def reference_scan(world, directions, o, range_m, step, rule="ray"):
+    """A plain per-ray, per-point loop of the marching rule: (free points, occupied points, seen obstacle ids).
+    rule "program": ``step`` along the ray's dominant axis, and the first point at/after the range is still tested
+    for obstacles, bodies and walls (the program's loop), never marked free."""
     free, occupied, seen = [], [], set()
     L = np.asarray(world.arena_size)
-    k_max = int(math.ceil(range_m / step))
     for u in directions:
+        per = step / np.max(np.abs(u)) if rule == "program" else step
+        k_max = int(math.ceil(range_m / per))
         for k in range(k_max + 1):
-            t = k * step
-            if t >= range_m:
+            t = k * per
+            if t >= range_m and rule != "program":
                 break
             p = o + t * u
             holders = np.flatnonzero(np.sum((world.obstacle_positions - p) ** 2, axis=1) <= world.obstacle_radii ** 2)
@@ -55,6 +58,8 @@ def reference_scan(world, directions, o, range_m, step):
             if any(b.footprint_distance(p[None])[0] <= 0.0 for b in world.static_bodies) or np.any(p < 0) \
                     or np.any(p >= L):
                 occupied.append(p)
+                break
+            if t >= range_m:
                 break
             free.append(p)
     return np.array(free).reshape(-1, len(o)), np.array(occupied).reshape(-1, len(o)), sorted(seen)
@@ -147,7 +152,8 @@ def test_free_and_occupied_cells_for_a_pillar_and_a_wall():
 
 
 @pytest.mark.parametrize("fov", [90.0, 360.0])
-def test_grid_and_detections_match_a_per_point_reference_on_random_scenes(fov, monkeypatch):
+@pytest.mark.parametrize("rule", ["ray", "program"])
+def test_grid_and_detections_match_a_per_point_reference_on_random_scenes(fov, rule, monkeypatch):
     monkeypatch.setattr(marching, "CHUNK_ELEMENTS", 700)           # several obstacle chunks per scan
     rng = np.random.default_rng(11)
     n = 25
@@ -155,7 +161,7 @@ def test_grid_and_detections_match_a_per_point_reference_on_random_scenes(fov, m
               StaticBody("box", (20.0, 12.0), size=(3.0, 1.5), yaw=0.4)]
     w = make_world(rng.uniform(0.3, 1.5, n), rng.uniform(0.0, 1.0, (n, 2)) * ARENA, static)
     try:
-        perc, grid = sensor(w, fov=fov, rays=50, march_step=0.9)
+        perc, grid = sensor(w, fov=fov, rays=50, march_step=0.9, march_rule=rule)
         kinds = set()
         for _ in range(12):
             w.set_obstacle_positions(rng.uniform(0.0, 1.0, (n, 2)) * ARENA)
@@ -163,7 +169,7 @@ def test_grid_and_detections_match_a_per_point_reference_on_random_scenes(fov, m
             grid.cells[:] = UNKNOWN
             det = perc.sense(o, yaw)
             kinds |= {w.body_kind(int(b))[0] for b in det.hits}
-            free, occ, seen = reference_scan(w, perc.directions(yaw), o, 8.0, 0.9)
+            free, occ, seen = reference_scan(w, perc.directions(yaw), o, 8.0, 0.9, rule)
             assert det.ids.tolist() == seen
             np.testing.assert_array_equal(det.centers, w.obstacle_positions[seen])
             np.testing.assert_array_equal(grid.cells, expected_cells(grid, free, occ))
@@ -287,3 +293,29 @@ def test_a_trial_with_the_marching_sensor_flies():
     # 50 rays at 0.9 m steps discover fewer cells per step than 91 rays sampled every 0.25 m
     assert results["lookahead"].grid_discovered / results["lookahead"].flight_time_s \
         < ray.grid_discovered / ray.flight_time_s
+
+
+def test_the_programs_march_steps_along_the_dominant_axis_and_its_fan_starts_at_minus_half_the_fov():
+    """march_rule = "program": 50 rays at yaw - 45 + 1.8 i deg (the last 1.8 deg short of + 45), points 0.9 m apart
+    along each ray's dominant axis (1.27 m along a diagonal), and the point at/after 8 m still detects: an obstacle
+    at 8.3 m straight ahead is seen (point at 8.1 m), which the "ray" rule (points < 8 m) misses; a 0.3 m obstacle
+    2.9 m along the diagonal lies between the program's points (2.55, 3.82 m), and the "ray" rule (2.7 m) sees it."""
+    o = np.array([5.0, 10.0])
+    diag = math.pi / 4
+    w = make_world([0.25, 0.3], [[13.3, 10.0], o + 2.9 * np.array([math.cos(diag), math.sin(diag)])])
+    try:
+        prog, _ = sensor(w, fov=90.0, rays=50, march_rule="program")
+        ang = np.degrees(np.arctan2(prog.directions(0.0)[:, 1], prog.directions(0.0)[:, 0]))
+        np.testing.assert_allclose(ang, -45.0 + 1.8 * np.arange(50), atol=1e-9)
+        ray, _ = sensor(w, fov=90.0, rays=50)
+        assert 0 in prog.sense(o, 0.0).ids.tolist() and 0 not in ray.sense(o, 0.0).ids.tolist()
+        assert 1 not in prog.sense(o, diag).ids.tolist() and 1 in ray.sense(o, diag).ids.tolist()
+        dirs = prog.directions(diag)
+        ts, last = marching.program_march_distances(dirs.T, 8.0, 0.9)
+        i = int(np.argmin(np.abs(np.arctan2(dirs[:, 1], dirs[:, 0]) - diag)))
+        np.testing.assert_allclose(ts[i, :4], 0.9 * math.sqrt(2.0) * np.arange(4), atol=1e-9)
+        assert ts[i, last[i]] >= 8.0 > ts[i, last[i] - 1]
+        with pytest.raises(ConfigError):
+            sensor(w, march_rule="diagonal")
+    finally:
+        w.close()

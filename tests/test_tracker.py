@@ -115,3 +115,29 @@ def test_drop_when_mean_leaves_arena_and_tracked_time():
     # outside the arena start tracks that are dropped at once; obstacle 1 is tracked for all 6 steps
     assert tr.tracked_time_s == pytest.approx(DT * (6 + 3))
     assert tr.ever_tracked == 2
+
+
+def test_program_drop_rule_drops_a_predicted_disc_at_the_wall_and_restarts_a_step_later():
+    """drop_rule = "program" (the thesis program's KalmanFilter): a track whose predicted mean is not strictly more
+    than the setup radius from a wall is dropped before the update, that step's detection is discarded, the next
+    detection restarts it (zero velocity) with the setup radius; so a resting obstacle 0.9 m from a wall (setup
+    radius 1 m) flickers. The "arena" rule keeps it."""
+    radii = np.array([0.8, 0.8])
+    prog = KalmanTracks(2, 2, DT, bounds_lo=[LO, LO], bounds_hi=[48.0, 48.0], drop_rule="program",
+                        nominal_radius=1.0)
+    arena = KalmanTracks(2, 2, DT, bounds_lo=[LO, LO], bounds_hi=[48.0, 48.0])
+    z = [[0.9, 24.0], [24.0, 24.0]]
+    active, radius = [], []
+    for _ in range(6):
+        prog.step([0, 1], z)
+        arena.step([0, 1], z)
+        active.append(bool(prog.active[0]))
+        radius.append(prog.tracks(radii).radius[0] if prog.active[0] else None)
+        assert prog.active[1] and arena.active[0] and arena.active[1]
+    assert active == [True, False, True, False, True, False]
+    assert radius[0] == 0.8 and radius[2] == radius[4] == 1.0          # restarted tracks carry the setup radius
+    np.testing.assert_array_equal(prog.x[1], arena.x[1])                # away from the walls both rules agree
+    np.testing.assert_array_equal(prog.P[1], arena.P[1])
+    assert prog.tracks(radii).radius[-1] == 0.8
+    with pytest.raises(ValueError):
+        KalmanTracks(1, 2, DT, bounds_lo=[LO, LO], bounds_hi=[HI, HI], drop_rule="never")

@@ -69,7 +69,13 @@ PROFILE_METRIC_PARAMS: dict[str, dict[str, dict]] = {
 }
 """Per profile and metric, parameters that replace the scenario-derived ones. thesis_program: the thesis' program
 computed VO feasibility with an MAV radius of 0.5 m, and (dynamic) traversability by walking grid cells with the
-MAV's centre, cells marked by its own rules (pbdyn.metrics.traversability, marking "program"; README "Profiles")."""
+MAV's centre, cells marked by its own rules (pbdyn.metrics.traversability, marking "program"; README "Profiles"),
+from the scenario's start/goal candidates (PROGRAM_CANDIDATE_METRICS; the program walked from its 9 candidate cells,
+which the thesis scenarios' 48 m arena puts at 3, 24, 45 m, not at the arena-derived 4, L/2, L - 4)."""
+
+PROGRAM_CANDIDATE_METRICS = tuple(m.name for m in METRIC_TABLE if m.module.endswith(".traversability") and m.sparse is None)
+"""Metrics whose starts are the scenario's candidates under the thesis_program profile (the traversability metrics
+that start from the candidates; their dense variants use a sample grid)."""
 
 
 def metric_params(scenario: Scenario, name: str, backend: str) -> dict:
@@ -77,6 +83,8 @@ def metric_params(scenario: Scenario, name: str, backend: str) -> dict:
     the survivability-type metrics, then the profile's replacements (PROFILE_METRIC_PARAMS); every other parameter
     at its default."""
     params = {"mav_radius": scenario.drone.radius, **PROFILE_METRIC_PARAMS[scenario.profile].get(name, {})}
+    if scenario.profile == "thesis_program" and name in PROGRAM_CANDIDATE_METRICS and not scenario.is_world:
+        params["starts"] = [list(c) for c in scenario.task.candidates]
     if name in BACKEND_METRICS:
         params["backend"] = backend
     return params

@@ -15,9 +15,10 @@ diagonals). Which cells are blocked is the ``marking``:
 - ``"centre_inside"`` (default): a cell is blocked if its centre lies inside an obstacle (distance < r_i, no MAV
   inflation) or a static body, or outside the arena.
 - ``"program"``: the thesis' own program (implementation-facts.md "Metrics as computed for the thesis' tables";
-  read from its public code, smoggy-P/gym-Drone2D-ActivePerception). Its ground-truth grid covered the arena with
-  the arena's walls in the outermost ring of cells (those cells are blocked), and it marked dynamic obstacles in
-  two ways. A freshly built map (what its traversability, eq. 3-2, read at t = 0) blocks a cell whose centre is
+  read from its public code, smoggy-P/gym-Drone2D-ActivePerception). Its ground-truth grid had the arena's walls
+  in the outermost ring of cells; the thesis scenarios (scenarios/thesis) model its arena as the 48 m between those
+  cells, so here, as with every marking, the walls lie outside the grid. It marked dynamic obstacles in two
+  ways. A freshly built map (what its traversability, eq. 3-2, read at t = 0) blocks a cell whose centre is
   inside or on an obstacle's disc. A map stepped forward (what its dynamic traversability, eq. 3-3, read) blocks
   the square of cells within floor(r_i / cell) cells (per axis) of the cell holding the obstacle's centre: one
   cell for r_i < cell, 3 x 3 cells for cell <= r_i < 2 cell. traversability uses the first rule,
@@ -258,8 +259,8 @@ def blocked_cells(rollout, k: int, cell: float, include_static: bool = True,
                   rule: str = "centre_inside") -> np.ndarray:
     """Boolean grid (shape ceil(L / cell) per axis) of the cells blocked at step k under ``rule`` (module doc):
     "centre_inside": the cell centre lies inside an obstacle (distance < r_i), inside a static body, or outside
-    the arena; "program_reset" / "program_step": the thesis program's freshly built / stepped map (the outermost
-    ring of cells blocked as walls; obstacles by centre inside or on the disc / by the floor(r_i / cell) square)."""
+    the arena; "program_reset" / "program_step": the thesis program's freshly built / stepped map (obstacles by
+    centre inside or on the disc / by the floor(r_i / cell) square; its wall cells are outside the arena)."""
     if rule not in CELL_RULES:
         raise ConfigError("rule", f"must be one of {', '.join(CELL_RULES)}", rule)
     limits.check_limit("cell", "grid cells (the arena's extents / cell)", limits.grid_count(rollout.arena_size, cell),
@@ -280,7 +281,6 @@ def blocked_cells(rollout, k: int, cell: float, include_static: bool = True,
             for body in rollout.static:
                 blocked |= body.footprint_distance(centres) < 0.0
         return blocked.reshape(shape)
-    blocked |= np.any((idx == 0) | (idx == np.asarray(shape) - 1), axis=1)   # the program's walls
     if bodies is not None and include_static and not bodies.moving.all():
         blocked |= bodies.field().distance(plane_points(rollout, centres), k, "static") <= 0.0
     if rule == "program_reset":

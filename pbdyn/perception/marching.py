@@ -8,6 +8,10 @@ or beyond an arena wall (a coordinate < 0 or >= L: the half-open cells of the oc
 the border cell). At one point an obstacle takes precedence over a static body, a static body over a wall. A body
 that fits between two consecutive points is not seen -- the program's sensor, reproduced on purpose.
 
+The program's own stepping (march_rule "program", program_march_distances): each ray steps ``step`` along its
+dominant world axis (0.9-1.27 m along the ray in 2D), and its point at or beyond the range still counts for a hit
+but is never marked free.
+
 Everything is numpy, vectorised over rays x points x obstacles (obstacles in chunks of CHUNK_ELEMENTS).
 """
 
@@ -50,6 +54,21 @@ def march_distances(range_m: float, step: float) -> np.ndarray:
     return t[t < range_m]
 
 
+def program_march_distances(dirs_t: np.ndarray, range_m: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """The thesis program's march (its Raycast.castRay): per ray of unit directions dirs_t [d, R] the distances
+    t_k = k * step / max_i |u_i| (m; ``step`` along the ray's dominant world axis; the program was 2D) for
+    k = 0..K_r, K_r the first k with t_k >= range_m, NaN-padded to [R, max K_r + 1]; and K_r [R] (that point is
+    tested for a hit only, never marked free)."""
+    if not (math.isfinite(range_m) and range_m > 0 and math.isfinite(step) and step > 0):
+        raise ValueError(f"range_m and step must be finite and > 0 (got {range_m}, {step})")
+    per = step / np.max(np.abs(dirs_t), axis=0)                                     # [R] m per point
+    last = np.ceil(range_m / per - 1e-12).astype(np.int64)                          # [R]
+    k = np.arange(int(last.max()) + 1)
+    ts = k[None, :] * per[:, None]
+    ts[k[None, :] > last[:, None]] = np.nan
+    return ts, last
+
+
 def static_bounds(bodies: tuple[StaticBody, ...], dims: int) -> tuple[np.ndarray, np.ndarray]:
     """Per static body a horizontal bounding disc: centres [S, 2] (m, x-y) and radii [S] (m; boxes: half the
     diagonal of their full extents, so the disc also bounds a 3D box's footprint in x-y)."""
@@ -69,15 +88,18 @@ def march(origin: np.ndarray, dirs_t: np.ndarray, ts: np.ndarray, centres: np.nd
           arena_size: np.ndarray, bodies: tuple[StaticBody, ...] = (), body_bounds=None) -> MarchHits:
     """March every ray of a scan (module doc).
 
-    origin: the sensor [d] (m); dirs_t: unit ray directions [d, R]; ts: march distances [K] (m, march_distances);
-    centres [N, d], radii [N]: the dynamic obstacles (m); arena_size [d] (m; walls outside [0, L)); bodies: static
-    bodies; body_bounds: their static_bounds (computed if None).
+    origin: the sensor [d] (m); dirs_t: unit ray directions [d, R]; ts: march distances, [K] for every ray
+    (march_distances) or [R, K] per ray, NaN where a ray has no point (program_march_distances) (m); centres [N, d],
+    radii [N]: the dynamic obstacles (m); arena_size [d] (m; walls outside [0, L)); bodies: static bodies;
+    body_bounds: their static_bounds (computed if None).
     """
     o = np.asarray(origin, dtype=float)
     d, n_rays = dirs_t.shape
-    n_pts = ts.shape[0]
-    pts = o[None, None, :] + dirs_t.T[:, None, :] * ts[None, :, None]            # [R, K, d]
-    reach = float(ts[-1])
+    ts = np.asarray(ts, dtype=float)
+    ts2 = ts[None, :] if ts.ndim == 1 else ts                                     # [1 or R, K]
+    n_pts = ts2.shape[1]
+    pts = o[None, None, :] + dirs_t.T[:, None, :] * ts2[:, :, None]              # [R, K, d] (NaN: no point)
+    reach = float(np.nanmax(ts2))
 
     # dynamic obstacles near enough to hold a march point; |o + t u - c|^2 = t^2 - 2 t u.(c - o) + |c - o|^2
     rel = np.asarray(centres, dtype=float).reshape(-1, d) - o
@@ -87,10 +109,10 @@ def march(origin: np.ndarray, dirs_t: np.ndarray, ts: np.ndarray, centres: np.nd
     obs_any = np.zeros((n_rays, n_pts), dtype=bool)
     if near.shape[0]:
         proj = rel[near] @ dirs_t                                                     # [M, R]
-        t2, r2 = ts * ts, r[near] ** 2
+        t2, r2 = ts2 * ts2, r[near] ** 2
         step = max(1, CHUNK_ELEMENTS // max(1, n_rays * n_pts))
         for s in range(0, near.shape[0], step):
-            d2 = t2[None, None, :] - 2.0 * proj[s:s + step, :, None] * ts[None, None, :]
+            d2 = t2[None, :, :] - 2.0 * proj[s:s + step, :, None] * ts2[None, :, :]
             d2 += dist2[near[s:s + step], None, None]
             obs_any |= np.any(d2 <= r2[s:s + step, None, None], axis=0)
     first_obs = _first_true(obs_any)
@@ -129,7 +151,7 @@ def march(origin: np.ndarray, dirs_t: np.ndarray, ts: np.ndarray, centres: np.nd
     seen = np.zeros(0, dtype=np.int64)
     if rows.shape[0]:
         # the obstacles holding each hit point, by the same arithmetic as the march above
-        th = ts[first[rows]]
+        th = ts2[rows if ts.ndim == 2 else 0, first[rows]]
         d2 = (th * th)[None, :] - 2.0 * proj[:, rows] * th[None, :]                   # [M, H]
         d2 += dist2[near, None]
         holds = d2 <= r2[:, None]

@@ -23,7 +23,8 @@ import numpy as np
 from pbdyn.config import SensorConfig
 from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import OccupancyGrid
-from pbdyn.perception.marching import NONE, OBSTACLE, STATIC, WALL, march, march_distances, static_bounds
+from pbdyn.perception.marching import (NONE, OBSTACLE, STATIC, WALL, march, march_distances, program_march_distances,
+                                      static_bounds)
 from pbdyn.perception.sensor import ray_directions
 
 OCCUPIED_NUDGE = 1e-3
@@ -61,7 +62,7 @@ class Perception:
     def __init__(self, world, grid: OccupancyGrid, *, fov_deg: float, range_m: float, resolution_deg: float,
                  noise_std: float = 0.0, rng: np.random.Generator | None = None, vfov_deg: float | None = None,
                  vresolution_deg: float | None = None, model: str = "raycast", rays: int | None = None,
-                 march_step: float = 0.9):
+                 march_step: float = 0.9, march_rule: str = "ray"):
         for name, value in (("sensor.fov_deg", fov_deg), ("sensor.range", range_m),
                             ("sensor.resolution_deg", resolution_deg)):
             if not (math.isfinite(float(value)) and float(value) > 0):
@@ -81,8 +82,11 @@ class Perception:
         if (isinstance(march_step, bool) or not isinstance(march_step, (int, float))
                 or not (math.isfinite(float(march_step)) and float(march_step) > 0)):
             raise ConfigError("sensor.march_step", "must be a finite number > 0", march_step)
+        if march_rule not in SensorConfig.MARCH_RULES:
+            raise ConfigError("sensor.march_rule", f"must be one of {', '.join(SensorConfig.MARCH_RULES)}", march_rule)
         self.model = model
         self.march_step = float(march_step)
+        self.march_rule = march_rule
         if model == "marching":
             self._check_marching_world(world)
         self.world = world
@@ -99,8 +103,13 @@ class Perception:
         else:
             self.vfov_deg = self.vresolution_deg = None
         self.rays = None if rays is None or model != "marching" else int(rays)
-        base = ray_directions(0.0, self.fov_deg, self.resolution_deg, self.dims, self.vfov_deg, self.vresolution_deg,
-                              self.rays)
+        if model == "marching" and march_rule == "program" and self.dims == 2:
+            n = self.rays if self.rays is not None else int(round(self.fov_deg / self.resolution_deg)) + 1
+            ang = np.radians(-self.fov_deg / 2.0 + self.fov_deg / n * np.arange(n))    # the program's fan
+            base = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        else:
+            base = ray_directions(0.0, self.fov_deg, self.resolution_deg, self.dims, self.vfov_deg,
+                                  self.vresolution_deg, self.rays)
         self._march_t = march_distances(self.range_m, self.march_step) if model == "marching" else None
         self._static_bounds = static_bounds(tuple(world.static_bodies), self.dims) if model == "marching" else None
         self.n_rays = int(base.shape[0])
@@ -228,11 +237,16 @@ class Perception:
         """The marching sensor's scan from ``o`` [d] (m) along ``dirs_t`` [d, R] (module doc; thesis 2-4-2)."""
         world, grid = self.world, self.grid
         self._check_marching_world(world)
-        ts = self._march_t
-        m = march(o, dirs_t, ts, world.obstacle_positions, world.obstacle_radii, world.arena_size,
-                  tuple(world.static_bodies), self._static_bounds)
-        n_pts = ts.shape[0]
-        before = np.arange(n_pts)[None, :] < m.first[:, None]                          # [R, K]
+        if self.march_rule == "program":
+            ts, tail = program_march_distances(dirs_t, self.range_m, self.march_step)    # [R, K], [R]
+        else:
+            ts = np.broadcast_to(self._march_t, (dirs_t.shape[1], self._march_t.shape[0]))
+            tail = np.full(dirs_t.shape[1], ts.shape[1])
+        m = march(o, dirs_t, ts if self.march_rule == "program" else self._march_t, world.obstacle_positions,
+                  world.obstacle_radii, world.arena_size, tuple(world.static_bodies), self._static_bounds)
+        n_pts = ts.shape[1]
+        k = np.arange(n_pts)[None, :]
+        before = (k < m.first[:, None]) & (k < tail[:, None])                           # [R, K]
         grid.mark_free(m.points[before])
         ends = np.flatnonzero((m.kind == STATIC) | (m.kind == WALL))
         if ends.shape[0]:
@@ -241,7 +255,7 @@ class Perception:
         for kind, ids in ((OBSTACLE, world.obstacle_ids), (STATIC, world.static_ids), (WALL, world.wall_ids)):
             rows = np.flatnonzero(m.kind == kind)
             hits[rows] = ids[m.index[rows]]
-        ranges = np.where(m.kind != NONE, ts[np.minimum(m.first, n_pts - 1)], self.range_m)
+        ranges = np.where(m.kind != NONE, ts[np.arange(ts.shape[0]), np.minimum(m.first, n_pts - 1)], self.range_m)
         centers = np.asarray(world.obstacle_positions, dtype=float)[m.seen]
         if self.noise_std > 0 and m.seen.shape[0]:
             centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)

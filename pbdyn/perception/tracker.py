@@ -20,11 +20,19 @@ class KalmanTracks:
     exceeds ``drop_pos_var`` (m^2) or its mean position leaves the arena box [bounds_lo, bounds_hi] (m); a dropped
     obstacle that is seen again starts a new track. R = 0 (the program's value) is allowed as long as q > 0 or
     the tracks' position covariance stays positive definite.
+
+    ``drop_rule = "program"`` reproduces the thesis program's filter (its KalmanFilter.predict/update): a track is
+    dropped right after its prediction, before the update, when its largest position variance reaches
+    ``drop_pos_var`` or its predicted mean is not strictly inside the box shrunk by ``nominal_radius`` (the setup
+    radius: the program's band 1 m + r from the border is r from its 1 m wall cells); that step's detection of it is
+    discarded (the program fed it to the reset, inactive filter), the next detection starts a new track, and every
+    track started after a drop carries ``nominal_radius`` instead of the obstacle's own radius (the program's reset
+    set the setup radius).
     """
 
     def __init__(self, n_obstacles: int, dims: int, dt: float, *, q: float = 1e-5, r: float = 0.0,
                  p0_pos: float = 0.01, p0_vel: float = 0.1, drop_pos_var: float = 1.5,
-                 bounds_lo, bounds_hi):
+                 bounds_lo, bounds_hi, drop_rule: str = "arena", nominal_radius: float = 0.0):
         if dims not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {dims}")
         values = (dt, q, r, p0_pos, p0_vel, drop_pos_var)
@@ -33,6 +41,11 @@ class KalmanTracks:
             raise ValueError("KalmanTracks needs n_obstacles >= 0, dt > 0, q >= 0, r >= 0, q + r > 0, p0_pos > 0, "
                              f"p0_vel >= 0, drop_pos_var > 0, all finite (got dt, q, r, p0_pos, p0_vel, drop_pos_var "
                              f"= {values})")
+        if drop_rule not in ("arena", "program") or not (np.isfinite(nominal_radius) and nominal_radius >= 0):
+            raise ValueError(f"drop_rule must be 'arena' or 'program' and nominal_radius finite >= 0, got "
+                             f"{drop_rule!r}, {nominal_radius!r}")
+        self.drop_rule = drop_rule
+        self.nominal_radius = float(nominal_radius)
         self.n = int(n_obstacles)
         self.dims = d = int(dims)
         self.dt = float(dt)
@@ -48,6 +61,7 @@ class KalmanTracks:
         self.P = np.zeros((self.n, 2 * d, 2 * d))
         self.active = np.zeros(self.n, dtype=bool)
         self.ever = np.zeros(self.n, dtype=bool)
+        self.restarted = np.zeros(self.n, dtype=bool)   # "program" rule: dropped at least once (nominal radius)
         self.tracked_time_s = 0.0
 
     @property
@@ -119,14 +133,39 @@ class KalmanTracks:
         outside = np.any((pos < self.bounds_lo) | (pos > self.bounds_hi), axis=1)
         self.active[idx[(pos_var > self.drop_pos_var) | outside]] = False
 
+    def drop_predicted(self) -> np.ndarray:
+        """"program" rule: deactivate the tracks whose predicted position variance reaches drop_pos_var or whose
+        predicted mean is not strictly inside the box shrunk by nominal_radius; returns their ids."""
+        idx = np.flatnonzero(self.active)
+        if idx.size == 0:
+            return idx
+        d = self.dims
+        pos_var = np.diagonal(self.P[idx, :d, :d], axis1=1, axis2=2).max(axis=1)
+        pos = self.x[idx, :d]
+        inside = np.all((pos > self.bounds_lo + self.nominal_radius) & (pos < self.bounds_hi - self.nominal_radius),
+                        axis=1)
+        gone = idx[(pos_var >= self.drop_pos_var) | ~inside]
+        self.active[gone] = False
+        self.restarted[gone] = True
+        return gone
+
     def step(self, ids, z) -> None:
-        """One world step (DESIGN.md step 3): predict, update with detections (ids [m], z [m, d]), drop.
+        """One world step (DESIGN.md step 3): predict, update with detections (ids [m], z [m, d]), drop ("program"
+        rule: predict, drop, update; see the class doc).
 
         Adds dt per track still active afterwards to ``tracked_time_s``.
         """
         self.predict()
-        self.update(ids, z)
-        self.drop()
+        if self.drop_rule == "program":
+            gone = self.drop_predicted()
+            if gone.size:
+                ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+                keep = ~np.isin(ids, gone)
+                ids, z = ids[keep], np.asarray(z, dtype=float).reshape(keep.size, self.dims)[keep]
+            self.update(ids, z)
+        else:
+            self.update(ids, z)
+            self.drop()
         self.tracked_time_s += self.dt * self.n_active
 
     def tracks(self, radii) -> Tracks:
@@ -134,4 +173,6 @@ class KalmanTracks:
         idx = np.flatnonzero(self.active)
         d = self.dims
         radii = np.asarray(radii, dtype=float).reshape(self.n)
+        if self.restarted.any():
+            radii = np.where(self.restarted, self.nominal_radius, radii)
         return Tracks(idx, self.x[idx, :d], self.x[idx, d:], self.P[idx], radii[idx])

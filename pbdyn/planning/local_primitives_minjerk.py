@@ -18,8 +18,9 @@ Registry name "local_primitives_minjerk". Every step (implementation-facts.md "T
   (eq. A-2, A-3; pbdyn.planning.checks: tracks' constant-velocity predictions, OCCUPIED cells, walls; margin 0.5 m)
   is returned, and replan_check is always True, so only its first sample is executed.
 
-pbdyn additions (not in the program): when the goal is nearer than step_m, the goal itself, reached at rest in the
-same T, is tried before the fan (as pbdyn's local_primitives does). Under the physical profile
+pbdyn additions (not in the program; off under the thesis_program profile, PROGRAM_PARAMS): when the goal is nearer
+than step_m, the goal itself, reached at rest in the same T, is tried before the fan (goal_first, as pbdyn's
+local_primitives does). Under the physical profile
 (PlannerContext.physical, the default) a candidate is skipped unless every sample 1..K-1 keeps |v| <= v_max and
 |a| <= a_max and consecutive samples 0..K-1 meet the plan contract's step bounds (pbdyn.sim.contract:
 |v_k+1 - v_k| <= a_max dt, |p_k+1 - p_k - (v_k + v_k+1) dt/2| <= a_max dt^2/4; relative tolerance 1e-9), so the
@@ -28,7 +29,11 @@ limits (from rest at v_max 4 m/s the best one peaks near 17 m/s^2), so under the
 mostly fails and brakes; it exists for the "thesis_program" profile (physical False), where no limit is checked.
 
 Sampling: at k dt for k = 0..ceil(T/dt) (the plan contract's uniform spacing); a sample past T holds the end state
-extrapolated (p1 + v1 (t - T), v1, 0). Sample 0 is the MAV's (p, v, a), copied in. All candidates are evaluated in
+extrapolated (p1 + v1 (t - T), v1, 0). Sample 0 is the MAV's (p, v, a), copied in. samples = "all" checks samples
+1..K-1; samples = "program" (PROGRAM_PARAMS) checks, as the program did, samples 1..n_c of candidate c with
+n_c = floor(T_c / dt) evaluated in the program's own units and floating point (program_sample_counts): at v_max
+6 m/s T = 0.6 s but 0.6 / 0.1 floors to 5, so the primitive's end is never checked; at 2 and 4 m/s 17 of the 72
+candidates check one sample fewer than the others. All candidates are evaluated in
 one array operation: the samples are linear in (dp, dv, da), with weights [K, 3] fixed by T and dt.
 """
 
@@ -62,6 +67,24 @@ def _sq_norm(x: np.ndarray) -> np.ndarray:
 def program_duration(step_m: float, v_max: float) -> float:
     """The program's primitive duration T = max(1.2 step_m / v_max, 0.5) (s); step_m in m, v_max in m/s."""
     return max(1.2 * step_m / v_max, 0.5)
+
+
+PROGRAM_PX_PER_M = 10.0
+"""The thesis program's unit: 10 pixels per metre."""
+
+
+def program_sample_counts(n_candidates: int, step_m: float, v_max: float, dt: float) -> np.ndarray:
+    """Per 2D candidate k (angle 360 k / n deg): the number of samples after the start the thesis program checked,
+    floor(max(1.2 |d| / v_max, 0.5) / dt), with |d| and v_max in its pixels and |d| computed as it did
+    (numpy's norm of (d cos, d sin) at the angle in degrees), so that its floating-point floor is reproduced."""
+    d_px, v_px = step_m * PROGRAM_PX_PER_M, v_max * PROGRAM_PX_PER_M
+    out = np.empty(n_candidates, dtype=np.int64)
+    for k in range(n_candidates):
+        th = math.radians(360.0 * k / n_candidates)
+        length = np.linalg.norm(np.array([d_px * np.cos(th), d_px * np.sin(th)]))
+        t = max(1.2 * length / v_px, 0.5)
+        out[k] = max(1, int(np.floor(t / dt)))
+    return out
 
 
 def min_jerk_matrix(duration: float) -> np.ndarray:
@@ -122,6 +145,9 @@ class LocalPrimitivesMinJerk:
         margin: safety margin (m) added to the MAV radius in the collision check.
         duration: primitive duration T (s); default max(1.2 step_m / v_max, 0.5) as the thesis program. A duration
             above pbdyn.limits.MAX_PLAN_HORIZON_S builds no primitive (every plan fails).
+        goal_first: try the goal itself (at rest) first when it is nearer than step_m (pbdyn; not the program).
+        samples: "all" (check samples 1..K-1) or "program" (the program's per-candidate count; 2D with the
+            default duration only, else "all"); see the module docstring.
 
     Diagnostics of the last plan() call: last_candidates_built (candidates whose samples were computed),
     last_candidates_tried (candidates examined in rank order up to and including the chosen one; all built ones
@@ -129,12 +155,12 @@ class LocalPrimitivesMinJerk:
     tried; None on failure), last_target (its end point [d]).
     """
 
-    PROGRAM_PARAMS: dict = {}
-    """The thesis_program profile's parameters: the defaults are the program's."""
+    PROGRAM_PARAMS: dict = {"goal_first": False, "samples": "program"}
+    """The thesis_program profile's parameters (the other defaults are the program's)."""
 
     def __init__(self, context: PlannerContext, *, n_candidates: int = 72, sphere_spacing_deg: float = 10.0,
                  step_m: float = 3.0, end_speed_frac: float = 0.5, margin: float = 0.5,
-                 duration: float | None = None):
+                 duration: float | None = None, goal_first: bool = True, samples: str = "all"):
         n_candidates = params.integer("n_candidates", n_candidates, lo=1, hi=MAX_PLAN_COUNT)
         sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.5, hi=90.0)
         step_m = params.number("step_m", step_m, lo=0.0, lo_open=True, hi=MAX_PLAN_DISTANCE_M)
@@ -142,6 +168,10 @@ class LocalPrimitivesMinJerk:
         margin = params.non_negative("margin", margin)
         if duration is not None:
             duration = params.number("duration", duration, lo=0.0, lo_open=True, hi=MAX_PLAN_HORIZON_S)
+        if not isinstance(goal_first, bool):
+            raise ValueError(f"goal_first must be true or false, got {goal_first!r}")
+        if samples not in ("all", "program"):
+            raise ValueError(f"samples must be 'all' or 'program', got {samples!r}")
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
         self.limits = context.limits
@@ -153,6 +183,10 @@ class LocalPrimitivesMinJerk:
         self.duration = float(program_duration(self.step_m, self.limits.v_max) if duration is None else duration)
         self.directions = candidate_directions(d, int(n_candidates), self.sphere_spacing_deg)
         self.n_candidates = int(self.directions.shape[0])
+        self.goal_first = goal_first
+        self.checked = None     # [n_candidates] samples checked per candidate (None: all)
+        if samples == "program" and d == 2 and duration is None:
+            self.checked = program_sample_counts(self.n_candidates, self.step_m, self.limits.v_max, self.dt)
         self._sampling: tuple | None = None
         self._sampling_dt: float | None = None
         self.last_candidates_built = 0
@@ -202,17 +236,20 @@ class LocalPrimitivesMinJerk:
         targets = p0 + self.step_m * self.directions[order]                     # [n, d], rank order
         end_vel = np.zeros(self.dims) if dist < 1e-12 else (self.end_speed / dist) * g
         vels = np.broadcast_to(end_vel, targets.shape)
-        goal_first = dist < self.step_m
-        if goal_first:   # the goal itself, reached at rest, is tried first
+        times = self._weights(view.dt)[0]
+        checked = None if self.checked is None else np.minimum(self.checked[order], times.shape[0] - 1)
+        if self.goal_first and dist < self.step_m:   # the goal itself, reached at rest, is tried first
             targets = np.concatenate([view.goal[None], targets])
             vels = np.concatenate([np.zeros((1, self.dims)), vels])
+            if checked is not None:
+                checked = np.concatenate([[times.shape[0] - 1], checked])
         n = targets.shape[0]
-        times = self._weights(view.dt)[0]
         chunk = max(1, _MAX_BATCH_FLOATS // (times.shape[0] * max(1, len(view.tracks))))
         for lo in range(0, n, chunk):
             hi = min(n, lo + chunk)
             self.last_candidates_built += hi - lo
-            found = self._first_clear(view, targets[lo:hi], vels[lo:hi])
+            found = self._first_clear(view, targets[lo:hi], vels[lo:hi],
+                                      None if checked is None else checked[lo:hi])
             if found is None:
                 self.last_candidates_tried += hi - lo
                 continue
@@ -258,20 +295,23 @@ class LocalPrimitivesMinJerk:
         ok &= _sq_norm(gap).max(axis=1) <= (a_max * dt * dt / 4.0) ** 2 * tol
         return ok
 
-    def _first_clear(self, view: View, targets: np.ndarray, vels: np.ndarray):
+    def _first_clear(self, view: View, targets: np.ndarray, vels: np.ndarray, checked: np.ndarray | None = None):
         """(index, (p, v, a) [K, d]) of the first candidate (in the given order) that is clear (and, physical
         profile, within the limits), or None. Walls, tracks and limits are evaluated for all candidates at once;
-        the occupancy grid for the survivors in order, in batches of 1, 2, 4, ..."""
+        the occupancy grid for the survivors in order, in batches of 1, 2, 4, ... ``checked`` [n]: samples 1..checked
+        of each candidate are checked (None: all)."""
         p, v, a = self._samples(view, targets, vels, with_derivatives=self.physical)
         times = view.t + self._weights(view.dt)[0]
-        ok = ~batch_conflicts(view, p[:, 1:], times[1:], self.margin)
+        ok = ~_by_count(lambda rows, c: batch_conflicts(view, p[rows, 1:c + 1], times[1:c + 1], self.margin),
+                        p.shape[0], p.shape[1] - 1, checked)
         if self.physical:
             ok &= self._within_limits(p, v, a, view.dt)
         survivors = np.flatnonzero(ok)
         size, start = 1, 0
         while start < survivors.size:
             batch = survivors[start:start + size]
-            blocked = grid_conflicts(view, p[batch, 1:], self.margin)
+            blocked = _by_count(lambda rows, c: grid_conflicts(view, p[batch[rows], 1:c + 1], self.margin),
+                                batch.size, p.shape[1] - 1, None if checked is None else checked[batch])
             if not blocked.all():
                 j = int(batch[int(np.argmin(blocked))])
                 if v is None:
@@ -283,3 +323,15 @@ class LocalPrimitivesMinJerk:
             start += size
             size *= 2
         return None
+
+
+def _by_count(conflicts, n: int, all_samples: int, checked: np.ndarray | None) -> np.ndarray:
+    """[n] bool: conflicts(rows, c) evaluated per group of candidates that check the same number c of samples
+    (checked [n]; None: every candidate checks all_samples)."""
+    if checked is None:
+        return conflicts(slice(None), all_samples)
+    out = np.zeros(n, dtype=bool)
+    for c in np.unique(checked).tolist():
+        rows = np.flatnonzero(checked == c)
+        out[rows] = conflicts(rows, c)
+    return out

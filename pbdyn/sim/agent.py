@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbdyn.errors import ConfigError, one_line
+from pbdyn.planning.local_primitives_minjerk import PROGRAM_PX_PER_M
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.planning.trajectory import Trajectory
@@ -33,6 +34,18 @@ def brake(p: np.ndarray, v: np.ndarray, a_max: float, dt: float) -> tuple[np.nda
     dv = min(a_max * dt, speed)
     v1 = v - dv * v / speed
     return p + 0.5 * (v + v1) * dt, v1, (v1 - v) / dt
+
+
+def program_brake(p: np.ndarray, v: np.ndarray, a: np.ndarray, a_max: float,
+                  dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One braking step of the thesis program (its Drone2D.brake): if |v| <= a_max dt the MAV stops where it is,
+    else v -= a_max dt v/|v| and p += v_new dt; the acceleration keeps its last value (the next primitive starts
+    from it)."""
+    speed = float(np.linalg.norm(v))
+    if speed <= a_max * dt:
+        return p.copy(), np.zeros_like(v), a.copy()
+    v1 = v - (a_max * dt / speed) * v
+    return p + v1 * dt, v1, a.copy()
 
 
 def _project(x: np.ndarray, limit: float) -> np.ndarray:
@@ -96,7 +109,8 @@ class Agent:
     """A trial's decision maker: its trajectory and gaze planners, the plan contract, braking and the MAV's
     planning state ("PLANNING" or "EXECUTING"). ``physical`` (default: the scenario's profile): True enforces the
     MAV's limits on every plan and on the executed state; False (thesis_program) checks only a plan's form and
-    continuity and executes its samples as they are, as the thesis' program did. ``violations``: every broken
+    continuity and executes its samples as the thesis' program did: the position rounded to its 0.1 m pixels,
+    velocity and acceleration as planned; and it brakes as the program did (program_brake). ``violations``: every broken
     check of the plan that ended the trial (empty while plans are valid)."""
 
     def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool | None = None):
@@ -174,10 +188,15 @@ class Agent:
             if self.physical:
                 v1 = _project(v1, limits.v_max)
                 a1 = _project(a1, limits.a_max)
+            else:
+                p1 = np.round(p1 * PROGRAM_PX_PER_M) / PROGRAM_PX_PER_M
         else:
             if traj is not None:
                 self.trajectory = None
                 self.state = "PLANNING"
-            p1, v1, a1 = brake(view.position, view.velocity, limits.a_max, view.dt)
+            if self.physical:
+                p1, v1, a1 = brake(view.position, view.velocity, limits.a_max, view.dt)
+            else:
+                p1, v1, a1 = program_brake(view.position, view.velocity, view.acceleration, limits.a_max, view.dt)
         action = Action(p1, v1, a1, rate, self.consecutive_failures)
         return Decision(action, planned, plan_ok, None, c4 - c3, c5 - c4)

@@ -67,6 +67,15 @@ def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, client=N
     return world
 
 
+def nominal_radius(spec: TrialSpec, rollout: Rollout) -> float:
+    """The setup's obstacle radius (m) when it is one number, else the mean of the map's radii (0 without
+    obstacles): the radius the thesis program gave a restarted track (tracking.drop_rule = "program")."""
+    r = spec.map_spec.setup.get("radius")
+    if isinstance(r, (int, float)) and not isinstance(r, bool):
+        return float(r)
+    return float(np.mean(rollout.radii)) if rollout.n_obstacles else 0.0
+
+
 def wrap_angle(angle: float) -> float:
     """The angle in [-pi, pi) (rad)."""
     return float((angle + math.pi) % (2.0 * math.pi) - math.pi)
@@ -108,6 +117,7 @@ class TrialEnv:
         self.bounds = (lo, hi)
         self.fov_deg = float(fov_deg) if fov_deg is not None else sc.sensor.fov_deg
         self.swept = sc.collision_check == "swept"
+        self.sense_ahead = 1 if sc.sensor.obstacles_at == "next" else 0
         self.grid: OccupancyGrid | None = None
         self.perception: Perception | None = None
         self.tracker: KalmanTracks | None = None
@@ -118,8 +128,8 @@ class TrialEnv:
 
     # -------------------------------------------------------------------------------------------- episode
     def reset(self) -> None:
-        """Start the trial: fresh grid, tracks and sensor noise; the MAV at the start, at rest, facing the goal;
-        then sense at t_0 (steps (1)-(3))."""
+        """Start the trial: fresh grid, tracks and sensor noise; the MAV at the start, at rest, facing the goal
+        (or task.start_yaw_deg); then sense at t_0 (steps (1)-(3))."""
         sc = self.spec.scenario
         lo, hi = self.bounds
         self.grid = OccupancyGrid(lo, hi, sc.world.grid_resolution)
@@ -127,15 +137,20 @@ class TrialEnv:
                                      resolution_deg=sc.sensor.resolution_deg, noise_std=sc.sensor.noise_std,
                                      rng=np.random.default_rng(self.spec.seed), vfov_deg=sc.sensor.vfov_deg,
                                      vresolution_deg=sc.sensor.resolution_deg if self.dims == 3 else None,
-                                     model=sc.sensor.model, rays=sc.sensor.rays, march_step=sc.sensor.march_step)
+                                     model=sc.sensor.model, rays=sc.sensor.rays, march_step=sc.sensor.march_step,
+                                     march_rule=sc.sensor.march_rule)
         tr = sc.tracking
         self.tracker = KalmanTracks(self.rollout.n_obstacles, self.dims, self.dt, q=tr.q, r=tr.r, p0_pos=tr.p0_pos,
-                                    p0_vel=tr.p0_vel, drop_pos_var=tr.drop_pos_var, bounds_lo=lo, bounds_hi=hi)
+                                    p0_vel=tr.p0_vel, drop_pos_var=tr.drop_pos_var, bounds_lo=lo, bounds_hi=hi,
+                                    drop_rule=tr.drop_rule, nominal_radius=nominal_radius(self.spec, self.rollout))
         self.position = np.asarray(self.spec.start, dtype=float)
         self.velocity = np.zeros(self.dims)
         self.acceleration = np.zeros(self.dims)
-        to_goal = self.goal - self.position
-        self.yaw = math.atan2(to_goal[1], to_goal[0])
+        if sc.task.start_yaw_deg is None:
+            to_goal = self.goal - self.position
+            self.yaw = math.atan2(to_goal[1], to_goal[0])
+        else:
+            self.yaw = wrap_angle(math.radians(sc.task.start_yaw_deg))
         self.k = 0
         self.outcome = None
         self.reason = ""
@@ -161,9 +176,10 @@ class TrialEnv:
         return self.k
 
     def _sense(self) -> None:
-        """Steps (1)-(3) at t_k: obstacle poses from the rollout, MAV pose, ray sensing, tracker update."""
+        """Steps (1)-(3) at t_k: obstacle poses from the rollout (at t_k+1 with sensor.obstacles_at = "next"), MAV
+        pose, ray sensing, tracker update."""
         c0 = time.perf_counter()
-        obs_p, _ = self.rollout.at(self.k0 + self.k)
+        obs_p, _ = self.rollout.at(self.k0 + self.k + self.sense_ahead)
         self.world.set_obstacle_positions(obs_p)                       # (1)
         self.world.set_mav_pose(self.position, self.yaw)
         c1 = time.perf_counter()

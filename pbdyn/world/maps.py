@@ -162,9 +162,10 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     from a range; headings uniform; centres uniform inside the walls, rejection-sampled so that no obstacle overlaps
     another, a static body, or any start/goal candidate's MAV disc plus the spawn clearance (thesis 2-3; unlike the
     thesis' program, the layout never depends on which start is flown). ``keep_out`` = (points [m, d], gap m)
-    replaces the candidates and spawn_clearance: obstacle discs stay ``gap`` m beyond the MAV disc at each point
-    (the "program" start rule, pbdyn.sim.start). Radii, speeds and headings are drawn before the centres, so they
-    do not depend on keep_out.
+    replaces the candidates and spawn_clearance: obstacle CENTRES stay more than the MAV radius + ``gap`` m from
+    each point, whatever the obstacle's radius (the "program" start rule, pbdyn.sim.start: the program rejected a
+    centre within drone radius + 7 m = 8 m of the start). Radii, speeds and headings are drawn before the centres,
+    so they do not depend on keep_out.
     """
     rng = spec.rng()
     dims = scenario.world.dims
@@ -177,9 +178,11 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     if keep_out is None:
         cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
         keep_out = scenario.drone.radius + scenario.task.spawn_clearance
+        centre_rule = False   # the obstacle's disc stays clear
     else:
         cands = np.asarray(keep_out[0], dtype=float).reshape(-1, dims)
         keep_out = scenario.drone.radius + float(keep_out[1])
+        centre_rule = True    # the obstacle's centre stays clear (the program's rule)
     bodies = static_bodies(scenario)
     centres = np.zeros((n, dims))
     for i in range(n):
@@ -195,7 +198,7 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
                 ok &= np.all(dist >= radii[None, :i] + r, axis=1)
             if cands.size:
                 dist = np.linalg.norm(pts[:, None, :] - cands[None, :, :], axis=-1)
-                ok &= np.all(dist >= r + keep_out, axis=1)
+                ok &= np.all(dist > keep_out, axis=1) if centre_rule else np.all(dist >= r + keep_out, axis=1)
             for b in bodies:
                 ok &= b.footprint_distance(pts) >= r
             hit = np.flatnonzero(ok)
