@@ -45,6 +45,7 @@ PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
         ("sensor", "march_rule"): "program",
         ("tracking", "drop_rule"): "program",
         ("task", "start_yaw_deg"): 90.0,
+        ("obstacles", "headings"): "even",
     },
 }
 """Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);
@@ -53,7 +54,8 @@ outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc) and l
 (the thesis text: 1.4 rad/s); it moved the obstacles to t_k+1 before the MAV sensed at t_k
 (sensor.obstacles_at = "next"), dropped a track whose predicted disc of the setup radius reached a wall and restarted
 it one step later with the setup radius (tracking.drop_rule = "program"), and started the MAV facing +y (its initial
-yaw of -90 deg in its y-down screen frame; task.start_yaw_deg = 90)."""
+yaw of -90 deg in its y-down screen frame; task.start_yaw_deg = 90); its obstacle headings were evenly spaced
+(obstacles.headings = "even")."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -190,7 +192,11 @@ class RVOParams:
 
 @dataclass(frozen=True)
 class ObstacleConfig:
-    """Generated dynamic obstacles. count/radius/speed are grids (tuples); radius/speed entries may be Ranges."""
+    """Generated dynamic obstacles. count/radius/speed are grids (tuples); radius/speed entries may be Ranges.
+    headings: "uniform" (each obstacle's direction uniformly random) or "even" (the thesis program's: obstacle k of
+    N heads along -(cos 2 pi k / N, sin 2 pi k / N); 3D: the negated Fibonacci lattice of N directions)."""
+
+    HEADINGS: ClassVar[tuple[str, ...]] = ("uniform", "even")
 
     count: tuple[int, ...] = (10,)
     radius: tuple[GridValue, ...] = (1.0,)
@@ -201,6 +207,7 @@ class ObstacleConfig:
     root_seed: int = 0
     grid_order: tuple[str, ...] = ("count", "radius", "speed")
     rvo: RVOParams = RVOParams()
+    headings: str = "uniform"
 
 
 @dataclass(frozen=True)
@@ -521,7 +528,7 @@ def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: b
 
 def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
-    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo")
+    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo", "headings")
     _no_unknown(t, keys, "obstacles")
     d = _defaults(ObstacleConfig)
     count = _grid_values(t["count"], "obstacles.count", integer=True, lo=0) if "count" in t else d["count"]
@@ -565,7 +572,8 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
                        limits.MAX_RVO_CANDIDATES, rvo.n_headings if "n_headings" in rt else rvo.n_speeds)
     limits.check_limit("obstacles.rvo.contact_iterations", "contact iterations", rvo.contact_iterations,
                        limits.MAX_RVO_CONTACT_ITERATIONS, rvo.contact_iterations)
-    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo)
+    headings = _string(t, "headings", "obstacles", d["headings"], ObstacleConfig.HEADINGS)
+    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo, headings)
 
 
 def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfig, ...]:

@@ -299,6 +299,16 @@ def test_thesis_program_gives_built_in_planners_their_program_parameters():
                     (profile == "thesis_program")
             else:
                 assert (agent.planner.prediction == "program") == (profile == "thesis_program")
+        sc = parse_scenario({"profile": profile, "task": {"start_yaw_deg": 90.0},
+                             "planners": [{"trajectory": "local_primitives_minjerk", "gaze": "lookahead"}]})
+        agent = Agent(make_trial_spec(sc, get_map(sc, 0), start=(4.0, 4.0), goal=(46.0, 4.0)))
+        assert agent.gaze.at_rest == ("hold" if profile == "thesis_program" else "plan")
+        from pbdyn.sim.env import TrialEnv
+        env = TrialEnv(agent.spec, build_rollout(sc, get_map(sc, 0)), fov_deg=agent.fov_deg)
+        env.reset()                                   # at rest facing +y; the goal lies along +x
+        d = agent.act(env.view(agent.trajectory))
+        env.close()
+        assert (d.action.yaw_rate == 0.0) == (profile == "thesis_program")
 
 
 def test_every_thesis_combo_flies_under_the_thesis_program_profile():
@@ -352,3 +362,19 @@ def test_program_brake_and_pixel_positions():
         off_grid += int(np.any(np.abs(agent.trajectory.p[1] * 10.0 - np.round(agent.trajectory.p[1] * 10.0)) > 1e-6))
     env.close()
     assert off_grid > 0          # the plans themselves are not on the pixel grid
+
+
+def test_even_headings_are_the_programs_and_keep_the_centres():
+    uni = _scenario(obstacles={"count": 12})
+    even = _scenario(obstacles={"count": 12, "headings": "even"})
+    a, b = build_rollout(uni, get_map(uni, 0)), build_rollout(even, get_map(even, 0))
+    np.testing.assert_array_equal(a.positions[0], b.positions[0])
+    np.testing.assert_array_equal(a.radii, b.radii)
+    k = np.arange(12)
+    np.testing.assert_allclose(b.velocities[0], -4.0 * np.stack([np.cos(2 * np.pi * k / 12),
+                                                                  np.sin(2 * np.pi * k / 12)], axis=1), atol=1e-12)
+    assert not np.allclose(a.velocities[0], b.velocities[0])
+    assert _scenario("thesis_program").obstacles.headings == "even"
+    with pytest.raises(ConfigError) as e:
+        _scenario(obstacles={"headings": "random"})
+    assert e.value.field == "obstacles.headings"

@@ -36,18 +36,27 @@ class LookAhead:
     rate = clip(wrap(heading - yaw) * gain, +-yaw_rate limit), so the MAV turns the shortest way and reaches the
     heading in one step whenever the limit allows (default gain 1 / dt). The heading is that of the velocity; when
     |v| < 1e-6 m/s, that of the plan's velocity at the next step, else the direction to the plan's last point, else
-    the direction to the goal; with none of them the rate is 0.
+    the direction to the goal; with none of them the rate is 0. ``at_rest = "hold"`` (the thesis program, its
+    PROGRAM_PARAMS): rate 0 whenever |v| < 1e-6 m/s.
     """
 
-    def __init__(self, context: PlannerContext, *, gain: float | None = None):
+    PROGRAM_PARAMS: dict = {"at_rest": "hold"}
+    """The thesis_program profile's parameters: the program's LookAhead returned 0 for a MAV at rest."""
+
+    def __init__(self, context: PlannerContext, *, gain: float | None = None, at_rest: str = "plan"):
         if gain is not None:
             gain = params.positive("gain", gain)
+        if at_rest not in ("plan", "hold"):
+            raise ValueError(f"at_rest must be 'plan' or 'hold', got {at_rest!r}")
+        self.at_rest = at_rest
         self.limit = float(context.limits.yaw_rate)
         self.gain = 1.0 / float(context.dt) if gain is None else float(gain)
 
     def target_heading(self, view: View, trajectory: Trajectory | None) -> float | None:
         """The heading (rad) the MAV should look along, or None if no direction is defined."""
         h = _heading(view.velocity)
+        if h is None and self.at_rest == "hold":
+            return None
         if h is None and trajectory is not None:
             k = min(max(trajectory.index_at(view.t + view.dt), 0), trajectory.n_samples - 1)
             h = _heading(trajectory.v[k])

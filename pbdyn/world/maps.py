@@ -18,6 +18,7 @@ import numpy as np
 from pbdyn.config import Range, Scenario, _json_default, canonical_json
 from pbdyn.errors import ConfigError
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.rvo import candidate_directions
 
 MAX_SPAWN_ATTEMPTS = 20000
 
@@ -159,7 +160,7 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     """Initial centres [N, d] (m), velocities [N, d] (m/s) and radii [N] (m) of a map's obstacles.
 
     Radii: setup radius +- radius_jitter (uniform) or drawn from a range; speeds: exactly the setup speed or drawn
-    from a range; headings uniform; centres uniform inside the walls, rejection-sampled so that no obstacle overlaps
+    from a range; headings uniform or, obstacles.headings = "even", the program's evenly spaced ones; centres uniform inside the walls, rejection-sampled so that no obstacle overlaps
     another, a static body, or any start/goal candidate's MAV disc plus the spawn clearance (thesis 2-3; unlike the
     thesis' program, the layout never depends on which start is flown). ``keep_out`` = (points [m, d], gap m)
     replaces the candidates and spawn_clearance: obstacle CENTRES stay more than the MAV radius + ``gap`` m from
@@ -173,7 +174,9 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     n = int(spec.setup["count"])
     radii = _draw(spec.setup["radius"], rng, n, scenario.obstacles.radius_jitter)
     speeds = _draw(spec.setup["speed"], rng, n, 0.0)
-    dirs = random_unit_vectors(rng, n, dims)
+    dirs = random_unit_vectors(rng, n, dims)     # drawn in both modes: the centres below stay the same
+    if scenario.obstacles.headings == "even":     # the thesis program's headings (ObstacleConfig)
+        dirs = -candidate_directions(dims, n) if n else dirs
     velocities = dirs * speeds[:, None]
     if keep_out is None:
         cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)

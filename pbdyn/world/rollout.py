@@ -144,6 +144,8 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
                   "clearance": scenario.task.spawn_clearance},
         "horizon": round(horizon, 9),
     }
+    if scenario.obstacles.headings != "uniform":   # (keys of "uniform" maps stay as they were before the field)
+        payload["obstacles"]["headings"] = scenario.obstacles.headings
     if scenario.is_world:
         payload["bodies"] = bodies_fingerprint(scenario)
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()

@@ -17,6 +17,7 @@ Each variant is one resumable store under --out (re-running skips finished trial
                     program's 0.9 m along the dominant axis)
     -drop           tracking.drop_rule = "arena" (tracks dropped only when their mean leaves the arena)
     -yaw            task.start_yaw_deg = "goal" (start facing the goal, not +y)
+    -headings       obstacles.headings = "uniform" (random headings, not the program's evenly spaced ones)
     -samples        trajectory samples = "all" (check every sample, not the program's floor(T/dt))
     +goal_first     trajectory goal_first = true (try the goal itself first when nearer than 3 m)
     -arena          the 50 m arena with walls at its border and candidates {4, 25, 46} (not the program's
@@ -62,6 +63,7 @@ VARIANTS = {
     "-march": lambda doc: doc.setdefault("sensor", {}).update(march_rule="ray"),
     "-drop": lambda doc: doc.setdefault("tracking", {}).update(drop_rule="arena"),
     "-yaw": lambda doc: doc.setdefault("task", {}).update(start_yaw_deg="goal"),
+    "-headings": lambda doc: doc["obstacles"].update(headings="uniform"),
     "-samples": lambda doc: _traj_params(doc, samples="all"),
     "+goal_first": lambda doc: _traj_params(doc, goal_first=True),
     "-arena": _arena_50,
