@@ -425,3 +425,17 @@ def test_maps_sets_the_main_compare_stores_maps_under_its_own_name(tmp_path, cap
     for bad in (["--maps", "0", "--scale", "compare"], ["--maps", "2", "--scale", "quick"]):
         assert rp.main(bad + ["--out", str(tmp_path)]) == 2
         assert "maps" in capsys.readouterr().err
+
+
+def test_reduced_documents_keep_the_files_candidates():
+    """The thesis files' 48 m arena puts the candidates at 3, 24, 45 m: the compare and quick documents keep them
+    (arena-derived defaults would put them at 4, 24, 44 m), and the physical ones keep {4, 25, 46}."""
+    thesis = [list(c) for c in parse_scenario(rp.dataset_doc("controlled_2d", "thesis_program")).task.candidates]
+    assert thesis[0] == [3.0, 3.0] and thesis[-1] == [45.0, 45.0]
+    for role, doc in rp.compare_docs("controlled_2d", "thesis_program"):
+        assert [list(c) for c in parse_scenario(doc).task.candidates] == thesis, role
+    quick = rp.quick_doc("controlled_2d", "thesis_program")["task"]["candidates"]
+    assert quick == [[3.0, 3.0], [3.0, 45.0], [45.0, 3.0], [45.0, 45.0], [24.0, 24.0]]
+    assert rp.quick_doc("controlled_2d")["task"]["candidates"] == [list(c) for c in rp.QUICK_CANDIDATES]
+    physical = rp.compare_docs("controlled_2d")[0][1]
+    assert parse_scenario(physical).task.candidates[0] == (4.0, 4.0)

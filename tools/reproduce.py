@@ -52,6 +52,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from pbdyn.config import parse_scenario  # noqa: E402
@@ -205,6 +206,22 @@ def select(doc: dict, combos, profile: str, *, in_given_order: bool) -> list[dic
     return [e for k, e in entries if k in combos]
 
 
+def quick_candidates(doc: dict) -> list[list[float]]:
+    """The quick scale's start/goal candidates of a dataset document: of its 9 candidates (given or default), the
+    four corners and the centre, in QUICK_CANDIDATES' order ({4, 46}^2 and (25, 25) in the 50 m arena; in the thesis
+    files' 48 m arena {3, 45}^2 and (24, 24))."""
+    cands = np.asarray(parse_scenario({k: v for k, v in doc.items() if k != "planners"}).task.candidates, float)
+    lo, hi = cands[:, :2].min(axis=0), cands[:, :2].max(axis=0)
+    mid = (lo + hi) / 2.0
+    corner_of = {(4.0, 4.0): (lo[0], lo[1]), (4.0, 46.0): (lo[0], hi[1]), (46.0, 4.0): (hi[0], lo[1]),
+                 (46.0, 46.0): (hi[0], hi[1]), (25.0, 25.0): (mid[0], mid[1])}
+    out = []
+    for q in QUICK_CANDIDATES:
+        xy = np.array(corner_of[q])
+        out.append(cands[int(np.argmin(np.linalg.norm(cands[:, :2] - xy, axis=1)))].tolist())
+    return out
+
+
 def quick_doc(name: str, profile: str = "physical", combos=None) -> dict:
     """The reduced scenario document of dataset ``name`` at scale quick (see the module docstring); ``combos``
     (None: all) restricts its planners."""
@@ -213,8 +230,7 @@ def quick_doc(name: str, profile: str = "physical", combos=None) -> dict:
     doc["name"] = f"{doc['name']}_quick"
     doc["obstacles"]["maps_per_setup"] = QUICK_MAPS if controlled else QUICK_UNCONTROLLED_MAPS
     doc["drone"]["v_max"] = list(QUICK_VMAX)
-    z = [] if doc["world"].get("dims", 2) == 2 else [doc["world"]["size"][2] / 2.0]
-    doc["task"] = {"candidates": [list(c) + z for c in QUICK_CANDIDATES]}
+    doc["task"] = {**doc.get("task", {}), "candidates": quick_candidates(doc)}
     wanted = [c for c in QUICK_COMBOS if combos is None or c in combos]
     if controlled:
         doc["planners"] = select(doc, wanted, profile, in_given_order=True)
@@ -244,7 +260,7 @@ def compare_docs(name: str, profile: str = "physical", combos=None, maps: int | 
         doc["name"] = f"{base['name']}_{suffix}"
         doc["obstacles"]["maps_per_setup"] = maps
         doc["drone"]["v_max"] = list(COMPARE_VMAX)
-        doc.pop("task", None)              # the default candidates: {4, 25, 46}^2, 72 ordered pairs
+        # the file's own [task] stays: its 9 candidates, 72 ordered pairs (the thesis files: the 48 m arena's 3, 24, 45)
         wanted = [c for c in (own or COMBOS) if combos is None or c in combos]
         doc["planners"] = select(doc, wanted, profile, in_given_order=own is not None)
         out.append((role, doc))
