@@ -237,14 +237,17 @@ class Perception:
         """The marching sensor's scan from ``o`` [d] (m) along ``dirs_t`` [d, R] (module doc; thesis 2-4-2)."""
         world, grid = self.world, self.grid
         self._check_marching_world(world)
+        n_rays = dirs_t.shape[1]
         if self.march_rule == "program":
             ts, tail = program_march_distances(dirs_t, self.range_m, self.march_step)    # [R, K], [R]
+            per_ray = ts
         else:
-            ts = np.broadcast_to(self._march_t, (dirs_t.shape[1], self._march_t.shape[0]))
-            tail = np.full(dirs_t.shape[1], ts.shape[1])
-        m = march(o, dirs_t, ts if self.march_rule == "program" else self._march_t, world.obstacle_positions,
-                  world.obstacle_radii, world.arena_size, tuple(world.static_bodies), self._static_bounds)
-        n_pts = ts.shape[1]
+            ts = self._march_t                                                           # [K], every ray
+            tail = np.full(n_rays, ts.shape[0])
+            per_ray = np.broadcast_to(ts, (n_rays, ts.shape[0]))
+        m = march(o, dirs_t, ts, world.obstacle_positions, world.obstacle_radii, world.arena_size,
+                  tuple(world.static_bodies), self._static_bounds)
+        n_pts = per_ray.shape[1]
         k = np.arange(n_pts)[None, :]
         before = (k < m.first[:, None]) & (k < tail[:, None])                           # [R, K]
         grid.mark_free(m.points[before])
@@ -255,7 +258,7 @@ class Perception:
         for kind, ids in ((OBSTACLE, world.obstacle_ids), (STATIC, world.static_ids), (WALL, world.wall_ids)):
             rows = np.flatnonzero(m.kind == kind)
             hits[rows] = ids[m.index[rows]]
-        ranges = np.where(m.kind != NONE, ts[np.arange(ts.shape[0]), np.minimum(m.first, n_pts - 1)], self.range_m)
+        ranges = np.where(m.kind != NONE, per_ray[np.arange(n_rays), np.minimum(m.first, n_pts - 1)], self.range_m)
         centers = np.asarray(world.obstacle_positions, dtype=float)[m.seen]
         if self.noise_std > 0 and m.seen.shape[0]:
             centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
