@@ -325,7 +325,7 @@ class TaskConfig:
     """Start/goal candidates [[x, y(, z)], ...] (m; () = default_candidates(world)), goal_radius (m), spawn_clearance
     (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest), and the start rule
     (pbdyn.sim.start): start_rule (START_RULES), start_clearance (m between the MAV disc at the start and every
-    obstacle), start_window_s (s the start must stay clear, "first_clear"), start_wait_max_s (s a trial may wait
+    obstacle; "program": every obstacle centre), start_window_s (s the start must stay clear, "first_clear"), start_wait_max_s (s a trial may wait
     for a clear start, "first_clear"), start_yaw_deg (the MAV's yaw at the start, deg in the world frame; None, "goal"
     in TOML: facing the goal)."""
 

@@ -13,8 +13,8 @@ collision says nothing about the planner. Three rules:
   earliest of equals) and the row's reason says so.
 - "immediate": t_s = 0 (pbdyn before the start rule existed).
 - "program": the thesis' program (implementation-facts.md "World and obstacles", a defect reproduced by the
-  thesis_program profile): the obstacles are spawned with ``start_clearance`` m kept free around the MAV disc at the
-  flown start only (not around the other candidates), so the flown layout depends on the start and differs from the
+  thesis_program profile): the obstacles are spawned with their centres more than the MAV radius +
+  ``start_clearance`` m from the flown start only (not from the other candidates; the program's 8 m test), so the flown layout depends on the start and differs from the
   map the metrics were computed on. Radii and velocities are the map's; only the centres are drawn again (same
   seed). t_s = 0.
 """
