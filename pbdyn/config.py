@@ -274,11 +274,11 @@ class SensorConfig:
     model: "raycast" (PyBullet rays, exact hits) or "marching" (the thesis program's sensor: points every
     march_step m along each ray, the first one inside a body is the hit; pbdyn.perception.perceive); rays: with
     "marching", rays per horizontal fan (None: from resolution_deg; the program used 50). obstacles_at: which
-    obstacle poses the scan at t_k sees, "current" (t_k, DESIGN.md step order) or "next" (t_k+1: the thesis program
-    moved its obstacles before sensing, so its MAV at t_k saw them one step ahead). march_rule ("marching" only): "ray"
-    (points march_step apart along each ray, a fan symmetric about the yaw) or "program" (the program's stepping along each ray's
-    dominant axis, pbdyn.perception.marching.program_march_distances, and in 2D its fan from -fov/2 in fov/rays
-    steps)."""
+    obstacle poses the scan at t_k sees, "current" (t_k, DESIGN.md step order) or "next" (t_k+1: the thesis
+    program moved its obstacles before sensing, so its MAV at t_k saw them one step ahead). march_rule
+    ("marching" only): "ray" (points march_step apart along each ray, a fan symmetric about the yaw) or
+    "program" (the program's stepping along each ray's dominant axis,
+    pbdyn.perception.marching.program_march_distances, and in 2D its fan from -fov/2 in fov/rays steps)."""
 
     RESOLUTION_3D_DEG: ClassVar[float] = 2.0
     VFOV_3D_DEG: ClassVar[float] = 60.0
@@ -323,11 +323,11 @@ class TrackingConfig:
 @dataclass(frozen=True)
 class TaskConfig:
     """Start/goal candidates [[x, y(, z)], ...] (m; () = default_candidates(world)), goal_radius (m), spawn_clearance
-    (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest), and the start rule
-    (pbdyn.sim.start): start_rule (START_RULES), start_clearance (m between the MAV disc at the start and every
-    obstacle; "program": every obstacle centre), start_window_s (s the start must stay clear, "first_clear"), start_wait_max_s (s a trial may wait
-    for a clear start, "first_clear"), start_yaw_deg (the MAV's yaw at the start, deg in the world frame; None, "goal"
-    in TOML: facing the goal)."""
+    (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest), and the start
+    rule (pbdyn.sim.start): start_rule (START_RULES), start_clearance (m between the MAV disc at the start and
+    every obstacle; "program": every obstacle centre), start_window_s (s the start must stay clear,
+    "first_clear"), start_wait_max_s (s a trial may wait for a clear start, "first_clear"), start_yaw_deg (the
+    MAV's yaw at the start, deg in the world frame; None, "goal" in TOML: facing the goal)."""
 
     candidates: tuple[tuple[float, ...], ...] = ()
     goal_radius: float = 1.0

@@ -10,7 +10,8 @@ pbdyn's outcome rates with the thesis program's.
 Profiles. ``--profile physical`` (default) flies scenarios/datasets/*.toml; ``--profile thesis_program`` flies
 scenarios/thesis/*_2d.toml: the same grids and seeds in the program's 48 m arena with `profile = "thesis_program"`
 (the program's sensor, start clearance, planner and metric parameters) and the planner combinations named as the
-program named them ("<Gaze>+<Trajectory>", COMBOS). ``--dims 3`` uses the 3D counterparts (physical profile, quick and full only).
+program named them ("<Gaze>+<Trajectory>", COMBOS). ``--dims 3`` uses the 3D counterparts (physical profile, quick
+and full only).
 
 Scales:
 - ``full`` flies the thesis' datasets as shipped (the controlled set, 540 maps x 18 combos x 216 trials, and the

@@ -73,7 +73,8 @@ MAV's centre, cells marked by its own rules (pbdyn.metrics.traversability, marki
 from the scenario's start/goal candidates (PROGRAM_CANDIDATE_METRICS; the program walked from its 9 candidate cells,
 which the thesis scenarios' 48 m arena puts at 3, 24, 45 m, not at the arena-derived 4, L/2, L - 4)."""
 
-PROGRAM_CANDIDATE_METRICS = tuple(m.name for m in METRIC_TABLE if m.module.endswith(".traversability") and m.sparse is None)
+PROGRAM_CANDIDATE_METRICS = tuple(m.name for m in METRIC_TABLE
+                                  if m.module.endswith(".traversability") and m.sparse is None)
 """Metrics whose starts are the scenario's candidates under the thesis_program profile (the traversability metrics
 that start from the candidates; their dense variants use a sample grid)."""
 

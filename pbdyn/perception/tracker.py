@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pbdyn.config import TrackingConfig
 from pbdyn.perception.tracks import Tracks
 
 
@@ -41,9 +42,9 @@ class KalmanTracks:
             raise ValueError("KalmanTracks needs n_obstacles >= 0, dt > 0, q >= 0, r >= 0, q + r > 0, p0_pos > 0, "
                              f"p0_vel >= 0, drop_pos_var > 0, all finite (got dt, q, r, p0_pos, p0_vel, drop_pos_var "
                              f"= {values})")
-        if drop_rule not in ("arena", "program") or not (np.isfinite(nominal_radius) and nominal_radius >= 0):
-            raise ValueError(f"drop_rule must be 'arena' or 'program' and nominal_radius finite >= 0, got "
-                             f"{drop_rule!r}, {nominal_radius!r}")
+        if drop_rule not in TrackingConfig.DROP_RULES or not (np.isfinite(nominal_radius) and nominal_radius >= 0):
+            raise ValueError(f"drop_rule must be one of {TrackingConfig.DROP_RULES} and nominal_radius finite >= 0, "
+                             f"got {drop_rule!r}, {nominal_radius!r}")
         self.drop_rule = drop_rule
         self.nominal_radius = float(nominal_radius)
         self.n = int(n_obstacles)

@@ -160,7 +160,8 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     """Initial centres [N, d] (m), velocities [N, d] (m/s) and radii [N] (m) of a map's obstacles.
 
     Radii: setup radius +- radius_jitter (uniform) or drawn from a range; speeds: exactly the setup speed or drawn
-    from a range; headings uniform or, obstacles.headings = "even", the program's evenly spaced ones; centres uniform inside the walls, rejection-sampled so that no obstacle overlaps
+    from a range; headings uniform (obstacles.headings = "even": the program's evenly spaced ones); centres uniform
+    inside the walls, rejection-sampled so that no obstacle overlaps
     another, a static body, or any start/goal candidate's MAV disc plus the spawn clearance (thesis 2-3; unlike the
     thesis' program, the layout never depends on which start is flown). ``keep_out`` = (points [m, d], gap m)
     replaces the candidates and spawn_clearance: obstacle CENTRES stay more than the MAV radius + ``gap`` m from
@@ -176,7 +177,7 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     speeds = _draw(spec.setup["speed"], rng, n, 0.0)
     dirs = random_unit_vectors(rng, n, dims)     # drawn in both modes: the centres below stay the same
     if scenario.obstacles.headings == "even":     # the thesis program's headings (ObstacleConfig)
-        dirs = -candidate_directions(dims, n) if n else dirs
+        dirs = -candidate_directions(dims, n)
     velocities = dirs * speeds[:, None]
     if keep_out is None:
         cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
