@@ -345,6 +345,68 @@ def test_owl_looks_at_directions_not_seen_recently():
     assert rate < -0.5
 
 
+def _program_g(theta_deg, half=45.0):
+    """The program's Owl angle cost G (rad^2), written out for the tests."""
+    def between(a, b):
+        d = abs((a % 360.0) - (b % 360.0))
+        return min(d, 360.0 - d)
+    if between(theta_deg, 0.0) <= half:
+        return 0.0
+    return math.radians(between(theta_deg, half)) * math.radians(between(theta_deg, -half))
+
+
+def test_owl_program_costs_rates_and_hold_as_the_program_had_them():
+    ctx = _context()
+    gaze = Owl(ctx, **Owl.PROGRAM_PARAMS)
+    # the program's 20 rates: +limit first, 0 among them, -limit missing
+    assert gaze.rates[0] == LIMIT and 0.0 in gaze.rates and -LIMIT not in gaze.rates and len(gaze.rates) == 20
+    assert gaze.hold_steps == 8
+    p = np.array([25.0, 25.0])
+    # at rest every program cost was NaN and its argmin took the first candidate; held for 8 steps
+    assert gaze.yaw_rate(_view(ctx, p, [25.0, 45.0]), None) == LIMIT
+    for k in range(1, 8):
+        assert gaze.yaw_rate(_view(ctx, p, [25.0, 45.0], v=[1.0, 0.0], t=k * DT), None) == LIMIT
+    # the 9th call decides again: moving along +x at 1 m/s with the goal to the left (+y)
+    fresh = Owl(ctx, **Owl.PROGRAM_PARAMS)
+    cost = fresh.program_costs(_view(ctx, p, [25.0, 45.0], v=[1.0, 0.0]))
+    # beliefs after one update: bin 0 deg (in view) 0.4 - 1 m/s * 0.8 s / 8 m = 0.3; bin 90 deg -0.05 -> 0
+    assert fresh.belief[0] == pytest.approx(0.3) and fresh.belief[9] == 0.0
+    for i in (0, 5, 10, 19):
+        psi = math.degrees(gaze.rates[i] * 0.8)
+        nearest = int(np.argmin([min(abs(c - psi % 360.0), 360.0 - abs(c - psi % 360.0))
+                                 for c in np.arange(36) * 10.0]))
+        expected = (0.2 * _program_g(psi - 90.0) * (1.0 - 0.0) + 0.9 * 1.0 * _program_g(psi) * (1.0 - 0.3)
+                    + 0.1 * fresh.belief[nearest])
+        assert cost[i] == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    # G by hand: 90 deg off a 90-degree FOV is 45 deg x 135 deg
+    assert _program_g(90.0) == pytest.approx(math.radians(45) * math.radians(135))
+
+
+def test_owl_program_pairs_directions_with_the_wrong_tracks_as_the_program_did():
+    ctx = _context()
+    p = np.array([25.0, 25.0])
+    # obstacle 1 at the left, closing fast; obstacle 2 at the right, still; obstacle 0 not tracked. The program
+    # weighted the k-th active direction by tracker k: the left one by obstacle 0 (inactive: 0), the right one by
+    # obstacle 1 (6 m/s at 6 m: 1/s), so it turns right; pbdyn's own Owl turns left, toward the closing track.
+    tracks = Tracks(np.array([1, 2]), np.array([[25.0, 31.0], [25.0, 19.0]]), np.array([[0.0, -6.0], [0.0, 0.0]]),
+                    np.zeros((2, 4, 4)), np.ones(2))
+    view = _view(ctx, p, [45.0, 25.0], v=[1.0, 0.0], tracks=tracks)
+    assert Owl(ctx, **Owl.PROGRAM_PARAMS).yaw_rate(view, None) < -0.5
+    assert Owl(ctx).yaw_rate(view, None) > 0.5
+    # with obstacle 0 tracked too, every direction is paired with the track before it in id order
+    both = Tracks(np.array([0, 1]), np.array([[25.0, 31.0], [25.0, 19.0]]), np.array([[0.0, -6.0], [0.0, 0.0]]),
+                  np.zeros((2, 4, 4)), np.ones(2))
+    assert Owl(ctx, **Owl.PROGRAM_PARAMS).yaw_rate(_view(ctx, p, [45.0, 25.0], v=[1.0, 0.0], tracks=both),
+                                                   None) > 0.5
+
+
+def test_owl_program_rejects_bad_costs_and_odd_rates():
+    with pytest.raises(ValueError, match="costs"):
+        Owl(_context(), costs="exact")
+    with pytest.raises(ValueError, match="n_rates"):
+        Owl(_context(), costs="program", n_rates=7)
+
+
 # ---------------------------------------------------------------- limited FOV matters
 
 FOV_PLANNERS = [{"trajectory": "local_primitives", "gaze": g} for g in ("fullrange", "lookahead", "rotating")] + [

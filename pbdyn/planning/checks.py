@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pbdyn.perception.grid import OCCUPIED
 from pbdyn.planning.view import View
 
 WALL_MARGIN_CAP = 0.1  # m; largest margin applied against the arena walls
@@ -61,16 +62,20 @@ def static_clear(view: View, points: np.ndarray, margin: float = 0.5) -> np.ndar
     return ~_static_bad(view, np.asarray(points, dtype=float), margin, grid=True)
 
 
-def batch_conflicts(view: View, p: np.ndarray, times: np.ndarray, margin: float = 0.5) -> np.ndarray:
-    """Per candidate of positions p [n, K, d] (m) at absolute times [K] (s): True if any sample meets a wall (c) or
-    a track's constant-velocity prediction (a); the grid (b) is left to grid_conflicts. One array evaluation over
-    candidates x samples x tracks: [n, K, M, d] floats."""
+def batch_conflicts(view: View, p: np.ndarray, times: np.ndarray, margin: float = 0.5, *,
+                    walls: bool = True) -> np.ndarray:
+    """Per candidate of positions p [n, K, d] (m) at absolute times [K] (s): True if any sample meets a wall (c;
+    skipped when ``walls`` is False) or a track's constant-velocity prediction (a); the grid (b) is left to
+    grid_conflicts. One array evaluation over candidates x samples x tracks: [n, K, M, d] floats."""
     p = np.asarray(p, dtype=float)
     n, k = p.shape[0], p.shape[1]
     if n == 0 or k == 0:
         return np.zeros(n, dtype=bool)
-    wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
-    bad = np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=(1, 2))
+    if walls:
+        wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
+        bad = np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=(1, 2))
+    else:
+        bad = np.zeros(n, dtype=bool)
     tracks = view.tracks
     if len(tracks):
         tau = np.asarray(times, dtype=float) - view.t
@@ -91,6 +96,33 @@ def grid_conflicts(view: View, p: np.ndarray, margin: float = 0.5) -> np.ndarray
     if n == 0 or k == 0:
         return np.zeros(n, dtype=bool)
     return view.grid.collides(p.reshape(n * k, d), view.limits.radius + margin).reshape(n, k).any(axis=1)
+
+
+PROGRAM_PROBE_EXTRA_M = 1.0
+"""The thesis program's static probes lay MAV radius + 1 m (its radius + 10 px) from a sample's centre."""
+
+
+def program_grid_conflicts(view: View, p: np.ndarray) -> np.ndarray:
+    """The thesis program's static check (its planners' is_free; implementation-facts.md "Collision check"), per
+    candidate of positions p [n, K, d] (m): True if, for any sample, one of five probes -- the centre and the
+    points MAV radius + 1 m from it along +-x and +-y -- lies outside the program's map (the MAV's grid, whose
+    border ring of cells is the program's wall cells) or in an OCCUPIED cell of the MAV's grid. Walls therefore
+    count only where a ray has seen them (OCCUPIED ring cells), except that a probe beyond the ring always does;
+    the MAV's disc itself is not tested, only the probes (a diagonal approach passes between them)."""
+    p = np.asarray(p, dtype=float)
+    n, k, d = p.shape
+    if n == 0 or k == 0:
+        return np.zeros(n, dtype=bool)
+    grid = view.grid
+    reach = view.limits.radius + PROGRAM_PROBE_EXTRA_M
+    offsets = np.zeros((5, d))
+    offsets[1, 0], offsets[2, 0], offsets[3, 1], offsets[4, 1] = -reach, reach, -reach, reach
+    q = p[:, :, None, :] + offsets                                                  # [n, K, 5, d]
+    lo = grid.origin
+    hi = grid.origin + np.asarray(grid.shape, dtype=float) * grid.res
+    outside = np.any((q < lo) | (q >= hi), axis=-1)
+    occupied = grid.value_at(q) == OCCUPIED
+    return np.any(outside | occupied, axis=(1, 2))
 
 
 def _static_bad(view: View, p: np.ndarray, margin: float, grid: bool) -> np.ndarray:

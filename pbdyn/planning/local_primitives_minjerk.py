@@ -35,6 +35,12 @@ n_c = floor(T_c / dt) evaluated in the program's own units and floating point (p
 6 m/s T = 0.6 s but 0.6 / 0.1 floors to 5, so the primitive's end is never checked; at 2 and 4 m/s 17 of the 72
 candidates check one sample fewer than the others. All candidates are evaluated in
 one array operation: the samples are linear in (dp, dv, da), with weights [K, 3] fixed by T and dt.
+
+Static check: static_check = "pbdyn" tests the MAV ball + margin against OCCUPIED cells and keeps radius + 0.1 m
+from the walls whether or not they were seen; "program" (PROGRAM_PARAMS) is the program's is_free: five probes
+per sample (the centre and MAV radius + 1 m along +-x and +-y) against its map's extent and the OCCUPIED cells of
+the MAV's grid, whose border ring is the program's wall cells -- so a seen wall keeps the centre 2 m away, an
+unseen one only 1 m (pbdyn.planning.checks.program_grid_conflicts).
 """
 
 from __future__ import annotations
@@ -45,7 +51,7 @@ import numpy as np
 
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
-from pbdyn.planning.checks import batch_conflicts, grid_conflicts
+from pbdyn.planning.checks import batch_conflicts, grid_conflicts, program_grid_conflicts
 from pbdyn.planning.local_primitives import candidate_directions, rank_by_goal_angle
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
@@ -148,6 +154,9 @@ class LocalPrimitivesMinJerk:
         goal_first: try the goal itself (at rest) first when it is nearer than step_m (pbdyn; not the program).
         samples: "all" (check samples 1..K-1) or "program" (the program's per-candidate count; 2D with the
             default duration only, else "all"); see the module docstring.
+        static_check: "pbdyn" (the MAV ball + margin against OCCUPIED cells, and radius + 0.1 m from the walls;
+            pbdyn.planning.checks) or "program" (the program's five probes against its map and the OCCUPIED cells,
+            so walls count where they have been seen; checks.program_grid_conflicts).
 
     Diagnostics of the last plan() call: last_candidates_built (candidates whose samples were computed),
     last_candidates_tried (candidates examined in rank order up to and including the chosen one; all built ones
@@ -155,12 +164,13 @@ class LocalPrimitivesMinJerk:
     tried; None on failure), last_target (its end point [d]).
     """
 
-    PROGRAM_PARAMS: dict = {"goal_first": False, "samples": "program"}
+    PROGRAM_PARAMS: dict = {"goal_first": False, "samples": "program", "static_check": "program"}
     """The thesis_program profile's parameters (the other defaults are the program's)."""
 
     def __init__(self, context: PlannerContext, *, n_candidates: int = 72, sphere_spacing_deg: float = 10.0,
                  step_m: float = 3.0, end_speed_frac: float = 0.5, margin: float = 0.5,
-                 duration: float | None = None, goal_first: bool = True, samples: str = "all"):
+                 duration: float | None = None, goal_first: bool = True, samples: str = "all",
+                 static_check: str = "pbdyn"):
         n_candidates = params.integer("n_candidates", n_candidates, lo=1, hi=MAX_PLAN_COUNT)
         sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.5, hi=90.0)
         step_m = params.number("step_m", step_m, lo=0.0, lo_open=True, hi=MAX_PLAN_DISTANCE_M)
@@ -172,6 +182,9 @@ class LocalPrimitivesMinJerk:
             raise ValueError(f"goal_first must be true or false, got {goal_first!r}")
         if samples not in ("all", "program"):
             raise ValueError(f"samples must be 'all' or 'program', got {samples!r}")
+        if static_check not in ("pbdyn", "program"):
+            raise ValueError(f"static_check must be 'pbdyn' or 'program', got {static_check!r}")
+        self.static_check = static_check
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
         self.limits = context.limits
@@ -302,7 +315,9 @@ class LocalPrimitivesMinJerk:
         of each candidate are checked (None: all)."""
         p, v, a = self._samples(view, targets, vels, with_derivatives=self.physical)
         times = view.t + self._weights(view.dt)[0]
-        ok = ~_by_count(lambda rows, c: batch_conflicts(view, p[rows, 1:c + 1], times[1:c + 1], self.margin),
+        program = self.static_check == "program"
+        ok = ~_by_count(lambda rows, c: batch_conflicts(view, p[rows, 1:c + 1], times[1:c + 1], self.margin,
+                                                        walls=not program),
                         p.shape[0], p.shape[1] - 1, checked)
         if self.physical:
             ok &= self._within_limits(p, v, a, view.dt)
@@ -310,7 +325,8 @@ class LocalPrimitivesMinJerk:
         size, start = 1, 0
         while start < survivors.size:
             batch = survivors[start:start + size]
-            blocked = _by_count(lambda rows, c: grid_conflicts(view, p[batch[rows], 1:c + 1], self.margin),
+            blocked = _by_count(lambda rows, c: (program_grid_conflicts(view, p[batch[rows], 1:c + 1]) if program
+                                                 else grid_conflicts(view, p[batch[rows], 1:c + 1], self.margin)),
                                 batch.size, p.shape[1] - 1, None if checked is None else checked[batch])
             if not blocked.all():
                 j = int(batch[int(np.argmin(blocked))])
