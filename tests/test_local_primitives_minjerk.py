@@ -10,7 +10,7 @@ import pytest
 from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import OCCUPIED
 from pbdyn.planning import registry
-from pbdyn.planning.checks import batch_conflicts, grid_conflicts, trajectory_clear
+from pbdyn.planning.checks import batch_conflicts, grid_conflicts, program_grid_conflicts, trajectory_clear
 from pbdyn.planning.local_primitives_minjerk import (LocalPrimitivesMinJerk, min_jerk_coefficients,
                                                      min_jerk_matrix, min_jerk_states, program_duration,
                                                      program_sample_counts)
@@ -159,6 +159,24 @@ def test_rank_order_is_the_angle_to_the_goal():
     assert list(planner.ranked_candidates(tie)[:2]) == [7, 8]
 
 
+def _program_is_free(view, p, times, margin=0.5):
+    """The program's is_free over samples p [K, 2] at absolute times [K], written out probe by probe: five probes
+    (centre, +-(r + 1 m) along x and y) outside the map or in an OCCUPIED cell, or a track prediction within
+    r + r_track + margin; no wall test of its own."""
+    grid, r = view.grid, view.limits.radius
+    lo = grid.origin
+    hi = grid.origin + np.asarray(grid.shape, float) * grid.res
+    for x, t in zip(p, times):
+        for off in ((0, 0), (-r - 1.0, 0), (r + 1.0, 0), (0, -r - 1.0), (0, r + 1.0)):
+            q = x + np.asarray(off, float)
+            if np.any(q < lo) or np.any(q >= hi) or grid.value_at(q[None])[0] == OCCUPIED:
+                return False
+        for c, vel, rad in zip(view.tracks.position, view.tracks.velocity, view.tracks.radius):
+            if np.linalg.norm(x - (c + (t - view.t) * vel)) < r + rad + margin:
+                return False
+    return True
+
+
 def _reference_choice(planner, view, physical):
     """The first clear (and, physical, contract-respecting) candidate in rank order, one candidate at a time, with
     min_jerk_states, checks.trajectory_clear (on the samples the planner checks) and contract.plan_violations:
@@ -180,7 +198,8 @@ def _reference_choice(planner, view, physical):
         past = times > t_end
         p[past] = target + (times[past] - t_end)[:, None] * vel
         v[past], a[past] = vel, 0.0
-        if not trajectory_clear(view, p[1:n_checked + 1], view.t + times[1:n_checked + 1], 0.5):
+        clear = _program_is_free if planner.static_check == "program" else trajectory_clear
+        if not clear(view, p[1:n_checked + 1], view.t + times[1:n_checked + 1], 0.5):
             continue
         if physical and plan_violations(Trajectory(view.t, view.dt, p, v, a), t=view.t, dt=view.dt,
                                         position=view.position, velocity=view.velocity,
@@ -201,7 +220,7 @@ def test_choice_is_exactly_the_first_clear_candidate_in_rank_order(physical, v_m
     assert (planner.checked is not None) == program
     n_found, ranks = 0, set()
     for _ in range(120 if physical else 40):   # physical: the program's primitives rarely fit the limits
-        p0 = rng.uniform(6.0, 44.0, 2)
+        p0 = rng.uniform(1.5, 48.5, 2) if program and rng.random() < 0.5 else rng.uniform(6.0, 44.0, 2)
         goal = p0 + rng.normal(size=2) * rng.uniform(1.0, 20.0)
         goal = np.clip(goal, 2.0, 48.0)
         to_goal = (goal - p0) / max(np.linalg.norm(goal - p0), 1e-9)
@@ -215,6 +234,9 @@ def test_choice_is_exactly_the_first_clear_candidate_in_rank_order(physical, v_m
         grid = _grid(ctx)
         for c in p0 + rng.uniform(-5, 5, (rng.integers(0, 12), 2)):
             grid.mark_occupied(np.clip(c, 1.5, 48.5)[None])
+        if program:                                               # seen wall cells in the grid's border ring
+            for c in p0 + rng.uniform(-6, 6, (rng.integers(0, 10), 2)):
+                grid.mark_occupied(np.clip(c, -0.5, 50.5)[None])
         view = _view(ctx, p0, goal, v=v, a=a, grid=grid, tracks=tracks, t=float(rng.uniform(0, 10)))
         tr = planner.plan(view)
         want = _reference_choice(planner, view, physical)
@@ -268,6 +290,34 @@ def test_batched_checks_agree_with_trajectory_clear():
     want = np.array([not trajectory_clear(view, p[i], times) for i in range(200)])
     np.testing.assert_array_equal(bad, want)
     assert 20 < want.sum() < 180
+
+
+def test_program_static_check_probes_five_points_and_counts_walls_once_seen():
+    ctx = _ctx()
+    grid = _grid(ctx)                           # inside free, the border ring (the program's wall cells) unknown
+    view = _view(ctx, [25, 25], [40, 25], grid=grid)
+    def blocked(*pts):
+        return bool(program_grid_conflicts(view, np.asarray(pts, float)[None])[0])
+    assert not blocked([1.5, 25.0])             # the probe at x = -0.5 lies in an unseen wall cell
+    assert blocked([0.9, 25.0])                 # a probe beyond the ring (x < -1) always blocks
+    grid.mark_occupied(np.array([[-0.5, 25.5]]))  # a ray saw wall cell (0, 26)
+    assert blocked([1.5, 25.0]) and blocked([1.99, 25.9]) and not blocked([2.0, 25.5])
+    assert not blocked([1.5, 24.9])             # the probe lands in the unseen cell next to it
+    # a cell 1.5 m away diagonally lies between the probes: the program passes, pbdyn's ball check does not
+    grid.mark_occupied(np.array([[26.5, 26.5]]))
+    assert not blocked([25.0, 25.0])
+    assert grid_conflicts(view, np.array([[[25.0, 25.0]]]))[0]
+    assert blocked([26.5, 24.6])                # the +y probe at (26.5, 26.6) in that cell
+    # no wall margin of its own: pbdyn keeps radius + 0.1 m from the walls, the program's check 1 m (unseen)
+    assert not blocked([1.05, 10.0]) and batch_conflicts(view, np.array([[[1.05, 10.0]]]), np.array([0.1]))[0]
+    assert not batch_conflicts(view, np.array([[[1.05, 10.0]]]), np.array([0.1]), walls=False)[0]
+
+
+def test_program_static_check_is_the_programs_default():
+    assert LocalPrimitivesMinJerk.PROGRAM_PARAMS["static_check"] == "program"
+    assert LocalPrimitivesMinJerk(_ctx()).static_check == "pbdyn"
+    with pytest.raises(ValueError, match="static_check"):
+        LocalPrimitivesMinJerk(_ctx(), static_check="disc")
 
 
 # ---------------------------------------------------------------- the profiles' limits
@@ -342,7 +392,7 @@ def test_parameters_are_validated():
         registry.build_planner(cls, ctx, {"step_m": 0.0}, "planners[0].params")
     with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.jerk_max: unknown parameter"):
         registry.build_planner(cls, ctx, {"jerk_max": 20.0}, "planners[0].params")
-    assert cls.PROGRAM_PARAMS == {"goal_first": False, "samples": "program"}
+    assert cls.PROGRAM_PARAMS == {"goal_first": False, "samples": "program", "static_check": "program"}
     for bad in ({"goal_first": 1}, {"samples": "some"}):
         with pytest.raises(ValueError):
             LocalPrimitivesMinJerk(ctx, **bad)

@@ -20,6 +20,8 @@ Each variant is one resumable store under --out (re-running skips finished trial
     -headings       obstacles.headings = "uniform" (random headings, not the program's evenly spaced ones)
     -samples        trajectory samples = "all" (check every sample, not the program's floor(T/dt))
     +goal_first     trajectory goal_first = true (try the goal itself first when nearer than 3 m)
+    -static         trajectory static_check = "pbdyn" (the MAV ball + 0.5 m against occupied cells, radius + 0.1 m
+                    from the walls; not the program's five probes, which keep 2 m from seen walls)
     -arena          the 50 m arena with walls at its border and candidates {4, 25, 46} (not the program's
                     48 m between its wall cells, candidates {3, 24, 45})
 """
@@ -66,6 +68,7 @@ VARIANTS = {
     "-headings": lambda doc: doc["obstacles"].update(headings="uniform"),
     "-samples": lambda doc: _traj_params(doc, samples="all"),
     "+goal_first": lambda doc: _traj_params(doc, goal_first=True),
+    "-static": lambda doc: _traj_params(doc, static_check="pbdyn"),
     "-arena": _arena_50,
 }
 """Variant name -> an edit of the scenario document (see the module doc)."""
