@@ -312,7 +312,7 @@ def test_times_past_the_horizon_raise():
 def test_registry_names_parameters_and_errors(map30):
     assert set(METRICS) == {"density", "traversability", "traversability_dense", "dynamic_traversability",
                             "vo_feasibility", "vo_feasibility_dense", "survivability", "survivability_dense",
-                            "global_survivability"}
+                            "global_survivability", "flux", "static_share"}
     for name in METRICS:
         assert "mav_radius" in parameters(name)
         r = compute(map30, name, mav_radius=1.0)

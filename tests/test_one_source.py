@@ -42,10 +42,10 @@ def test_catalog_drives_the_registry():
 def test_derived_lists_are_unchanged():
     """The lists each consumer wrote before the catalog existed (their order is behaviour: output order)."""
     assert cached.SPARSE == ("density", "traversability", "dynamic_traversability", "vo_feasibility",
-                             "survivability", "global_survivability")
+                             "survivability", "global_survivability", "flux", "static_share")
     assert tasks.METRIC_SET == ("density", "traversability", "dynamic_traversability", "vo_feasibility",
                                 "vo_feasibility_dense", "survivability", "survivability_dense",
-                                "global_survivability")
+                                "global_survivability", "flux", "static_share")
     assert report.METRIC_ORDER == ("density", "traversability", "dynamic_traversability", "survivability",
                                    "survivability_dense", "global_survivability", "vo_feasibility",
                                    "vo_feasibility_dense")

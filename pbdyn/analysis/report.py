@@ -16,6 +16,16 @@ Conventions (documented in the report itself):
   maps, averaged over (setup, pair). A metric constant within a setup scores 0 there.
 - setup_model: eq. 5-1 fitted to the per-map pooled success rate of the controlled maps (in-sample), its
   prediction used as a metric: what the setup alone explains.
+- Baselines (rows of kind "baseline"): setup_model, the closed-form metrics that need no simulation
+  (pbdyn.metrics.baselines: flux, static_share) and, when both vary, flux_model (a linear fit of the pooled success
+  on them, in-sample like setup_model). Every other row (kind "metric") is compared with each baseline, paired over
+  the same bootstrap draws (pbdyn.analysis.validation): "vs_baselines" holds the SRCC difference and its 95%
+  interval across maps and within setups; "beats_baselines" is True only when every interval lies above 0.
+- Fitted difficulty: a 1PL item-response model (pbdyn.analysis.irt) of every flown trial, items = maps,
+  respondents = planner pair at one MAV speed; "fitted_difficulty" holds the planners' abilities (a score
+  comparable across maps) and each map's difficulty with its standard error, and every row's "fitted" its SRCC
+  against minus the fitted difficulty (same sign as against success), with the same baseline comparisons. A second
+  fit with items = tasks (map, start, goal) reports how much of the difficulty lies between the tasks of a map.
 """
 
 from __future__ import annotations
@@ -28,11 +38,11 @@ from pbdyn.analysis.bands import band_fit, band_shares
 from pbdyn.analysis.cv import LEVELS, cv_by_level, cv_summary
 from pbdyn.analysis.normalise import Normaliser, fit_normaliser
 from pbdyn.analysis.regression import FEATURES, LinearFit, fit_linear, setup_features, setup_key
-from pbdyn.analysis.srcc import bootstrap_mean_srcc, mean_std, pair_srcc, percentile_ci, within_group_srcc
+from pbdyn.analysis.validation import Agreement, agreement, agreement_dict, compare, verdict
 from pbdyn.analysis.success import (OUTCOMES, SuccessTable, rate_and_se, success_table, trial_arrays,
                                    within_setup_reliability)
 from pbdyn.errors import ConfigError
-from pbdyn.metrics.catalog import INFO, TABLE_ORDER
+from pbdyn.metrics.catalog import BASELINES, INFO, TABLE_ORDER
 from pbdyn.sim.outcome import Outcome
 
 METRIC_ORDER = TABLE_ORDER
@@ -42,14 +52,18 @@ SETUP_MODEL."""
 SETUP_MODEL = "setup_model"
 """Name of the setup-only baseline row (eq. 5-1 of (n, r, v) fitted to success)."""
 
+BASELINE_MODEL = "flux_model"
+"""Name of the baseline row fitted on the closed-form baselines (when more than one varies)."""
+
+MAX_GLM_ITEMS = 1500
+"""Above this many maps the map-level item-response fit uses the sparse fit (pbdyn.analysis.irt)."""
+
 BAND_METRICS = ("survivability", INFO["survivability"].dense)
 """Metrics tried in order for the sigma bands (tables 4-6..4-8), the regression (table 5-4) and figs 5-9/5-10."""
 
 SIGN_CONVENTION = ("srcc = -Srcc(difficulty, SR) = Srcc(10 - difficulty, SR): positive when the metric ranks maps "
                    "as the success rate does (thesis table 4-5 sign); difficulty = eq. 4-10 then 4-11, high = hard")
 
-MIN_SETUP_MAPS = 3
-"""Fewest maps of one setup for the within-setup Srcc."""
 
 
 def choose_controlled(datasets: list[str], controlled: str | None) -> str:
@@ -84,21 +98,59 @@ def _mean_time(maps: dict, map_ids: tuple[str, ...], name: str) -> float:
 
 
 def _metric_row(d: np.ndarray, rate: np.ndarray, pairs: tuple[str, ...], keys: list[str], n_boot: int,
-                seed: int) -> dict:
-    """One table 4-5 row for difficulty d [maps] vs rate [maps, pairs] (controlled maps), sign per SIGN_CONVENTION."""
-    per_pair = -pair_srcc(d, rate)
-    mean, std = mean_std(per_pair)
-    draws = -bootstrap_mean_srcc(d, rate, np.random.default_rng(seed), n_boot) if n_boot > 0 else np.empty(0)
-    lo, hi = percentile_ci(draws)
-    within, n_setups = within_group_srcc(d, rate, keys, MIN_SETUP_MAPS)
-    w_mean, w_std = mean_std(-within)
+                seed: int) -> tuple[dict, Agreement]:
+    """One table 4-5 row for difficulty d [maps] vs rate [maps, pairs] (controlled maps), sign per SIGN_CONVENTION,
+    and its Agreement (bootstrap draws and per-setup values, for the paired baseline comparisons)."""
+    ag = agreement(d, rate, keys, n_boot, seed)
+    lo, hi = ag.ci95
     cv = cv_summary(cv_by_level(d, rate))
-    return {"srcc_mean": mean, "srcc_std": std, "srcc_per_pair": dict(zip(pairs, per_pair.tolist())),
-            "srcc_ci95": [lo, hi], "within_setup_srcc": w_mean, "within_setup_srcc_std": w_std,
-            "within_setup_n_setups": n_setups, "cv_per_level": {str(k): float(c) for k, c in
-                                                                enumerate(cv["per_level"])},
-            "cv_per_pair": dict(zip(pairs, cv["per_pair"].tolist())), "cv_mean": cv["mean"], "cv_std": cv["std"],
-            "n_maps": int(np.isfinite(d).sum())}
+    return ({"srcc_mean": ag.srcc, "srcc_std": ag.std, "srcc_per_pair": dict(zip(pairs, ag.per_column.tolist())),
+             "srcc_ci95": [lo, hi], "within_setup_srcc": ag.within_mean, "within_setup_srcc_std": ag.within_std,
+             "within_setup_n_setups": ag.n_setups, "cv_per_level": {str(k): float(c) for k, c in
+                                                                    enumerate(cv["per_level"])},
+             "cv_per_pair": dict(zip(pairs, cv["per_pair"].tolist())), "cv_mean": cv["mean"], "cv_std": cv["std"],
+             "n_maps": int(np.isfinite(d).sum())}, ag)
+
+
+def _respondent(pair: str, speed: float) -> str:
+    return f"{pair} @ {speed:g} m/s"
+
+
+def fitted_difficulty(ta, trials: list[dict], map_ids: tuple[str, ...]) -> tuple[np.ndarray, dict]:
+    """The 1PL fit of the flown trials (pbdyn.analysis.irt): (difficulty [maps] (logits; NaN for a map without
+    flown trials), JSON-able summary with the planners' abilities, each map's difficulty and se, and the task-level
+    fit's summary)."""
+    from pbdyn.analysis.irt import fit_rasch, fit_rasch_sparse
+
+    flown = np.flatnonzero(ta.flown)
+    success = ta.is_outcome(Outcome.SUCCESS)[flown].astype(float)
+    pair_names = np.asarray(ta.pairs, dtype=object)[ta.pair_idx[flown]]
+    resp = [_respondent(p, v) for p, v in zip(pair_names, ta.mav_speed[flown])]
+    items = [map_ids[i] for i in ta.map_idx[flown]]
+    both = 0 < success.sum() < success.size          # the sparse fit needs successes and failures
+    fit = (fit_rasch_sparse if len(set(items)) > MAX_GLM_ITEMS and both else fit_rasch)(items, resp, success)
+    pos = {m: i for i, m in enumerate(fit.items)}
+    b = np.array([fit.difficulty[pos[m]] if m in pos else np.nan for m in map_ids])
+    summary = {"model": "1PL (Rasch): P(success) = sigmoid(ability - difficulty), logits; difficulties centred",
+               "items": "maps", **fit.as_dict()}
+    summary["maps"] = summary.pop("items")
+    tasks = [t.get("task") for t in trials]
+    if not both:
+        summary["tasks"] = {"skipped": "every flown trial had the same outcome"}
+    elif all(x is not None for x in tasks):
+        titems = [f"{map_ids[ta.map_idx[i]]}|{tasks[i]}" for i in flown]
+        tf = fit_rasch_sparse(titems, resp, success)
+        by_map = np.array([x.split("|", 1)[0] for x in tf.items])
+        bt = tf.difficulty
+        within = np.concatenate([bt[by_map == m] - bt[by_map == m].mean() for m in np.unique(by_map)])
+        total = float(bt.var())
+        noise = float(np.mean(tf.difficulty_se ** 2))
+        summary["tasks"] = {"method": tf.method, "n_tasks": len(tf.items), "prior_sd": 2.0,
+                            "difficulty_sd": float(bt.std()), "within_map_sd": float(within.std()),
+                            "within_map_share_of_variance": float(within.var() / total) if total > 0 else None,
+                            "within_map_share_noise_corrected": float(max(within.var() - noise, 0.0) / total)
+                            if total > 0 else None, "mean_se": float(tf.difficulty_se.mean())}
+    return b, summary
 
 
 def _fit_dict(fit: LinearFit, target: str) -> dict:
@@ -180,17 +232,46 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
     values = {n: v for n, v in metric_values(maps, map_ids).items() if np.isfinite(v[c]).any()}
     setup_fit = fit_linear(feats[c], st.pooled_rate[c])
     values[SETUP_MODEL] = setup_fit.predict(feats)
+    varying = [n for n in BASELINES if n in values and np.nanstd(values[n][c]) > 0]
+    baseline_fit = None
+    if len(varying) >= 2:
+        bx = np.stack([values[n] for n in varying], axis=1)
+        baseline_fit = fit_linear(bx[c], st.pooled_rate[c])
+        values[BASELINE_MODEL] = baseline_fit.predict(bx)
+
+    fitted_b, fitted_summary = fitted_difficulty(ta, trials, map_ids)
+    fitted_target = (-fitted_b)[:, None]
+    has_fit = np.isfinite(fitted_b[c]).sum() >= 2
 
     rows: dict = {}
     difficulty: dict = {}
+    agree: dict = {}
+    agree_fit: dict = {}
     for name, v in values.items():
         norm = fit_normaliser(v[c], rate_c)
         d = norm.difficulty(v)
         difficulty[name] = d
-        row = _metric_row(d[c], rate_c, st.pairs, keys_c, n_boot, seed)
-        row["compute_time_s"] = None if name == SETUP_MODEL else _mean_time(maps, map_ids, name)
+        row, agree[name] = _metric_row(d[c], rate_c, st.pairs, keys_c, n_boot, seed)
+        row["compute_time_s"] = None if name in (SETUP_MODEL, BASELINE_MODEL) else _mean_time(maps, map_ids, name)
         row["normalisation"] = norm.as_dict()
+        if has_fit:
+            agree_fit[name] = agreement(d[c], fitted_target[c], keys_c, n_boot, seed)
+            row["fitted"] = agreement_dict(agree_fit[name])
         rows[name] = row
+    base_rows = [n for n in (SETUP_MODEL, *BASELINES, BASELINE_MODEL) if n in rows]
+    for name, row in rows.items():
+        row["kind"] = "baseline" if name in base_rows else "metric"
+        if name in base_rows:
+            continue
+        comps = {b: compare(agree[name], agree[b], n_boot, seed) for b in base_rows}
+        row["vs_baselines"] = comps
+        row["beats_baselines"] = verdict(comps)
+        row["beats_baselines_within_setup"] = verdict(comps, "within_ci95")
+        if has_fit:
+            fc = {b: compare(agree_fit[name], agree_fit[b], n_boot, seed) for b in base_rows}
+            row["fitted"]["vs_baselines"] = fc
+            row["fitted"]["beats_baselines"] = verdict(fc)
+            row["fitted"]["beats_baselines_within_setup"] = verdict(fc, "within_ci95")
 
     band_name = next((n for n in BAND_METRICS if n in difficulty), None)
     bands = None
@@ -222,6 +303,10 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         "n_boot": n_boot, "seed": int(seed),
         "metrics": rows,
         "setup_model": {**_fit_dict(setup_fit, "pooled success rate per map"), "rows": "metrics.setup_model"},
+        "baselines": {"rows": base_rows, "flux_model": None if baseline_fit is None else
+                      {"features": varying, "coefficients": [float(x) for x in baseline_fit.coefficients],
+                       "r2": baseline_fit.r2, "n_maps": baseline_fit.n}},
+        "fitted_difficulty": fitted_summary,
         "success": _success_block(st, datasets, map_ids),
         "within_setup_reliability": within_setup_reliability(rate_c, st.n[c], keys_c),
         "sigma_bands": bands,
@@ -263,13 +348,44 @@ def format_table(report: dict) -> str:
     lines = [f"Controlled dataset: {report['controlled_dataset']}  "
              f"({report['datasets'].get(report['controlled_dataset'], 0)} maps, {len(report['pairs'])} planner "
              f"pairs, {report['n_boot']} bootstrap draws)", f"Sign: {report['sign_convention']}", ""]
-    head = f"{'Metric':<24} {'SRCC':>15} {'95% CI':>17} {'within-setup':>13} {'CV':>15} {'time [s]':>9}"
+    base = [n for n in (report.get("baselines") or {}).get("rows", []) if n in report["metrics"]]
+    best = max(base, key=lambda n: -math.inf if report["metrics"][n]["srcc_mean"] is None
+               else report["metrics"][n]["srcc_mean"]) if base else None
+    head = (f"{'Metric':<24} {'SRCC':>15} {'95% CI':>17} {'within-setup':>13} {'fitted':>7} "
+            f"{'vs best baseline [95% CI]':>27} {'CV':>15} {'time [s]':>9}")
     lines += [head, "-" * len(head)]
     for name, r in report["metrics"].items():
         ci = r["srcc_ci95"]
+        vs = (r.get("vs_baselines") or {}).get(best) if best else None
+        if vs is not None:
+            mark = {True: " *", False: "", None: ""}[r.get("beats_baselines")]
+            cmp = f"{_term(vs['diff'])} [{_f(vs['ci95'][0]):>6}, {_f(vs['ci95'][1]):>6}]{mark}"
+        else:
+            cmp = "(baseline)" if r.get("kind") == "baseline" else "-"
+        fitted = (r.get("fitted") or {}).get("srcc")
         lines.append(f"{name:<24} {_f(r['srcc_mean']):>7} +- {_f(r['srcc_std']):<5} "
-                     f"[{_f(ci[0]):>6}, {_f(ci[1]):>6}]  {_f(r['within_setup_srcc']):>12} "
-                     f"{_f(r['cv_mean']):>7} +- {_f(r['cv_std']):<5} {_f(r['compute_time_s'], '.2f'):>9}")
+                     f"[{_f(ci[0]):>6}, {_f(ci[1]):>6}]  {_f(r['within_setup_srcc']):>12} {_f(fitted):>7} "
+                     f"{cmp:>27} {_f(r['cv_mean']):>7} +- {_f(r['cv_std']):<5} {_f(r['compute_time_s'], '.2f'):>9}")
+    if base:
+        beats = [n for n, r in report["metrics"].items() if r.get("beats_baselines")]
+        beats_w = [n for n, r in report["metrics"].items() if r.get("beats_baselines_within_setup")]
+        lines += ["", f"Baselines (need no simulation): {', '.join(base)}; best across maps: {best}. "
+                      "'fitted': SRCC against the fitted difficulty (1PL). '*': beats every baseline (95% CI of the "
+                      "paired SRCC difference above 0).",
+                  f"Beats every baseline across maps: {', '.join(beats) if beats else 'no metric'}; within setups: "
+                  f"{', '.join(beats_w) if beats_w else 'no metric'}."]
+    fd = report.get("fitted_difficulty")
+    if fd:
+        lines += ["", f"Fitted difficulty: {fd['model']} ({fd['method']}, {fd['n_items']} maps). Planner "
+                      "abilities (logits; comparable across maps of different difficulty):"]
+        for name, a in sorted(fd["respondents"].items(), key=lambda kv: -kv[1]["ability"]):
+            lines.append(f"  {name:<44} {a['ability']:+.3f} +- {a['se']:.3f}  ({a['trials']} trials)")
+        t = fd.get("tasks")
+        if t and "n_tasks" in t:
+            lines.append(f"  Tasks (map, start, goal) as items ({t['method']}, {t['n_tasks']} tasks): difficulty sd "
+                         f"{_f(t['difficulty_sd'])}, within maps {_f(t['within_map_sd'])} (share of variance "
+                         f"{_f(t['within_map_share_of_variance'])}, {_f(t['within_map_share_noise_corrected'])} "
+                         f"after the fit's own noise; mean se {_f(t['mean_se'])})")
     rel = report.get("within_setup_reliability") or {}
     if rel.get("n_setups"):
         lines += ["", f"Within-setup reliability of per-map success: {_f(rel['mean_reliability'], '.2f')} (mean over "

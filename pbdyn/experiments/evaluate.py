@@ -9,6 +9,14 @@ from pbdyn.errors import ConfigError
 from pbdyn.experiments.store import ResultsStore
 
 
+def _task(row: dict) -> str | None:
+    """A trial's task label "start->goal" (m, as stored), or None when the row lacks them."""
+    start, goal = row.get("start"), row.get("goal")
+    if start is None or goal is None:
+        return None
+    return f"{','.join(f'{float(x):g}' for x in start)}->{','.join(f'{float(x):g}' for x in goal)}"
+
+
 def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], str]:
     """(trials, maps, controlled dataset name) from one or more stores: the first store's scenario is the
     reference (controlled) set, the others are compared with it (e.g. the uncontrolled sets). Map ids are prefixed
@@ -47,7 +55,8 @@ def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], 
             trials.append({"map_id": mid, "pair": r.get("planner_label"), "trajectory": r.get("planner"),
                            "gaze": r.get("gaze"), "mav_speed": r.get("mav_speed"), "outcome": r.get("outcome"),
                            "obstacle_count": r.get("obstacle_count"), "obstacle_radius": r.get("obstacle_radius"),
-                           "obstacle_speed": r.get("obstacle_speed"), "dataset": name})
+                           "obstacle_speed": r.get("obstacle_speed"), "dataset": name,
+                           "task": _task(r)})
     if not trials:
         raise ConfigError("RESULTS", "holds no trials", [str(p) for p in paths])
     return trials, maps, names[0]

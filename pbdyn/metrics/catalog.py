@@ -21,7 +21,9 @@ class MetricInfo:
     (HARDER or EASIER: how raw values relate to difficulty), equation (thesis eq.), module (implementation).
     dense: its dense-grid variant; sparse: for a dense variant, the metric it densifies. backend: takes the
     survivability ``backend`` parameter. table_row: its row in thesis table 4-5 (None: not in the table; the batch
-    computes exactly the table's metrics per map). thesis_time_s: the table's compute time per map (s).
+    computes the table's metrics and the baselines per map). thesis_time_s: the table's compute time per map (s).
+    baseline: a closed-form baseline that needs no simulation (pbdyn.metrics.baselines); every metric is judged
+    against these (DESIGN.md "Difficulty: what counts as evidence").
     """
 
     name: str
@@ -35,6 +37,7 @@ class MetricInfo:
     backend: bool = False
     table_row: int | None = None
     thesis_time_s: float | None = None
+    baseline: bool = False
 
 
 _M = "pbdyn.metrics."
@@ -56,6 +59,8 @@ METRIC_TABLE: tuple[MetricInfo, ...] = (
                sparse="survivability", backend=True, table_row=5, thesis_time_s=90.0),
     MetricInfo("global_survivability", "global survivability", "s", EASIER, "3-7", _M + "survivability",
                backend=True, table_row=6, thesis_time_s=20.0),
+    MetricInfo("flux", "swept-area rate (baseline)", "1/s", HARDER, "-", _M + "baselines", baseline=True),
+    MetricInfo("static_share", "static share (baseline)", "1", HARDER, "-", _M + "baselines", baseline=True),
 )
 """Every metric, in the thesis' chapter 3 order (sparse metric, then its dense variant)."""
 
@@ -66,7 +71,10 @@ SPARSE: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.sparse is None
 DENSE: dict[str, str] = {m.name: m.dense for m in METRIC_TABLE if m.dense}
 """Sparse metric -> its dense variant (`pbdyn metrics --dense`)."""
 BACKEND_METRICS: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.backend)
-BATCH: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.table_row is not None)
-"""The metrics of thesis table 4-5, computed once per map by `pbdyn batch`."""
-TABLE_ORDER: tuple[str, ...] = tuple(sorted(BATCH, key=lambda n: INFO[n].table_row))
+BATCH: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.table_row is not None or m.baseline)
+"""The metrics of thesis table 4-5 and the baselines, computed once per map by `pbdyn batch`."""
+BASELINES: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.baseline)
+"""The closed-form baselines (pbdyn.metrics.baselines)."""
+TABLE_ORDER: tuple[str, ...] = tuple(sorted((n for n in BATCH if INFO[n].table_row is not None),
+                                            key=lambda n: INFO[n].table_row))
 """Row order of thesis table 4-5 (the evaluation report's order)."""

@@ -1,0 +1,97 @@
+"""A metric's rank agreement with a target (success rates, or the fitted difficulty), and whether it beats the
+baselines that need no simulation (DESIGN.md "Difficulty: what counts as evidence").
+
+Conventions (those of pbdyn.analysis.report): a metric enters as its difficulty d [maps] (high = hard); the target
+is a rate-like matrix [maps, k] (high = easy: success rates per pair, or minus the fitted difficulty as one column);
+srcc = -Srcc(d, target), averaged over the k columns, positive when the metric ranks maps as the target does.
+
+Comparisons are paired: every row is bootstrapped over the same resampled maps (the same Generator seed), so the
+difference of two rows per draw gives the interval of their difference; within setups the per-(setup, column)
+values of two rows are differenced and the mean difference is bootstrapped over setups.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pbdyn.analysis.srcc import bootstrap_mean_srcc, mean_std, pair_srcc, percentile_ci, within_group_srcc
+
+MIN_SETUP_MAPS = 3
+"""Fewest maps of one setup for the within-setup Srcc."""
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """One row's agreement with one target. srcc (mean over the target's columns), per_column [k], draws [n_boot]
+    (bootstrap over maps), within [setups, k] (per setup and column; NaN where undefined), within_mean,
+    within_std, n_setups."""
+
+    srcc: float
+    std: float
+    per_column: np.ndarray
+    draws: np.ndarray
+    within: np.ndarray
+    within_mean: float
+    within_std: float
+    n_setups: int
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        """Percentile 95% interval of the bootstrap draws."""
+        return percentile_ci(self.draws)
+
+
+def agreement(d: np.ndarray, target: np.ndarray, keys: Sequence[str], n_boot: int, seed: int) -> Agreement:
+    """Agreement of difficulty ``d`` [maps] with ``target`` [maps, k] (module doc); keys: setup key per map."""
+    target = np.asarray(target, float).reshape(len(d), -1)
+    per = -pair_srcc(d, target)
+    mean, std = mean_std(per)
+    draws = -bootstrap_mean_srcc(d, target, np.random.default_rng(seed), n_boot) if n_boot > 0 else np.empty(0)
+    within, n_setups = within_group_srcc(d, target, keys, MIN_SETUP_MAPS)
+    within = -within.reshape(n_setups, target.shape[1]) if n_setups else np.empty((0, target.shape[1]))
+    w_mean, w_std = mean_std(within.reshape(-1))
+    return Agreement(mean, std, per, draws, within, w_mean, w_std, n_setups)
+
+
+def compare(a: Agreement, b: Agreement, n_boot: int, seed: int) -> dict:
+    """Row a minus row b (same maps, same target, same bootstrap draws): across maps ("diff", "ci95") and within
+    setups ("within_diff": the mean over the (setup, column) entries defined for both, like within_mean;
+    "within_ci95": that mean bootstrapped over setups, from numpy.random.default_rng(seed))."""
+    nan2 = [float("nan")] * 2
+    out = {"diff": a.srcc - b.srcc, "ci95": list(percentile_ci(a.draws - b.draws)) if a.draws.size else nan2,
+           "within_diff": float("nan"), "within_ci95": nan2}
+    if not (a.within.size and a.within.shape == b.within.shape):
+        return out
+    diff = a.within - b.within
+    ok = np.isfinite(diff)
+    sums = np.where(ok, diff, 0.0).sum(axis=1)
+    counts = ok.sum(axis=1).astype(float)
+    if counts.sum() == 0:
+        return out
+    out["within_diff"] = float(sums.sum() / counts.sum())
+    if n_boot > 0 and np.count_nonzero(counts) >= 2:
+        rng = np.random.default_rng(seed)
+        idx = rng.integers(0, sums.shape[0], size=(n_boot, sums.shape[0]))
+        tot = counts[idx].sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            draws = np.where(tot > 0, sums[idx].sum(axis=1) / np.maximum(tot, 1.0), np.nan)
+        out["within_ci95"] = list(percentile_ci(draws))
+    return out
+
+
+def verdict(comparisons: dict[str, dict], key: str = "ci95") -> bool | None:
+    """True when the metric beats every baseline (the interval of each difference lies above 0), False when some
+    interval does not, None without baselines or intervals."""
+    los = [c[key][0] for c in comparisons.values() if c.get(key) and np.isfinite(c[key][0])]
+    if not los or len(los) < len(comparisons):
+        return None
+    return bool(min(los) > 0)
+
+
+def agreement_dict(a: Agreement) -> dict:
+    """The JSON-able summary of an Agreement (draws and per-setup values left out)."""
+    return {"srcc": a.srcc, "srcc_std": a.std, "ci95": list(a.ci95), "within_setup_srcc": a.within_mean,
+            "within_setup_srcc_std": a.within_std, "within_setup_n_setups": a.n_setups}

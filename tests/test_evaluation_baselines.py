@@ -1,0 +1,102 @@
+"""`pbdyn evaluate` beside its baselines and the fitted difficulty (pbdyn.analysis.report, .validation): on the
+synthetic study of test_analysis (a hidden per-map difficulty; survivability sees all of it, flux only the setup)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import spearmanr
+
+from pbdyn.analysis.report import SETUP_MODEL, evaluate, format_table
+from pbdyn.analysis.validation import agreement, compare
+from tests.test_analysis import PAIRS, controlled_ids, synthetic
+
+
+def _with_flux(maps):
+    """Each map plus a closed-form flux baseline: a function of its setup (n, r, v) only, harder = higher."""
+    out = {}
+    for k, e in maps.items():
+        s = e["setup"]
+        r = s["radius"] if not isinstance(s["radius"], dict) else 1.0
+        flux = s["count"] * 2.0 * (r + 1.0) * e["mean_obstacle_speed"] / 2500.0
+        out[k] = {**e, "metrics": {**e["metrics"], "flux": flux}}
+    return out
+
+
+@pytest.fixture(scope="module")
+def study():
+    trials, maps, hidden = synthetic(seed=1)
+    maps = _with_flux(maps)
+    for i, t in enumerate(trials):                       # two start/goal tasks per map
+        t["task"] = ("4,4->46,46", "46,46->4,4")[i % 2]
+    return trials, maps, hidden, evaluate(trials, maps, n_boot=300, seed=5)
+
+
+def test_rows_are_marked_and_compared_with_every_baseline(study):
+    _, _, _, rep = study
+    m = rep["metrics"]
+    assert rep["baselines"]["rows"] == [SETUP_MODEL, "flux"]
+    assert m["flux"]["kind"] == m[SETUP_MODEL]["kind"] == "baseline"
+    assert m["survivability"]["kind"] == "metric" and "vs_baselines" not in m["flux"]
+    for name in ("survivability", "density", "vo_feasibility"):
+        for base in (SETUP_MODEL, "flux"):
+            c = m[name]["vs_baselines"][base]
+            assert c["diff"] == pytest.approx(m[name]["srcc_mean"] - m[base]["srcc_mean"], abs=1e-12)
+            assert c["ci95"][0] <= c["diff"] <= c["ci95"][1]
+            # within setups both baselines are constant (SRCC 0): the difference is the metric's own
+            assert c["within_diff"] == pytest.approx(m[name]["within_setup_srcc"], abs=1e-9)
+    # survivability sees the per-map part of the hidden difficulty: it beats both, across maps and within setups
+    assert m["survivability"]["beats_baselines"] is True
+    assert m["survivability"]["beats_baselines_within_setup"] is True
+    # density (setup only) and a random metric do not
+    for name in ("density", "vo_feasibility"):
+        assert m[name]["beats_baselines"] is False and m[name]["beats_baselines_within_setup"] is False
+
+
+def test_paired_comparison_by_hand():
+    rng = np.random.default_rng(0)
+    h = rng.normal(size=40)
+    rate = (-h[:, None] + rng.normal(scale=0.3, size=(40, 3)))
+    keys = [str(i // 4) for i in range(40)]
+    good, noisy = agreement(h, rate, keys, 400, 1), agreement(h + rng.normal(scale=2.0, size=40), rate, keys, 400, 1)
+    c = compare(good, noisy, 400, 2)
+    assert c["diff"] == pytest.approx(good.srcc - noisy.srcc)
+    np.testing.assert_allclose(sorted(c["ci95"]), np.percentile(good.draws - noisy.draws, [2.5, 97.5]))
+    assert c["ci95"][0] > 0                                   # the exact metric beats the noisy one
+    same = compare(good, good, 400, 2)
+    assert same["diff"] == 0.0 and same["ci95"] == [0.0, 0.0] and same["within_diff"] == 0.0
+
+
+def test_fitted_difficulty_recovers_the_hidden_one_and_the_planners_order(study):
+    trials, maps, hidden, rep = study
+    fd = rep["fitted_difficulty"]
+    assert fd["method"] == "statsmodels GLM" and fd["converged"]
+    ids = [m for m in controlled_ids(maps)]
+    b = np.array([fd["maps"][m]["difficulty"] for m in ids])
+    h = np.array([hidden[m] for m in ids])
+    assert spearmanr(b, h).statistic > 0.85
+    slope = np.polyfit(h, b, 1)[0]                            # the simulation's logit slope is 1.1 per unit of h
+    assert 0.8 < slope < 1.4
+    # ability grows with the pair index (+0.4 logits per index in the simulation); MAV speed plays no part
+    ab = fd["respondents"]
+    per_pair = [np.mean([ab[f"{p} @ {v:g} m/s"]["ability"] for v in (2.0, 4.0)]) for p in PAIRS]
+    assert np.all(np.diff(per_pair) > 0)
+    assert per_pair[-1] - per_pair[0] == pytest.approx(1.2, abs=0.35)
+    # every row's agreement with the fitted difficulty: survivability the best, as against success
+    m = rep["metrics"]
+    assert m["survivability"]["fitted"]["srcc"] > 0.85 > m["density"]["fitted"]["srcc"]
+    assert m["survivability"]["fitted"]["beats_baselines"] is True
+    # the tasks were labelled the same on every map and drawn from one model: little within-map spread
+    t = fd["tasks"]
+    assert t["n_tasks"] == 2 * len(maps) and t["within_map_share_noise_corrected"] < 0.2
+
+
+def test_table_prints_baselines_verdicts_and_abilities(study):
+    *_, rep = study
+    text = format_table(rep)
+    assert "vs best baseline" in text and "Baselines (need no simulation): setup_model, flux" in text
+    assert "Beats every baseline across maps: survivability" in text
+    assert "Planner abilities" in text and "@ 4 m/s" in text and "Tasks (map, start, goal)" in text
+    assert math.isfinite(rep["metrics"]["survivability"]["fitted"]["ci95"][0])
