@@ -116,6 +116,32 @@ def _respondent(pair: str, speed: float) -> str:
     return f"{pair} @ {speed:g} m/s"
 
 
+TASK_FIELDS = {"task_survivability": "task_survivability_s", "task_flux": "task_flux_per_s"}
+"""Task metrics (pbdyn.metrics.task) as trial-level predictors: name -> the trial row's field."""
+
+
+def _trial_level(ta, trials: list[dict], difficulty: dict, controlled: np.ndarray) -> dict | None:
+    """Held-out trial-level scores (pbdyn.analysis.trial_level) of every row's map difficulty and of the task
+    metrics, on the flown trials of the controlled maps; None with fewer than 2 such maps or one outcome only."""
+    from pbdyn.analysis.trial_level import trial_level
+
+    sel = np.flatnonzero(ta.flown & controlled[ta.map_idx])
+    if sel.size == 0 or np.unique(ta.map_idx[sel]).size < 2:
+        return None
+    success = ta.is_outcome(Outcome.SUCCESS)[sel].astype(float)
+    if np.unique(success).size < 2:
+        return None
+    resp_names = [_respondent(ta.pairs[p], v) for p, v in zip(ta.pair_idx[sel], ta.mav_speed[sel])]
+    _, resp = np.unique(np.asarray(resp_names, dtype=str), return_inverse=True)
+    preds = {name: d[ta.map_idx[sel]] for name, d in difficulty.items()}
+    for name, key in TASK_FIELDS.items():
+        v = np.array([np.nan if trials[i].get(key) is None else float(trials[i][key]) for i in sel])
+        if np.isfinite(v).any():
+            preds[name] = v
+    return {"method": "logistic regression of success on [predictor, planner indicators], held-out maps "
+                      "(scikit-learn, GroupKFold)", "predictors": trial_level(success, resp, ta.map_idx[sel], preds)}
+
+
 def fitted_difficulty(ta, trials: list[dict], map_ids: tuple[str, ...]) -> tuple[np.ndarray, dict]:
     """The 1PL fit of the flown trials (pbdyn.analysis.irt): (difficulty [maps] (logits; NaN for a map without
     flown trials), JSON-able summary with the planners' abilities, each map's difficulty and se, and the task-level
@@ -291,6 +317,7 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         regression = _fit_dict(fit_linear(feats[c], d[c]), f"{band_name} difficulty [0, 10] (eq. 4-10, 4-11)")
         regression_raw = _fit_dict(fit_linear(feats[c], values[band_name][c]), f"{band_name} raw value")
 
+    trial_block = _trial_level(ta, trials, difficulty, c)
     outcome_counts = np.bincount(ta.outcome_idx, minlength=len(OUTCOMES))
     report = {
         "sign_convention": SIGN_CONVENTION,
@@ -307,6 +334,7 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
                       {"features": varying, "coefficients": [float(x) for x in baseline_fit.coefficients],
                        "r2": baseline_fit.r2, "n_maps": baseline_fit.n}},
         "fitted_difficulty": fitted_summary,
+        "trial_level": trial_block,
         "success": _success_block(st, datasets, map_ids),
         "within_setup_reliability": within_setup_reliability(rate_c, st.n[c], keys_c),
         "sigma_bands": bands,
@@ -386,6 +414,13 @@ def format_table(report: dict) -> str:
                          f"{_f(t['difficulty_sd'])}, within maps {_f(t['within_map_sd'])} (share of variance "
                          f"{_f(t['within_map_share_of_variance'])}, {_f(t['within_map_share_noise_corrected'])} "
                          f"after the fit's own noise; mean se {_f(t['mean_se'])})")
+    tl = report.get("trial_level")
+    if tl:
+        lines += ["", "Trial level (held-out maps): AUC and log-loss of predicting each trial's success from the "
+                      "predictor and the planner; gain = log-loss of 'planners only' minus the model's (> 0 helps):"]
+        for name, r in tl["predictors"].items():
+            lines.append(f"  {name:<26} AUC {_f(r['auc'])}  log-loss {_f(r['log_loss'], '.4f')}  gain "
+                         f"{_f(r['log_loss_gain'], '+.4f')}  ({r['n_trials']} trials)")
     rel = report.get("within_setup_reliability") or {}
     if rel.get("n_setups"):
         lines += ["", f"Within-setup reliability of per-map success: {_f(rel['mean_reliability'], '.2f')} (mean over "

@@ -56,7 +56,8 @@ def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], 
                            "gaze": r.get("gaze"), "mav_speed": r.get("mav_speed"), "outcome": r.get("outcome"),
                            "obstacle_count": r.get("obstacle_count"), "obstacle_radius": r.get("obstacle_radius"),
                            "obstacle_speed": r.get("obstacle_speed"), "dataset": name,
-                           "task": _task(r)})
+                           "task": _task(r), "task_survivability_s": r.get("task_survivability_s"),
+                           "task_flux_per_s": r.get("task_flux_per_s")})
     if not trials:
         raise ConfigError("RESULTS", "holds no trials", [str(p) for p in paths])
     return trials, maps, names[0]

@@ -15,6 +15,9 @@ class TrialResult:
     pbdyn.sim.start; flight_time_s counts from it). max_speed_mps, max_accel_mps2: the largest executed |v| and
     acceleration (max of the samples' |a| and |v_k+1 - v_k| / dt); limits_exceeded: "" when both stayed within
     v_max and a_max, else which limit was exceeded and by how much (only possible under thesis_program).
+    task_survivability_s, task_flux_per_s: the task's difficulty on the flown map from the trial's start
+    (pbdyn.metrics.task: corridor survivability, s, higher = easier; corridor flux, 1/s, higher = harder); None
+    where the corridor has no sample.
     """
 
     gaze: str
@@ -49,6 +52,8 @@ class TrialResult:
     max_speed_mps: float = 0.0
     max_accel_mps2: float = 0.0
     limits_exceeded: str = ""
+    task_survivability_s: float | None = None
+    task_flux_per_s: float | None = None
     wall_time_s: float = 0.0
     wall_timings: dict = field(default_factory=dict)
 

@@ -109,7 +109,29 @@ def _result(spec: TrialSpec, rollout: Rollout, env: TrialEnv, agent: Agent, grid
         planner_fingerprint=_fingerprint(spec), profile=sc.profile, start_delay_s=round(env.start.time_s, 10),
         max_speed_mps=env.max_speed, max_accel_mps2=env.max_accel,
         limits_exceeded=limits_exceeded(env.max_speed, env.max_accel, env.limits.v_max, env.limits.a_max),
-        wall_time_s=wall, wall_timings=timings)
+        **task_metrics(spec, env.rollout, env.start.time_s), wall_time_s=wall, wall_timings=timings)
+
+
+TASK_T_MAX_S = 12.0
+"""Horizon (s) of the task metrics (survivability's T_max, thesis 4-1); shortened to what the rollout covers."""
+
+
+def task_metrics(spec: TrialSpec, rollout: Rollout, start_time: float) -> dict:
+    """The trial's task metrics (pbdyn.metrics.task) on the flown ``rollout`` from ``start_time`` (s): the
+    TrialResult fields task_survivability_s and task_flux_per_s (None where undefined)."""
+    from pbdyn.metrics.cached import resolve_backend
+    from pbdyn.metrics.task import corridor_flux, corridor_survivability
+
+    sc = spec.scenario
+    t_max = min(TASK_T_MAX_S, rollout.horizon - float(start_time))
+    if t_max <= 0:
+        return {"task_survivability_s": None, "task_flux_per_s": None}
+    r = sc.drone.radius
+    surv, _ = corridor_survivability(rollout, spec.start, spec.goal, start_time=start_time, mav_radius=r,
+                                     t_max=t_max, backend=resolve_backend(sc, "auto"))
+    flux, _ = corridor_flux(rollout, spec.start, spec.goal, start_time=start_time, mav_radius=r, horizon=t_max)
+    return {"task_survivability_s": None if not np.isfinite(surv) else round(surv, 10),
+            "task_flux_per_s": None if not np.isfinite(flux) else round(flux, 12)}
 
 
 LIMIT_TOL = 1e-6
