@@ -100,3 +100,30 @@ def test_table_prints_baselines_verdicts_and_abilities(study):
     assert "Beats every baseline across maps: survivability" in text
     assert "Planner abilities" in text and "@ 4 m/s" in text and "Tasks (map, start, goal)" in text
     assert math.isfinite(rep["metrics"]["survivability"]["fitted"]["ci95"][0])
+
+
+def test_trial_level_scores_a_real_predictor_above_a_random_one():
+    from pbdyn.analysis.trial_level import REFERENCE, trial_level
+
+    rng = np.random.default_rng(3)
+    n_maps, per = 60, 40
+    h = rng.normal(size=n_maps)                                  # map difficulty
+    task = rng.normal(size=(n_maps, per))                        # task difficulty on top
+    map_idx = np.repeat(np.arange(n_maps), per)
+    resp = np.tile(np.arange(2), n_maps * per // 2)
+    logit = 0.5 + 0.8 * resp - 1.0 * h[map_idx] - 1.5 * task.reshape(-1)
+    y = (rng.random(logit.shape) < 1.0 / (1.0 + np.exp(-logit))).astype(float)
+    out = trial_level(y, resp, map_idx, {"map": h[map_idx], "task": task.reshape(-1),
+                                         "noise": rng.normal(size=y.size),
+                                         "partial": np.where(np.arange(y.size) % 2 == 0, h[map_idx], np.nan)})
+    assert list(out)[0] == REFERENCE and out[REFERENCE]["n_trials"] == y.size
+    assert out["task"]["log_loss_gain"] > out["map"]["log_loss_gain"] > 0.02
+    assert abs(out["noise"]["log_loss_gain"]) < 0.01 and out["task"]["auc"] > out[REFERENCE]["auc"]
+    assert out["partial"]["n_trials"] == y.size // 2 and out["partial"]["log_loss_gain"] > 0.02
+
+
+def test_evaluate_reports_the_trial_level_block(study):
+    *_, rep = study
+    preds = rep["trial_level"]["predictors"]
+    assert "survivability" in preds and "flux" in preds and SETUP_MODEL in preds
+    assert preds["survivability"]["log_loss_gain"] > preds["vo_feasibility"]["log_loss_gain"]
