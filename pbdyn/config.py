@@ -191,6 +191,52 @@ class RVOParams:
 
 
 @dataclass(frozen=True)
+class StructureConfig:
+    """How a map is built at fixed (n, r, v) (pbdyn.world.structure; README "Structured worlds").
+
+    layout: "uniform" (centres uniform) or "clustered" (centres drawn around ``clusters`` centres uniform in the
+    arena, Gaussian with sd ``cluster_spread`` m per axis). headings: None (the scenario's obstacles.headings),
+    "uniform", "even" or "crossing" (each moving obstacle is aimed across a start/goal segment: a segment of the
+    candidate pairs and a point on it drawn uniformly, a direction across it, and the obstacle placed so that it
+    reaches the point after a time uniform in [0, crossing_window_s]). static_fraction: the share of the obstacles
+    that do not move (round(static_fraction n) of them, chosen at random); the others keep the setup speed.
+    radius_spread, speed_spread: coefficients of variation of mean-preserving gamma distributions of the radii and
+    speeds (0: the setup's values and obstacles.radius_jitter). walls: static walls across the arena (boxes
+    ``wall_thickness`` m thick, full height in 3D), each split by ``gaps_per_wall`` gaps ``wall_gap`` m wide, placed
+    clear of the start/goal candidates. motion: None (the scenario's) or "cvm" / "rvo"."""
+
+    LAYOUTS: ClassVar[tuple[str, ...]] = ("uniform", "clustered")
+    HEADINGS: ClassVar[tuple[str, ...]] = ("uniform", "even", "crossing")
+
+    name: str
+    layout: str = "uniform"
+    clusters: int = 3
+    cluster_spread: float = 4.0
+    headings: str | None = None
+    crossing_window_s: float = 12.0
+    static_fraction: float = 0.0
+    radius_spread: float = 0.0
+    speed_spread: float = 0.0
+    walls: int = 0
+    wall_gap: float = 4.0
+    wall_thickness: float = 0.5
+    gaps_per_wall: int = 1
+    motion: str | None = None
+
+
+BUILTIN_STRUCTURES: dict[str, dict] = {
+    "uniform": {},
+    "clustered": {"layout": "clustered"},
+    "crossing": {"headings": "crossing"},
+    "walls": {"walls": 2},
+    "mixed": {"static_fraction": 0.5},
+    "spread": {"radius_spread": 0.5, "speed_spread": 0.5},
+    "rvo": {"motion": "rvo"},
+}
+"""Named structures usable in obstacles.structure without a table of their own (README "Structured worlds")."""
+
+
+@dataclass(frozen=True)
 class ObstacleConfig:
     """Generated dynamic obstacles. count/radius/speed are grids (tuples); radius/speed entries may be Ranges.
     headings: "uniform" (each obstacle's direction uniformly random) or "even" (the thesis program's: obstacle k of
@@ -208,6 +254,14 @@ class ObstacleConfig:
     grid_order: tuple[str, ...] = ("count", "radius", "speed")
     rvo: RVOParams = RVOParams()
     headings: str = "uniform"
+    structure: tuple[str, ...] = ()
+    structures: tuple[StructureConfig, ...] = ()
+
+    def structure_of(self, name: str | None) -> StructureConfig | None:
+        """The StructureConfig called ``name`` (None for None)."""
+        if name is None:
+            return None
+        return next(s for s in self.structures if s.name == name)
 
 
 @dataclass(frozen=True)
@@ -413,6 +467,9 @@ class Scenario:
         d.pop("source", None)
         if not self.bodies:
             d.pop("bodies", None)
+        if not self.obstacles.structure:   # (scenarios without structures resolve as before the fields existed)
+            d["obstacles"].pop("structure", None)
+            d["obstacles"].pop("structures", None)
         return json.loads(json.dumps(d, default=_json_default))
 
     def setups(self) -> list[dict]:
@@ -528,7 +585,8 @@ def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: b
 
 def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
-    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo", "headings")
+    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo", "headings",
+            "structure", "structures")
     _no_unknown(t, keys, "obstacles")
     d = _defaults(ObstacleConfig)
     count = _grid_values(t["count"], "obstacles.count", integer=True, lo=0) if "count" in t else d["count"]
@@ -573,7 +631,83 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     limits.check_limit("obstacles.rvo.contact_iterations", "contact iterations", rvo.contact_iterations,
                        limits.MAX_RVO_CONTACT_ITERATIONS, rvo.contact_iterations)
     headings = _string(t, "headings", "obstacles", d["headings"], ObstacleConfig.HEADINGS)
-    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo, headings)
+    structure, structures = _parse_structures(t, motion)
+    if structure:
+        order = order if "structure" in order else order + ("structure",)
+        limits.check_limit("obstacles", "setups (the product of the lengths of count, radius, speed and structure)",
+                           len(count) * len(radius) * len(speed) * len(structure), limits.MAX_SETUPS,
+                           {"count": len(count), "radius": len(radius), "speed": len(speed),
+                            "structure": len(structure)})
+    else:
+        order = tuple(k for k in order if k != "structure")
+    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo, headings, structure,
+                          structures)
+
+
+def _parse_structure(name: str, t: Mapping, where: str) -> StructureConfig:
+    """One structure: the built-in named ``name`` (if any) with the table ``t`` applied over it."""
+    d = {**_defaults(StructureConfig), **BUILTIN_STRUCTURES.get(name, {})}
+    allowed = tuple(k for k in d if k != "name")
+    _no_unknown(t, allowed, where)
+    layout = _string(t, "layout", where, d["layout"], StructureConfig.LAYOUTS)
+    headings = t.get("headings", d["headings"])
+    if headings is not None:
+        headings = _string({"headings": headings}, "headings", where, "uniform", StructureConfig.HEADINGS)
+    motion = t.get("motion", d["motion"])
+    if motion is not None:
+        motion = _string({"motion": motion}, "motion", where, "cvm", MOTIONS)
+    frac = _number(t, "static_fraction", where, d["static_fraction"], lo=0.0)
+    if frac > 1.0:
+        raise ConfigError(_name(where, "static_fraction"), "must be in [0, 1]", frac)
+    walls = _integer(t, "walls", where, d["walls"], lo=0)
+    limits.check_limit(_name(where, "walls"), "walls", walls, limits.MAX_OBSTACLES, walls)
+    gaps = _integer(t, "gaps_per_wall", where, d["gaps_per_wall"], lo=1)
+    limits.check_limit(_name(where, "gaps_per_wall"), "gaps per wall", gaps, limits.MAX_OBSTACLES, gaps)
+    clusters = _integer(t, "clusters", where, d["clusters"], lo=1)
+    limits.check_limit(_name(where, "clusters"), "clusters", clusters, limits.MAX_OBSTACLES, clusters)
+    return StructureConfig(
+        name=name, layout=layout, clusters=clusters,
+        cluster_spread=_number(t, "cluster_spread", where, d["cluster_spread"], lo=0.0, lo_open=True),
+        headings=headings,
+        crossing_window_s=_number(t, "crossing_window_s", where, d["crossing_window_s"], lo=0.0, lo_open=True),
+        static_fraction=frac,
+        radius_spread=_number(t, "radius_spread", where, d["radius_spread"], lo=0.0),
+        speed_spread=_number(t, "speed_spread", where, d["speed_spread"], lo=0.0),
+        walls=walls, wall_gap=_number(t, "wall_gap", where, d["wall_gap"], lo=0.0, lo_open=True),
+        wall_thickness=_number(t, "wall_thickness", where, d["wall_thickness"], lo=0.0, lo_open=True),
+        gaps_per_wall=gaps, motion=motion)
+
+
+def _parse_structures(t: Mapping, motion: str) -> tuple[tuple[str, ...], tuple[StructureConfig, ...]]:
+    """(obstacles.structure grid values, the StructureConfigs they name), from obstacles.structure and the
+    [obstacles.structures.NAME] tables (names not given a table must be built-in)."""
+    tables = _table(t, "structures", "obstacles")
+    for name in tables:
+        if not isinstance(tables[name], Mapping):
+            raise ConfigError(f"obstacles.structures.{name}", "must be a table", tables[name])
+    if "structure" not in t:
+        if tables:
+            raise ConfigError("obstacles.structures", "is only used with obstacles.structure", dict(tables),
+                              show_value=False)
+        return (), ()
+    raw = t["structure"]
+    names = [raw] if isinstance(raw, str) else raw
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ConfigError("obstacles.structure", "must be a name or a non-empty array of names", raw)
+    if len(set(names)) != len(names):
+        raise ConfigError("obstacles.structure", "grid values must be distinct", raw)
+    out = []
+    for i, name in enumerate(names):
+        where = "obstacles.structure" if isinstance(raw, str) else f"obstacles.structure[{i}]"
+        if name not in tables and name not in BUILTIN_STRUCTURES:
+            raise ConfigError(where, f"unknown structure (built-in: {', '.join(BUILTIN_STRUCTURES)}; or define "
+                              f"[obstacles.structures.{name}])", name)
+        out.append(_parse_structure(name, tables.get(name, {}), f"obstacles.structures.{name}"))
+    unused = sorted(set(tables) - set(names))
+    if unused:
+        raise ConfigError(f"obstacles.structures.{unused[0]}", "is defined but not listed in obstacles.structure",
+                          unused[0])
+    return tuple(names), tuple(out)
 
 
 def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfig, ...]:
@@ -987,6 +1121,20 @@ def with_profile_defaults(doc: Mapping, profile: str) -> Mapping:
     return out
 
 
+WALL_GAP_MARGIN_M = 0.5
+"""The planners' safety margin a structure's wall gap must leave on each side of the MAV disc."""
+
+
+def _check_wall_gaps(obstacles: ObstacleConfig, drone: DroneConfig) -> None:
+    """ConfigError unless every structure's wall gaps pass the MAV disc plus WALL_GAP_MARGIN_M on each side."""
+    need = 2.0 * (drone.radius + WALL_GAP_MARGIN_M)
+    for st in obstacles.structures:
+        if st.walls and st.wall_gap < need:
+            raise ConfigError(f"obstacles.structures.{st.name}.wall_gap", f"must be >= {need:g} m (the MAV's "
+                              f"diameter plus a {WALL_GAP_MARGIN_M:g} m margin on each side) so that a gap is "
+                              "passable", st.wall_gap)
+
+
 def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     """Validate a parsed TOML document into a Scenario."""
     if not isinstance(doc, Mapping):
@@ -1014,6 +1162,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     tracking = _parse_tracking(doc)
     task = _parse_task(doc, world, drone)
     _check_static_candidates(static, task, drone)
+    _check_wall_gaps(obstacles, drone)
     planners = _parse_planners(doc)
     check = _string(doc, "collision_check", "", _defaults(Scenario)["collision_check"], COLLISION_CHECKS)
     _check_rollout_size(world, obstacles, bodies, task)

@@ -33,7 +33,7 @@ class TrialSpec:
     def resolved(self) -> dict:
         """The canonical, path- and version-free description of the trial (what config_hash hashes)."""
         sc = self.scenario.to_dict()
-        skip = {"count", "radius", "speed", "maps_per_setup", "grid_order"}
+        skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures"}
         if sc["obstacles"]["motion"] != "rvo":
             skip.add("rvo")
         obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
@@ -51,6 +51,8 @@ class TrialSpec:
                         "gaze_params": dict(self.planner.gaze_params)},
             "collision_check": self.scenario.collision_check, "profile": self.scenario.profile,
             **({"bodies": bodies_fingerprint(self.scenario)} if self.scenario.is_world else {}),
+            **({"structure": _structure_dict(self.scenario, self.map_spec)}
+               if "structure" in self.map_spec.setup else {}),
         }
 
     @cached_property
@@ -62,6 +64,13 @@ class TrialSpec:
     def seed(self) -> int:
         """A per-trial seed (sensor noise, planners that need randomness), derived from config_hash."""
         return stable_hash64(self.config_hash) >> 1
+
+
+def _structure_dict(scenario, map_spec) -> dict:
+    """The map's StructureConfig as plain data (what its trials' hashes include)."""
+    from dataclasses import asdict
+
+    return asdict(scenario.obstacles.structure_of(map_spec.setup["structure"]))
 
 
 def _parse_point(text: str | None, field_name: str, dims: int) -> tuple[float, ...] | None:

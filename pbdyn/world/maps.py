@@ -18,6 +18,8 @@ import numpy as np
 from pbdyn.config import Range, Scenario, _json_default, canonical_json
 from pbdyn.errors import ConfigError
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.structure import (cluster_centres, draw_radii_speeds, proposals, structure_of,
+                                   wall_bodies)
 from pbdyn.world.rvo import candidate_directions
 
 MAX_SPAWN_ATTEMPTS = 20000
@@ -130,10 +132,15 @@ def get_map(scenario: Scenario, index: int) -> MapSpec:
     return maps[index]
 
 
-def static_bodies(scenario: Scenario) -> tuple[StaticBody, ...]:
-    """The scenario's static obstacles as geometry."""
-    return tuple(StaticBody(s.kind, tuple(s.center), s.radius, tuple(s.size), float(np.deg2rad(s.yaw_deg)))
-                 for s in scenario.static_obstacles)
+def static_bodies(scenario: Scenario, spec: MapSpec | None = None) -> tuple[StaticBody, ...]:
+    """The scenario's static obstacles as geometry, plus (given the map ``spec``) its structure's walls
+    (pbdyn.world.structure)."""
+    out = tuple(StaticBody(s.kind, tuple(s.center), s.radius, tuple(s.size), float(np.deg2rad(s.yaw_deg)))
+                for s in scenario.static_obstacles)
+    st = structure_of(scenario, spec.setup) if spec is not None else None
+    if st is not None and st.walls:
+        out += wall_bodies(scenario, spec, st)
+    return out
 
 
 def _draw(value, rng: np.random.Generator, n: int, jitter: float) -> np.ndarray:
@@ -169,6 +176,9 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     centre within drone radius + 7 m = 8 m of the start). Radii, speeds and headings are drawn before the centres,
     so they do not depend on keep_out.
     """
+    st = structure_of(scenario, spec.setup)
+    if st is not None:
+        return _spawn_structured(scenario, spec, st, keep_out)
     rng = spec.rng()
     dims = scenario.world.dims
     size = np.asarray(scenario.world.size, dtype=float)
@@ -215,3 +225,51 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
                               f"cannot place {n} obstacles (radius ~{float(np.mean(radii)):.2f} m) without overlap "
                               f"(map {spec.index}, obstacle {i})", n)
     return centres, velocities, radii
+
+
+def _spawn_structured(scenario: Scenario, spec: MapSpec, st, keep_out) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """spawn_obstacles for a map with a structure (pbdyn.world.structure): radii and speeds (spreads, static
+    share), headings, then centres from the structure's proposals, rejection-sampled by the same rules (inside
+    the walls, no overlap, clear of the candidates or ``keep_out``, off the static bodies and walls)."""
+    rng = spec.rng()
+    dims = scenario.world.dims
+    size = np.asarray(scenario.world.size, dtype=float)
+    n = int(spec.setup["count"])
+    radii, speeds = draw_radii_speeds(scenario, spec, st, rng, n, _draw)
+    dirs = random_unit_vectors(rng, n, dims)
+    if (st.headings or scenario.obstacles.headings) == "even":
+        dirs = -candidate_directions(dims, n)
+    clusters = cluster_centres(scenario, st, rng) if st.layout == "clustered" else None
+    if keep_out is None:
+        cands = np.asarray(scenario.task.candidates, dtype=float).reshape(-1, dims)
+        gap, centre_rule = scenario.drone.radius + scenario.task.spawn_clearance, False
+    else:
+        cands = np.asarray(keep_out[0], dtype=float).reshape(-1, dims)
+        gap, centre_rule = scenario.drone.radius + float(keep_out[1]), True
+    bodies = static_bodies(scenario, spec)
+    centres = np.zeros((n, dims))
+    for i in range(n):
+        r = radii[i]
+        placed = False
+        for _ in range(MAX_SPAWN_ATTEMPTS // 64):
+            pts, heads = proposals(scenario, st, rng, i, r, speeds[i], clusters, 64)
+            ok = np.all((pts >= r) & (pts <= size - r), axis=1)
+            if i:
+                dist = np.linalg.norm(pts[:, None, :] - centres[None, :i, :], axis=-1)
+                ok &= np.all(dist >= radii[None, :i] + r, axis=1)
+            if cands.size:
+                dist = np.linalg.norm(pts[:, None, :] - cands[None, :, :], axis=-1)
+                ok &= np.all(dist > gap, axis=1) if centre_rule else np.all(dist >= r + gap, axis=1)
+            for b in bodies:
+                ok &= b.footprint_distance(pts) >= r
+            hit = np.flatnonzero(ok)
+            if hit.size:
+                centres[i] = pts[hit[0]]
+                if heads is not None:
+                    dirs[i] = heads[hit[0]]
+                placed = True
+                break
+        if not placed:
+            raise ConfigError("obstacles.count", f"cannot place {n} obstacles of structure {st.name!r} without "
+                              f"overlap (map {spec.index}, obstacle {i})", n)
+    return centres, dirs * speeds[:, None], radii

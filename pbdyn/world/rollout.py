@@ -14,7 +14,7 @@ import hashlib
 import json
 import os
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bo
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
 from pbdyn.world.motion import cvm_fold
 from pbdyn.world.rvo import rvo_rollout
+from pbdyn.world.structure import structure_of
 
 ROLLOUT_MODEL_VERSION = "rollout-2"
 STATIC_KINDS = ("pillar", "box")
@@ -146,6 +147,9 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     }
     if scenario.obstacles.headings != "uniform":   # (keys of "uniform" maps stay as they were before the field)
         payload["obstacles"]["headings"] = scenario.obstacles.headings
+    st = structure_of(scenario, spec.setup)
+    if st is not None:                             # (likewise: only maps with a structure carry one)
+        payload["structure"] = asdict(st)
     if scenario.is_world:
         payload["bodies"] = bodies_fingerprint(scenario)
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
@@ -180,15 +184,17 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     if scenario.is_world:
         return _world_rollout(scenario, spec, times, size)
     p0, v0, radii = spawn_obstacles(scenario, spec, keep_out)
-    if scenario.obstacles.motion == "cvm":
+    st = structure_of(scenario, spec.setup)
+    motion = st.motion if st is not None and st.motion is not None else scenario.obstacles.motion
+    if motion == "cvm":
         pos, vel = cvm_fold(p0, v0, radii, size, times)
-    elif scenario.obstacles.motion == "rvo":
+    elif motion == "rvo":
         pos, vel = rvo_rollout(p0, v0, radii, size, dt, n_t, scenario.obstacles.rvo)
     else:  # pragma: no cover - validation rejects other names
         raise ConfigError("obstacles.motion", "unsupported", scenario.obstacles.motion)
-    meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": scenario.obstacles.motion,
+    meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": motion,
             "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name}
-    return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario), meta)
+    return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario, spec), meta)
 
 
 def _world_rollout(scenario: Scenario, spec: MapSpec, times: np.ndarray, size: np.ndarray) -> Rollout:
