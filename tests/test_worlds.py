@@ -294,3 +294,29 @@ def test_world_file_text_is_documented_in_the_readme():
     for needle in ("[[bodies]]", "warehouse_2d.toml", "mixed_3d.toml", "constant_velocity", "waypoints",
                    "package.module:function", "--backend"):
         assert needle in readme
+
+
+def test_a_sphere_body_flies_exactly_like_a_generated_obstacle_of_its_radius():
+    """Bounding spheres reach the real shape's farthest point: a moving sphere body of radius 1 m is a disc of
+    radius 1 m (not its box's half-diagonal), so a trial among it equals one among a generated obstacle there."""
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+    from tests.helpers import handmade_rollout
+
+    sphere = BOX.replace("box.urdf", "sphere.urdf")
+    planners = [{"trajectory": "local_primitives", "gaze": "fullrange"}]
+    sc_w = world([{"name": "ball", "urdf": sphere, "position": [25.0, 30.0, 2.0], "motion": "constant_velocity",
+                   "velocity": [0.0, -2.0]}], planners=planners)
+    ro_w = rollout_of(sc_w)
+    assert ro_w.radii.tolist() == [1.0]
+    sc_g = parse_scenario({"world": {"dims": 2, "time_limit": 20.0}, "obstacles": {"count": 0},
+                           "planners": planners})
+    ro_g = handmade_rollout(sc_g, [[25.0, 30.0]], [[0.0, -2.0]], [1.0])
+    np.testing.assert_array_equal(ro_w.positions, ro_g.positions)
+    rows = []
+    for sc, ro in ((sc_w, ro_w), (sc_g, ro_g)):
+        spec = make_trial_spec(sc, enumerate_maps(sc)[0], start=(4.0, 25.0), goal=(46.0, 25.0))
+        rows.append(run_trial(spec, ro).to_dict())
+    keys = ("outcome", "reason", "steps", "flight_time_s", "min_clearance_m", "planning_failures",
+            "obstacles_tracked", "tracked_time_s", "grid_discovered", "task_survivability_s", "task_flux_per_s")
+    assert {k: rows[0][k] for k in keys} == {k: rows[1][k] for k in keys}
+    assert rows[0]["min_clearance_m"] < 3.0          # the MAV really met the obstacle on its way

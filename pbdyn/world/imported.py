@@ -215,11 +215,14 @@ def _function_poses(body: BodyConfig, where: str, times: np.ndarray) -> tuple[np
 
 
 def _sphere(prims, dims: int, yaw_only: bool, where: str) -> tuple[np.ndarray, float]:
+    """(centre [3] in the base frame, radius m) of the body's bounding sphere (2D yaw-only bodies: the bounding
+    circle of their footprint): centred on the bounding box, the radius reaching the farthest point of the real
+    shape (a sphere's own radius, not its box's half-diagonal)."""
     lo, hi = bounds_of(prims)
     with np.errstate(all="ignore"):      # non-finite or huge geometry: reported below, not as RuntimeWarnings
         centre = 0.5 * (lo + hi)
-        half = 0.5 * (hi - lo)
-        radius = float(np.linalg.norm(half[:2] if dims == 2 and yaw_only else half))
+        finite = bool(np.all(np.isfinite(centre)) and np.all(np.isfinite(hi - lo)))
+        radius = max(p.reach(centre, dims == 2 and yaw_only) for p in prims) if finite else float("inf")
     if not (np.all(np.isfinite(centre)) and math.isfinite(radius) and radius <= MAX_COORDINATE_M):
         raise ConfigError(where, f"the body's collision geometry (scaled) must have a finite size of at most "
                           f"{MAX_COORDINATE_M:g} m (bounding box {lo.tolist()} .. {hi.tolist()} m)", None,
@@ -320,13 +323,18 @@ def _file_digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+BOUNDING_RULE = "farthest-point-1"
+"""Version of the bounding-sphere rule (_sphere), part of every body's fingerprint: rollouts and trials of imported
+worlds made with another rule are never reused."""
+
+
 def bodies_fingerprint(scenario: Scenario) -> list[dict]:
     """Path-free description of the bodies for cache keys and config hashes: each body's settings with its URDF
     replaced by the sha256 of the URDF file and of every mesh it names, and a motion function by its module's
     source digest."""
     out = []
     for i, body in enumerate(scenario.bodies):
-        d = {"name": body.name, "scale": list(body.scale), "position": list(body.position),
+        d = {"bound": BOUNDING_RULE, "name": body.name, "scale": list(body.scale), "position": list(body.position),
              "rpy_deg": list(body.rpy_deg), "motion": body.motion, "velocity": list(body.velocity),
              "waypoints": [list(w) for w in body.waypoints], "speed": list(body.speed), "params": dict(body.params)}
         path = scenario.resolve_path(body.urdf)

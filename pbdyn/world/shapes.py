@@ -12,6 +12,7 @@ Everything is vectorised over points; a ShapeField evaluates many points at many
 
 from __future__ import annotations
 
+import itertools
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
@@ -112,6 +113,31 @@ class Primitive:
             v = _mesh_scene(self.mesh, self.mesh_scale).vertices @ rot.T + t
             return v.min(axis=0), v.max(axis=0)
         return t - half, t + half
+
+    def reach(self, centre: np.ndarray, planar: bool) -> float:
+        """The largest distance (m) from ``centre`` [3] (base frame) to a point of the primitive: in 3D, or with
+        ``planar`` in the x-y plane only (the body's footprint, for yaw-only 2D bodies). Exact for spheres, boxes
+        and meshes (their vertices); cylinders from 720 points per rim circle plus the sampling's worst case."""
+        rot, t = self.pose[:3, :3], self.pose[:3, 3]
+        k = 2 if planar else 3
+
+        def far(pts: np.ndarray) -> float:
+            d = pts[:, :k] - centre[None, :k]
+            return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
+
+        if self.kind == "sphere":
+            return float(np.linalg.norm((t - centre)[:k])) + self.radius
+        if self.kind == "box":
+            signs = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
+            return far(t[None, :] + (signs * np.asarray(self.size)[None, :]) @ rot.T)
+        if self.kind == "cylinder":
+            th = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)
+            ring = np.stack([self.radius * np.cos(th), self.radius * np.sin(th), np.zeros_like(th)], axis=1)
+            rims = np.concatenate([ring + [0.0, 0.0, z] for z in (-0.5 * self.length, 0.5 * self.length)])
+            slack = self.radius * (1.0 - math.cos(math.pi / 720)) / math.cos(math.pi / 720)
+            return far(t[None, :] + rims @ rot.T) + slack
+        v = _mesh_scene(self.mesh, self.mesh_scale).vertices @ rot.T + t
+        return far(v)
 
     def volume(self) -> float:
         """Exact volume (m^3): box product of extents, sphere 4/3 pi r^3, cylinder pi r^2 L, mesh open3d's volume of
