@@ -500,7 +500,8 @@ def test_evaluate_prints_the_table_writes_figures_and_json(reference, tmp_path):
     res = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), "--plots", str(tmp_path / "fig"), "--bootstrap", "50"],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
-    for name in ("survivability", "density", "vo_feasibility", "setup_model", "batch_small"):
+    for name in ("survivability", "density", "vo_feasibility", "setup_model", "batch_small", "flux",
+                 "static_share", "vs best baseline", "Planner abilities", "Trial level", "task_survivability"):
         assert name in res.stdout
     pngs = sorted((tmp_path / "fig").glob("*.png"))
     assert pngs and all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
@@ -511,6 +512,11 @@ def test_evaluate_prints_the_table_writes_figures_and_json(reference, tmp_path):
     assert set(doc["metrics"]) >= {"survivability", "survivability_dense", "global_survivability", "setup_model"}
     per_map = doc["success"]
     assert per_map
+    # baselines stored with every map, compared with every metric; the fitted difficulty of both maps
+    assert doc["baselines"]["rows"][:2] == ["setup_model", "flux"] and doc["metrics"]["flux"]["kind"] == "baseline"
+    assert set(doc["metrics"]["survivability"]["vs_baselines"]) >= {"setup_model", "flux", "static_share"}
+    assert len(doc["fitted_difficulty"]["maps"]) == 2 and len(doc["fitted_difficulty"]["respondents"]) == 2
+    assert doc["trial_level"]["predictors"]["task_flux"]["n_trials"] == 80
     figs = doc["figures"]                       # the numbers behind figs 5-9, 5-10 and 5-14
     store = ResultsStore.open(out)
     rows = [r for r in store.results() if r["outcome"] not in (None, "error")]
