@@ -189,3 +189,29 @@ def test_structured_maps_are_reproducible_and_independent_of_the_grid():
         full = next(x for x in enumerate_maps(sc) if x.setup == m.setup)
         assert rollout_key(small, m, 10.0) == rollout_key(sc, full, 10.0)
         assert np.array_equal(build_rollout(small, m).positions, one[m.setup["structure"]].positions)
+
+
+def test_a_structured_batch_stores_every_trial_with_its_structure(tmp_path):
+    from pbdyn.api import open_results, run_batch
+    from pbdyn.sim.spec import make_trial_spec
+
+    doc = ('[world]\ntime_limit = 20.0\n[obstacles]\ncount = 8\nradius = 1.0\nspeed = 3.0\n'
+           'structure = ["walls", "crossing", "mixed"]\n[task]\ncandidates = [[4.0, 25.0], [46.0, 25.0]]\n'
+           '[[planners]]\ntrajectory = "local_primitives"\ngaze = "fullrange"\n')
+    path = tmp_path / "st.toml"
+    path.write_text(doc)
+    run_batch(str(path), tmp_path / "st.sqlite", workers=1)
+    with open_results(tmp_path / "st.sqlite") as r:
+        rows = r.trials()
+        maps = r.maps()
+    assert len(rows) == 3 * 2 * 3 and set(rows["outcome"]) <= {"success", "dynamic_collision", "static_collision",
+                                                      "deadlock", "freezing"}
+    assert sorted(m["setup"]["structure"] for m in maps.values()) == ["crossing", "mixed", "walls"]
+    assert all(np.isfinite(m["metrics"]["static_share"]) for m in maps.values())
+    walls = next(m for m in maps.values() if m["setup"]["structure"] == "walls")
+    assert walls["metrics"]["static_share"] > 0
+    # the stored key is the trial's own config hash, which includes its structure's settings
+    sc = parse_scenario(__import__("tomllib").loads(doc))
+    m = enumerate_maps(sc)[0]
+    spec = make_trial_spec(sc, m, start=(4.0, 25.0), goal=(46.0, 25.0))
+    assert spec.resolved()["map"]["structure"]["walls"] == 2 and spec.config_hash in set(rows["trial_key"])

@@ -21,6 +21,8 @@ Conventions (documented in the report itself):
   on them, in-sample like setup_model). Every other row (kind "metric") is compared with each baseline, paired over
   the same bootstrap draws (pbdyn.analysis.validation): "vs_baselines" holds the SRCC difference and its 95%
   interval across maps and within setups; "beats_baselines" is True only when every interval lies above 0.
+- Structured maps (a "structure" in their setup): "within_family_srcc" is the within-setup Srcc over the maps of one
+  setup and one structure (they differ only by seed), beside the within-setup Srcc over all structures of a setup.
 - Fitted difficulty: a 1PL item-response model (pbdyn.analysis.irt) of every flown trial, items = maps,
   respondents = planner pair at one MAV speed; "fitted_difficulty" holds the planners' abilities (a score
   comparable across maps) and each map's difficulty with its standard error, and every row's "fitted" its SRCC
@@ -253,6 +255,9 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
     feats = np.array([setup_features(maps[m]) for m in map_ids]).reshape(len(map_ids), 3)
     keys = [setup_key(maps[m]) for m in map_ids]
     keys_c = [k for k, ok in zip(keys, c) if ok]
+    families = [(maps[m].get("setup") or {}).get("structure") for m in map_ids]
+    fam_c = [f"{k}|{f}" for k, f, ok in zip(keys, families, c) if ok] \
+        if any(f is not None for f, ok in zip(families, c) if ok) else None
     rate_c = st.rate[c]
 
     values = {n: v for n, v in metric_values(maps, map_ids).items() if np.isfinite(v[c]).any()}
@@ -278,6 +283,9 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         d = norm.difficulty(v)
         difficulty[name] = d
         row, agree[name] = _metric_row(d[c], rate_c, st.pairs, keys_c, n_boot, seed)
+        if fam_c is not None:
+            fam = agreement(d[c], rate_c, fam_c, 0, seed)
+            row["within_family_srcc"], row["within_family_n_groups"] = fam.within_mean, fam.n_setups
         row["compute_time_s"] = None if name in (SETUP_MODEL, BASELINE_MODEL) else _mean_time(maps, map_ids, name)
         row["normalisation"] = norm.as_dict()
         if has_fit:
@@ -337,6 +345,7 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         "trial_level": trial_block,
         "success": _success_block(st, datasets, map_ids),
         "within_setup_reliability": within_setup_reliability(rate_c, st.n[c], keys_c),
+        "within_family_reliability": None if fam_c is None else within_setup_reliability(rate_c, st.n[c], fam_c),
         "sigma_bands": bands,
         "regression": regression,
         "regression_raw": regression_raw,
@@ -421,6 +430,12 @@ def format_table(report: dict) -> str:
         for name, r in tl["predictors"].items():
             lines.append(f"  {name:<26} AUC {_f(r['auc'])}  log-loss {_f(r['log_loss'], '.4f')}  gain "
                          f"{_f(r['log_loss_gain'], '+.4f')}  ({r['n_trials']} trials)")
+    fams = [(n, r) for n, r in report["metrics"].items() if r.get("within_family_srcc") is not None]
+    if fams:
+        fr = report.get("within_family_reliability") or {}
+        lines += ["", f"Within structure families (maps of one setup and structure; reliability "
+                      f"{_f(fr.get('mean_reliability'), '.2f')}): " +
+                  ", ".join(f"{n} {_f(r['within_family_srcc'])}" for n, r in fams)]
     rel = report.get("within_setup_reliability") or {}
     if rel.get("n_setups"):
         lines += ["", f"Within-setup reliability of per-map success: {_f(rel['mean_reliability'], '.2f')} (mean over "

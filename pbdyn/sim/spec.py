@@ -40,8 +40,7 @@ class TrialSpec:
         drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
         task = {k: v for k, v in sc["task"].items() if k != "candidates"}
         return {
-            "world": sc["world"], "obstacles": obstacles, "map": {"setup": self.map_spec.setup,
-                                                                  "replicate": self.map_spec.replicate},
+            "world": sc["world"], "obstacles": obstacles, "map": self._map_dict(),
             "static_obstacles": sc["static_obstacles"], "drone": drone, "v_max": float(self.v_max),
             "sensor": sc["sensor"], "tracking": sc["tracking"], "task": task,
             "candidates": sc["task"]["candidates"],
@@ -51,9 +50,14 @@ class TrialSpec:
                         "gaze_params": dict(self.planner.gaze_params)},
             "collision_check": self.scenario.collision_check, "profile": self.scenario.profile,
             **({"bodies": bodies_fingerprint(self.scenario)} if self.scenario.is_world else {}),
-            **({"structure": _structure_dict(self.scenario, self.map_spec)}
-               if "structure" in self.map_spec.setup else {}),
         }
+
+    def _map_dict(self) -> dict:
+        """The map's part of resolved(): its setup and replicate, and its structure's settings when it has one."""
+        out = {"setup": self.map_spec.setup, "replicate": self.map_spec.replicate}
+        if "structure" in self.map_spec.setup:
+            out["structure"] = _structure_dict(self.scenario, self.map_spec)
+        return out
 
     @cached_property
     def config_hash(self) -> str:
