@@ -162,6 +162,22 @@ def random_unit_vectors(rng: np.random.Generator, n: int, dims: int) -> np.ndarr
     return v / norm
 
 
+def _admissible(pts: np.ndarray, ok: np.ndarray, placed: np.ndarray, placed_r: np.ndarray, r: float,
+                cands: np.ndarray, gap: float, centre_rule: bool, bodies) -> np.ndarray:
+    """``ok`` [P] narrowed to the proposed centres pts [P, d] of an obstacle of radius r that overlap no placed
+    obstacle (centres [i, d], radii [i]), keep clear of the candidates (centre_rule: centres more than ``gap``
+    away; else discs ``gap`` clear) and of the static bodies."""
+    if placed.shape[0]:
+        dist = np.linalg.norm(pts[:, None, :] - placed[None, :, :], axis=-1)
+        ok &= np.all(dist >= placed_r[None, :] + r, axis=1)
+    if cands.size:
+        dist = np.linalg.norm(pts[:, None, :] - cands[None, :, :], axis=-1)
+        ok &= np.all(dist > gap, axis=1) if centre_rule else np.all(dist >= r + gap, axis=1)
+    for b in bodies:
+        ok &= b.footprint_distance(pts) >= r
+    return ok
+
+
 def spawn_obstacles(scenario: Scenario, spec: MapSpec,
                     keep_out: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Initial centres [N, d] (m), velocities [N, d] (m/s) and radii [N] (m) of a map's obstacles.
@@ -206,15 +222,8 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
         placed = False
         for _ in range(MAX_SPAWN_ATTEMPTS // 64):
             pts = rng.uniform(lo, hi, size=(64, dims))
-            ok = np.ones(64, dtype=bool)
-            if i:
-                dist = np.linalg.norm(pts[:, None, :] - centres[None, :i, :], axis=-1)
-                ok &= np.all(dist >= radii[None, :i] + r, axis=1)
-            if cands.size:
-                dist = np.linalg.norm(pts[:, None, :] - cands[None, :, :], axis=-1)
-                ok &= np.all(dist > keep_out, axis=1) if centre_rule else np.all(dist >= r + keep_out, axis=1)
-            for b in bodies:
-                ok &= b.footprint_distance(pts) >= r
+            ok = _admissible(pts, np.ones(64, dtype=bool), centres[:i], radii[:i], r, cands, keep_out, centre_rule,
+                             bodies)
             hit = np.flatnonzero(ok)
             if hit.size:
                 centres[i] = pts[hit[0]]
@@ -253,15 +262,8 @@ def _spawn_structured(scenario: Scenario, spec: MapSpec, st, keep_out) -> tuple[
         placed = False
         for _ in range(MAX_SPAWN_ATTEMPTS // 64):
             pts, heads = proposals(scenario, st, rng, i, r, speeds[i], clusters, 64)
-            ok = np.all((pts >= r) & (pts <= size - r), axis=1)
-            if i:
-                dist = np.linalg.norm(pts[:, None, :] - centres[None, :i, :], axis=-1)
-                ok &= np.all(dist >= radii[None, :i] + r, axis=1)
-            if cands.size:
-                dist = np.linalg.norm(pts[:, None, :] - cands[None, :, :], axis=-1)
-                ok &= np.all(dist > gap, axis=1) if centre_rule else np.all(dist >= r + gap, axis=1)
-            for b in bodies:
-                ok &= b.footprint_distance(pts) >= r
+            ok = _admissible(pts, np.all((pts >= r) & (pts <= size - r), axis=1), centres[:i], radii[:i], r, cands,
+                             gap, centre_rule, bodies)
             hit = np.flatnonzero(ok)
             if hit.size:
                 centres[i] = pts[hit[0]]
