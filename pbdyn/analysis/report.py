@@ -67,7 +67,6 @@ SIGN_CONVENTION = ("srcc = -Srcc(difficulty, SR) = Srcc(10 - difficulty, SR): po
                    "as the success rate does (thesis table 4-5 sign); difficulty = eq. 4-10 then 4-11, high = hard")
 
 
-
 def choose_controlled(datasets: list[str], controlled: str | None) -> str:
     """The controlled dataset: ``controlled`` if given (ConfigError if no map has it), else the dataset with the
     most maps (ties: the first name in sort order)."""
@@ -160,8 +159,8 @@ def fitted_difficulty(ta, trials: list[dict], map_ids: tuple[str, ...]) -> tuple
     pos = {m: i for i, m in enumerate(fit.items)}
     b = np.array([fit.difficulty[pos[m]] if m in pos else np.nan for m in map_ids])
     summary = {"model": "1PL (Rasch): P(success) = sigmoid(ability - difficulty), logits; difficulties centred",
-               "items": "maps", **fit.as_dict()}
-    summary["maps"] = summary.pop("items")
+               **fit.as_dict()}
+    summary["maps"] = summary.pop("items")                  # the items of this fit are the maps
     tasks = [t.get("task") for t in trials]
     if not both:
         summary["tasks"] = {"skipped": "every flown trial had the same outcome"}
