@@ -45,22 +45,22 @@ def summarise(name: str, rep: dict) -> list[str]:
     lines = [f"### {name}", "", f"{rep['datasets'].get(rep['controlled_dataset'], 0)} maps, {rep['n_trials']} trials, "
              f"{len(rep['pairs'])} planner pairs. SRCC: positive = ranks maps as success does; intervals: 95% "
              "bootstrap over maps (comparisons paired over the same draws).", ""]
-    best = rep["baselines"]["rows"]
-    lines += ["| metric | SRCC vs success [95% CI] | SRCC vs fitted difficulty [95% CI] | within family | "
-              "minus flux [95% CI] | minus setup model [95% CI] | trial log-loss gain |", "|---|---|---|---|---|---|---|"]
+    bases = rep["baselines"]["rows"]
+    lines += ["| metric | SRCC vs success [95% CI] | SRCC vs fitted difficulty [95% CI] | within family | " +
+              " | ".join(f"minus {b} [95% CI]" for b in bases) + " | trial log-loss gain |",
+              "|---|---|---|---|" + "---|" * len(bases) + "---|"]
     tl = (rep.get("trial_level") or {}).get("predictors", {})
     for m, r in rep["metrics"].items():
         fit = r.get("fitted") or {}
         tag = " (baseline)" if r.get("kind") == "baseline" else (" *" if r.get("beats_baselines") else "")
         lines.append(f"| {m}{tag} | {_f(r['srcc_mean'])} {_ci(r['srcc_ci95'])} | {_f(fit.get('srcc'))} "
-                     f"{_ci(fit.get('ci95'))} | {_f(r.get('within_family_srcc'))} | "
-                     f"{_cmp(r, 'flux') if 'flux' in best else '-'} | "
-                     f"{_cmp(r, 'setup_model') if 'setup_model' in best else '-'} | "
-                     f"{_f((tl.get(m) or {}).get('log_loss_gain'), '+.4f')} |")
+                     f"{_ci(fit.get('ci95'))} | {_f(r.get('within_family_srcc'))} | " +
+                     " | ".join(_cmp(r, b) for b in bases) +
+                     f" | {_f((tl.get(m) or {}).get('log_loss_gain'), '+.4f')} |")
     for t in ("task_survivability", "task_flux"):
         if t in tl:
-            lines.append(f"| {t} (per trial) | - | - | - | - | - | {_f(tl[t]['log_loss_gain'], '+.4f')} "
-                         f"(AUC {_f(tl[t]['auc'])}) |")
+            lines.append(f"| {t} (per trial) | - | - | - | " + " | ".join("-" for _ in bases) +
+                         f" | {_f(tl[t]['log_loss_gain'], '+.4f')} (AUC {_f(tl[t]['auc'])}) |")
     ref = tl.get("planners only")
     rel = rep.get("within_setup_reliability") or {}
     fam = rep.get("within_family_reliability") or {}
