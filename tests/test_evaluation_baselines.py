@@ -127,3 +127,27 @@ def test_evaluate_reports_the_trial_level_block(study):
     preds = rep["trial_level"]["predictors"]
     assert "survivability" in preds and "flux" in preds and SETUP_MODEL in preds
     assert preds["survivability"]["log_loss_gain"] > preds["vo_feasibility"]["log_loss_gain"]
+
+
+def test_corridor_rows_are_map_means_of_the_task_metrics():
+    from pbdyn.analysis.report import corridor_means
+    from pbdyn.analysis.success import trial_arrays
+
+    trials, maps, hidden = synthetic(seed=2, per_setup=3, n_trials=8)
+    maps = _with_flux(maps)
+    for i, t in enumerate(trials):
+        t["task_survivability_s"] = 12.0 - 0.8 * hidden[t["map_id"]] + (i % 3) * 0.1
+        t["task_flux_per_s"] = 0.01 * hidden[t["map_id"]] + (0.001 if i % 2 else 0.0)
+    ids = tuple(sorted(maps))
+    ta = trial_arrays(trials, ids)
+    means = corridor_means(ta, trials, len(ids))
+    flown = [t for t in trials if t["outcome"] != "error"]
+    m0 = ids[0]
+    by_hand = np.mean([t["task_survivability_s"] for t in flown if t["map_id"] == m0])
+    assert means["corridor_survivability"][0] == pytest.approx(by_hand, rel=1e-12)
+    rep = evaluate(trials, maps, n_boot=100, seed=1)
+    m = rep["metrics"]
+    assert m["corridor_survivability"]["kind"] == "metric" and m["corridor_flux"]["kind"] == "baseline"
+    assert rep["baselines"]["rows"] == [SETUP_MODEL, "flux", "corridor_flux", "flux_model"]
+    assert rep["baselines"]["flux_model"]["features"] == ["flux", "corridor_flux"]
+    assert m["corridor_survivability"]["srcc_mean"] > 0.8

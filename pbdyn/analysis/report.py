@@ -16,9 +16,11 @@ Conventions (documented in the report itself):
   maps, averaged over (setup, pair). A metric constant within a setup scores 0 there.
 - setup_model: eq. 5-1 fitted to the per-map pooled success rate of the controlled maps (in-sample), its
   prediction used as a metric: what the setup alone explains.
+- Corridor rows: when the trials carry task metrics (pbdyn.metrics.task), corridor_survivability and corridor_flux
+  are a map's means of them over its flown trials -- survivability and flux along the corridors its tasks fly.
 - Baselines (rows of kind "baseline"): setup_model, the closed-form metrics that need no simulation
-  (pbdyn.metrics.baselines: flux, static_share) and, when both vary, flux_model (a linear fit of the pooled success
-  on them, in-sample like setup_model). Every other row (kind "metric") is compared with each baseline, paired over
+  (pbdyn.metrics.baselines: flux, static_share; corridor_flux) and, when two or more of them vary, flux_model (a
+  linear fit of the pooled success on them, in-sample like setup_model). Every other row (kind "metric") is compared with each baseline, paired over
   the same bootstrap draws (pbdyn.analysis.validation): "vs_baselines" holds the SRCC difference and its 95%
   interval across maps and within setups; "beats_baselines" is True only when every interval lies above 0.
 - Structured maps (a "structure" in their setup): "within_family_srcc" is the within-setup Srcc over the maps of one
@@ -119,6 +121,30 @@ def _respondent(pair: str, speed: float) -> str:
 
 TASK_FIELDS = {"task_survivability": "task_survivability_s", "task_flux": "task_flux_per_s"}
 """Task metrics (pbdyn.metrics.task) as trial-level predictors: name -> the trial row's field."""
+
+CORRIDOR_ROWS = {"corridor_survivability": "task_survivability_s", "corridor_flux": "task_flux_per_s"}
+"""Map rows from the task metrics: a map's mean over its flown trials (its start/goal tasks)."""
+
+CORRIDOR_BASELINE = "corridor_flux"
+"""The map mean of the closed-form task metric: a baseline (it needs no simulation)."""
+
+
+def corridor_means(ta, trials: list[dict], n_maps: int) -> dict[str, np.ndarray]:
+    """Per map [n_maps] the mean of each task metric over its flown trials (CORRIDOR_ROWS; NaN where none): the
+    map's survivability and flux along the corridors its tasks fly, rather than over a grid of the arena."""
+    flown = np.flatnonzero(ta.flown)
+    out = {}
+    for name, key in CORRIDOR_ROWS.items():
+        v = np.array([np.nan if trials[i].get(key) is None else float(trials[i][key]) for i in flown])
+        ok = np.isfinite(v)
+        if not ok.any():
+            continue
+        idx = ta.map_idx[flown][ok]
+        tot = np.bincount(idx, weights=v[ok], minlength=n_maps)
+        cnt = np.bincount(idx, minlength=n_maps)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[name] = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
+    return out
 
 
 def _trial_level(ta, trials: list[dict], difficulty: dict, controlled: np.ndarray) -> dict | None:
@@ -260,9 +286,10 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
     rate_c = st.rate[c]
 
     values = {n: v for n, v in metric_values(maps, map_ids).items() if np.isfinite(v[c]).any()}
+    values.update({n: v for n, v in corridor_means(ta, trials, len(map_ids)).items() if np.isfinite(v[c]).any()})
     setup_fit = fit_linear(feats[c], st.pooled_rate[c])
     values[SETUP_MODEL] = setup_fit.predict(feats)
-    varying = [n for n in BASELINES if n in values and np.nanstd(values[n][c]) > 0]
+    varying = [n for n in (*BASELINES, CORRIDOR_BASELINE) if n in values and np.nanstd(values[n][c]) > 0]
     baseline_fit = None
     if len(varying) >= 2:
         bx = np.stack([values[n] for n in varying], axis=1)
@@ -291,7 +318,7 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
             agree_fit[name] = agreement(d[c], fitted_target[c], keys_c, n_boot, seed)
             row["fitted"] = agreement_dict(agree_fit[name])
         rows[name] = row
-    base_rows = [n for n in (SETUP_MODEL, *BASELINES, BASELINE_MODEL) if n in rows]
+    base_rows = [n for n in (SETUP_MODEL, *BASELINES, CORRIDOR_BASELINE, BASELINE_MODEL) if n in rows]
     for name, row in rows.items():
         row["kind"] = "baseline" if name in base_rows else "metric"
         if name in base_rows:
