@@ -120,6 +120,15 @@ def test_trial_level_scores_a_real_predictor_above_a_random_one():
     assert out["task"]["log_loss_gain"] > out["map"]["log_loss_gain"] > 0.02
     assert abs(out["noise"]["log_loss_gain"]) < 0.01 and out["task"]["auc"] > out[REFERENCE]["auc"]
     assert out["partial"]["n_trials"] == y.size // 2 and out["partial"]["log_loss_gain"] > 0.02
+    # intervals over resampled maps: the noise predictor's gain straddles 0, the task predictor beats the map one
+    from pbdyn.analysis.trial_level import compare_predictors, public
+
+    lo, hi = out["noise"]["log_loss_gain_ci95"]
+    assert lo < 0.0 < hi and out["task"]["log_loss_gain_ci95"][0] > 0.02
+    c = compare_predictors(out, "task", "map", map_idx)
+    assert c["diff"] == pytest.approx(out["map"]["log_loss"] - out["task"]["log_loss"], abs=1e-12)
+    assert c["ci95"][0] > 0
+    assert "_loss" not in public(out)["task"] and "log_loss_gain_ci95" in public(out)["task"]
 
 
 def test_evaluate_reports_the_trial_level_block(study):

@@ -40,6 +40,15 @@ def _cmp(row: dict, base: str, key: str = "vs_baselines") -> str:
     return f"{c['diff']:+.3f} {_ci(c['ci95'])}"
 
 
+def _gain(r: dict | None) -> str:
+    """A trial-level log-loss gain with its interval, '*' when it beats every baseline predictor."""
+    if not r:
+        return "-"
+    ci = r.get("log_loss_gain_ci95") or [None, None]
+    return (f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.3f')}, {_f(ci[1], '+.3f')}]" +
+            (" *" if r.get("beats_baselines") else ""))
+
+
 def summarise(name: str, rep: dict) -> list[str]:
     """Markdown lines for one store's report."""
     lines = [f"### {name}", "", f"{rep['datasets'].get(rep['controlled_dataset'], 0)} maps, {rep['n_trials']} trials, "
@@ -55,12 +64,11 @@ def summarise(name: str, rep: dict) -> list[str]:
         tag = " (baseline)" if r.get("kind") == "baseline" else (" *" if r.get("beats_baselines") else "")
         lines.append(f"| {m}{tag} | {_f(r['srcc_mean'])} {_ci(r['srcc_ci95'])} | {_f(fit.get('srcc'))} "
                      f"{_ci(fit.get('ci95'))} | {_f(r.get('within_family_srcc'))} | " +
-                     " | ".join(_cmp(r, b) for b in bases) +
-                     f" | {_f((tl.get(m) or {}).get('log_loss_gain'), '+.4f')} |")
+                     " | ".join(_cmp(r, b) for b in bases) + f" | {_gain(tl.get(m))} |")
     for t in ("task_survivability", "task_flux"):
         if t in tl:
             lines.append(f"| {t} (per trial) | - | - | - | " + " | ".join("-" for _ in bases) +
-                         f" | {_f(tl[t]['log_loss_gain'], '+.4f')} (AUC {_f(tl[t]['auc'])}) |")
+                         f" | {_gain(tl[t])} (AUC {_f(tl[t]['auc'])}) |")
     ref = tl.get("planners only")
     rel = rep.get("within_setup_reliability") or {}
     fam = rep.get("within_family_reliability") or {}
@@ -68,6 +76,8 @@ def summarise(name: str, rep: dict) -> list[str]:
     lines += ["", f"Reliability of per-map success: within setups {_f(rel.get('mean_reliability'), '.2f')}, within "
                   f"families {_f(fam.get('mean_reliability'), '.2f')}. Planners-only trial model: AUC "
                   f"{_f(ref and ref['auc'])}, log-loss {_f(ref and ref['log_loss'], '.4f')}.",
+              "Trial level, beats every baseline predictor ('*', held-out log-loss, 95% interval over maps): " +
+              (", ".join(m for m, r in tl.items() if r.get("beats_baselines")) or "none") + ".",
               "Beats every baseline across maps: " + (", ".join(m for m, r in rep["metrics"].items()
                                                                if r.get("beats_baselines")) or "no metric") +
               "; against the fitted difficulty: " + (", ".join(m for m, r in rep["metrics"].items()

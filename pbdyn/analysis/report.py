@@ -150,7 +150,7 @@ def corridor_means(ta, trials: list[dict], n_maps: int) -> dict[str, np.ndarray]
 def _trial_level(ta, trials: list[dict], difficulty: dict, controlled: np.ndarray) -> dict | None:
     """Held-out trial-level scores (pbdyn.analysis.trial_level) of every row's map difficulty and of the task
     metrics, on the flown trials of the controlled maps; None with fewer than 2 such maps or one outcome only."""
-    from pbdyn.analysis.trial_level import trial_level
+    from pbdyn.analysis.trial_level import REFERENCE, compare_predictors, public, trial_level
 
     sel = np.flatnonzero(ta.flown & controlled[ta.map_idx])
     if sel.size == 0 or np.unique(ta.map_idx[sel]).size < 2:
@@ -165,8 +165,18 @@ def _trial_level(ta, trials: list[dict], difficulty: dict, controlled: np.ndarra
         v = np.array([np.nan if trials[i].get(key) is None else float(trials[i][key]) for i in sel])
         if np.isfinite(v).any():
             preds[name] = v
+    scores = trial_level(success, resp, ta.map_idx[sel], preds)
+    bases = [b for b in (SETUP_MODEL, *BASELINES, CORRIDOR_BASELINE, BASELINE_MODEL, "task_flux") if b in scores]
+    out = public(scores)
+    for name in scores:
+        if name in bases or name == REFERENCE:
+            continue
+        comps = {b: compare_predictors(scores, name, b, ta.map_idx[sel]) for b in bases}
+        out[name]["vs_baselines"] = comps
+        out[name]["beats_baselines"] = verdict(comps)
     return {"method": "logistic regression of success on [predictor, planner indicators], held-out maps "
-                      "(scikit-learn, GroupKFold)", "predictors": trial_level(success, resp, ta.map_idx[sel], preds)}
+                      "(scikit-learn, GroupKFold); vs_baselines: the baseline's held-out log-loss minus the "
+                      "predictor's, 95% interval over resampled maps", "baselines": bases, "predictors": out}
 
 
 def fitted_difficulty(ta, trials: list[dict], map_ids: tuple[str, ...]) -> tuple[np.ndarray, dict]:
@@ -454,8 +464,13 @@ def format_table(report: dict) -> str:
         lines += ["", "Trial level (held-out maps): AUC and log-loss of predicting each trial's success from the "
                       "predictor and the planner; gain = log-loss of 'planners only' minus the model's (> 0 helps):"]
         for name, r in tl["predictors"].items():
+            ci = r.get("log_loss_gain_ci95") or [None, None]
+            mark = " *" if r.get("beats_baselines") else ""
             lines.append(f"  {name:<26} AUC {_f(r['auc'])}  log-loss {_f(r['log_loss'], '.4f')}  gain "
-                         f"{_f(r['log_loss_gain'], '+.4f')}  ({r['n_trials']} trials)")
+                         f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.4f')}, {_f(ci[1], '+.4f')}]  "
+                         f"({r['n_trials']} trials){mark}")
+        lines.append(f"  ('*': lower held-out log-loss than every baseline predictor ({', '.join(tl['baselines'])}),"
+                     " 95% interval over resampled maps)")
     fams = [(n, r) for n, r in report["metrics"].items() if r.get("within_family_srcc") is not None]
     if fams:
         fr = report.get("within_family_reliability") or {}

@@ -6,7 +6,9 @@ or a baseline), a logistic regression of success on [the predictor (standardised
 map is both fitted and scored): the area under the ROC curve (AUC) and the mean log-loss (nats per trial) of the
 held-out predictions. The reference "planners only" model has the respondent indicators alone; a predictor helps
 where it lowers the log-loss below that reference. AUC pools every respondent, so it also credits telling the
-planners apart; the log-loss gain over the reference isolates what the predictor adds.
+planners apart; the log-loss gain over the reference isolates what the predictor adds. Gains and differences of
+two predictors come with 95% intervals from a bootstrap over maps of the per-trial held-out log-losses (paired:
+the same trials, the same resampled maps).
 """
 
 from __future__ import annotations
@@ -52,8 +54,23 @@ def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray) -> dict:
             clf.fit(x[train], y[train])
         pred[test] = clf.predict_proba(x[test])[:, 1]
     both = np.unique(y).size == 2
+    p = np.clip(pred, 1e-12, 1 - 1e-12)
     return {"auc": float(roc_auc_score(y, pred)) if both else None,
-            "log_loss": float(log_loss(y, np.clip(pred, 1e-12, 1 - 1e-12), labels=[0, 1])), "n_trials": int(y.size)}
+            "log_loss": float(log_loss(y, p, labels=[0, 1])), "n_trials": int(y.size),
+            "_loss": -(y * np.log(p) + (1.0 - y) * np.log(1.0 - p))}
+
+
+def loss_difference_ci(a: np.ndarray, b: np.ndarray, groups: np.ndarray, n_boot: int = 1000,
+                       seed: int = 0) -> list[float]:
+    """95% percentile interval of mean(a - b) over trials when the groups (maps) are resampled with replacement
+    (a, b: per-trial losses [T] of two models on the same trials; numpy.random.default_rng(seed))."""
+    from pbdyn.analysis.srcc import percentile_ci
+
+    keys, inv = np.unique(groups, return_inverse=True)
+    sums = np.bincount(inv, weights=a - b, minlength=keys.size)
+    cnt = np.bincount(inv, minlength=keys.size).astype(float)
+    idx = np.random.default_rng(seed).integers(0, keys.size, size=(n_boot, keys.size))
+    return list(percentile_ci(sums[idx].sum(axis=1) / cnt[idx].sum(axis=1)))
 
 
 def trial_level(success: np.ndarray, respondent: np.ndarray, map_idx: np.ndarray,
@@ -76,5 +93,24 @@ def trial_level(success: np.ndarray, respondent: np.ndarray, map_idx: np.ndarray
         model = held_out_scores(_design(v[ok], resp[ok], n_resp), y[ok], groups[ok])
         ref = out[REFERENCE] if ok.all() else held_out_scores(_design(None, resp[ok], n_resp), y[ok], groups[ok])
         model["log_loss_gain"] = ref["log_loss"] - model["log_loss"]
+        model["log_loss_gain_ci95"] = loss_difference_ci(ref["_loss"], model["_loss"], groups[ok])
+        model["_ok"] = ok
         out[name] = model
     return out
+
+
+def compare_predictors(scores: dict, a: str, b: str, groups: np.ndarray, n_boot: int = 1000, seed: int = 0) -> dict:
+    """Log-loss of b minus log-loss of a on the trials both predict (> 0: a predicts better), with its 95% interval
+    (loss_difference_ci); ``scores`` from trial_level (before public())."""
+    ok = scores[a]["_ok"] & scores[b]["_ok"]
+    la = np.full(ok.shape, np.nan)
+    lb = la.copy()
+    la[scores[a]["_ok"]] = scores[a]["_loss"]
+    lb[scores[b]["_ok"]] = scores[b]["_loss"]
+    return {"diff": float(np.mean(lb[ok] - la[ok])),
+            "ci95": loss_difference_ci(lb[ok], la[ok], np.asarray(groups)[ok], n_boot, seed)}
+
+
+def public(scores: dict) -> dict:
+    """trial_level's scores without the per-trial arrays (JSON-able)."""
+    return {k: {kk: vv for kk, vv in v.items() if not kk.startswith("_")} for k, v in scores.items()}
