@@ -644,18 +644,24 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
                           structures)
 
 
+def _optional_choice(t: Mapping, key: str, where: str, default: str | None, choices: tuple[str, ...]) -> str | None:
+    """t[key] when it is one of ``choices``, ``default`` (possibly None: "the scenario's") when absent."""
+    if key not in t:
+        return default
+    v = t[key]
+    if not isinstance(v, str) or v not in choices:
+        raise ConfigError(_name(where, key), f"must be one of {', '.join(choices)}", v)
+    return v
+
+
 def _parse_structure(name: str, t: Mapping, where: str) -> StructureConfig:
     """One structure: the built-in named ``name`` (if any) with the table ``t`` applied over it."""
     d = {**_defaults(StructureConfig), **BUILTIN_STRUCTURES.get(name, {})}
     allowed = tuple(k for k in d if k != "name")
     _no_unknown(t, allowed, where)
     layout = _string(t, "layout", where, d["layout"], StructureConfig.LAYOUTS)
-    headings = t.get("headings", d["headings"])
-    if headings is not None:
-        headings = _string({"headings": headings}, "headings", where, "uniform", StructureConfig.HEADINGS)
-    motion = t.get("motion", d["motion"])
-    if motion is not None:
-        motion = _string({"motion": motion}, "motion", where, "cvm", MOTIONS)
+    headings = _optional_choice(t, "headings", where, d["headings"], StructureConfig.HEADINGS)
+    motion = _optional_choice(t, "motion", where, d["motion"], MOTIONS)
     frac = _number(t, "static_fraction", where, d["static_fraction"], lo=0.0)
     if frac > 1.0:
         raise ConfigError(_name(where, "static_fraction"), "must be in [0, 1]", frac)

@@ -19,15 +19,18 @@ from pbdyn import config as C
 ROOT = Path(__file__).resolve().parents[1]
 
 SECTIONS = {"": C.Scenario, "world": C.WorldConfig, "obstacles": C.ObstacleConfig, "obstacles.rvo": C.RVOParams,
+            "obstacles.structures.name": C.StructureConfig,
             "static_obstacles": C.StaticObstacleConfig, "drone": C.DroneConfig, "sensor": C.SensorConfig,
             "tracking": C.TrackingConfig, "task": C.TaskConfig, "planners": C.PlannerEntry}
 """README table section -> the dataclass whose fields it documents."""
 
 NOT_KEYS = {("", "world"), ("", "obstacles"), ("", "static_obstacles"), ("", "drone"), ("", "sensor"),
             ("", "tracking"), ("", "task"), ("", "planners"), ("", "bodies"), ("", "source"),
-            ("obstacles", "rvo"), ("obstacles", "grid_order"), ("obstacles.rvo", "neighbour_dist")}
+            ("obstacles", "rvo"), ("obstacles", "grid_order"), ("obstacles.rvo", "neighbour_dist"),
+            ("obstacles", "structures"), ("obstacles.structures.name", "name")}
 """Fields that are no scalar key of their section: sub-tables (own sections; bodies: README "Imported worlds"),
-the source path, the grid order (the keys' file order) and RVO's neighbour_dist (Python API only)."""
+the source path, the grid order (the keys' file order), RVO's neighbour_dist (Python API only), the structures'
+tables (their own section) and a structure's name (the table's key)."""
 
 ARRAY_SECTIONS = ("static_obstacles", "planners")
 """Array-of-tables sections: one README row whose meaning names every key."""
@@ -38,6 +41,9 @@ COMPUTED = {
     ("task", "candidates"): "`{4, 25, 46}^2` (3D: z = 10)",
     ("sensor", "rays"): "from `resolution_deg`",
     ("task", "start_yaw_deg"): '`"goal"`',
+    ("obstacles", "structure"): "none",
+    ("obstacles.structures.name", "headings"): "the scenario's",
+    ("obstacles.structures.name", "motion"): "the scenario's",
 }
 """Defaults computed at parse time (the field's default is a sentinel): README text expected for each."""
 
@@ -159,6 +165,10 @@ def test_readme_default_matches_the_dataclass(key):
     else:
         assert lit(main) == two, f"{where}: README says {main!r}, the 2D default is {two!r}"
         assert (lit(alt) if alt else two) == three, f"{where}: README says {cell!r}, the 3D default is {three!r}"
+    if section == "obstacles.structures.name":      # an empty scenario has no structure: parse one of its own
+        st = C.parse_scenario({"obstacles": {"structure": "own", "structures": {"own": {}}}}).obstacles.structures[0]
+        assert getattr(st, name) == two, f"{where}: an empty structure resolves to {getattr(st, name)!r}"
+        return
     if key != ("world", "dims") and (key not in BY_DIMS or two is None):   # what an empty scenario resolves to
         d2, d3 = getattr(_resolved(section, 2), name), getattr(_resolved(section, 3), name)
         assert (d2, d3) == (two, three), f"{where}: an empty scenario resolves to {d2!r} (2D), {d3!r} (3D)"
