@@ -320,3 +320,45 @@ def test_a_sphere_body_flies_exactly_like_a_generated_obstacle_of_its_radius():
             "obstacles_tracked", "tracked_time_s", "grid_discovered", "task_survivability_s", "task_flux_per_s")
     assert {k: rows[0][k] for k in keys} == {k: rows[1][k] for k in keys}
     assert rows[0]["min_clearance_m"] < 3.0          # the MAV really met the obstacle on its way
+
+
+@pytest.mark.parametrize("offset, collides", [(1.8, False), (1.3, True)])
+def test_trials_collide_with_moving_bodies_by_their_real_shapes(offset, collides):
+    """A 2 x 1 m cart passes the MAV's straight path 1.8 m (or 1.3 m) to the side: its 1.12 m bounding circle would
+    touch the MAV (r 1 m) either way, its real shape only at 1.3 m (clearance 1.8 - 0.5 - 1 = 0.3 m)."""
+    from pbdyn.sim.trial import make_trial_spec, run_trial
+
+    planners = [{"trajectory": "straight_line", "gaze": "fullrange"}]
+    sc = world([{"name": "cart", "urdf": BOX, "scale": [2.0, 1.0, 3.0], "position": [40.0, 25.0 + offset, 1.5],
+                 "motion": "constant_velocity", "velocity": [-3.0, 0.0]}], planners=planners,
+               drone={"v_max": 4.0})
+    ro = rollout_of(sc)
+    assert ro.radii[0] == pytest.approx(math.hypot(1.0, 0.5))
+    spec = make_trial_spec(sc, enumerate_maps(sc)[0], start=(4.0, 25.0), goal=(46.0, 25.0))
+    res = run_trial(spec, ro)
+    assert (res.outcome == "dynamic_collision") == collides
+    if not collides:
+        assert res.outcome == "success" and res.min_clearance_m == pytest.approx(0.3, abs=0.02)
+
+
+def test_rays_see_moving_bodies_by_their_real_shapes():
+    """A ray that passes inside the cart's bounding circle but beside the cart misses it; one through it hits."""
+    from pbdyn.sim.env import make_world
+    from pbdyn.sim.trial import make_trial_spec
+
+    sc = world([{"name": "cart", "urdf": BOX, "scale": [2.0, 1.0, 3.0], "position": [25.0, 25.0, 1.5],
+                 "motion": "constant_velocity", "velocity": [1.0, 0.0]}])
+    ro = rollout_of(sc)
+    spec = make_trial_spec(sc, enumerate_maps(sc)[0])
+    w = make_world(spec, ro)
+    try:
+        b = ro.bodies
+        w.set_obstacle_positions(ro.positions[0], (b.position[0, b.moving_index], b.orientation[0, b.moving_index]))
+        origin = np.array([15.0, 25.0])
+        ids, frac = w.cast_fan(origin, np.array([[1.0, 0.0], [1.0, 0.08]]) / np.array([[1.0], [math.hypot(1, 0.08)]]),
+                               12.0)
+        # along y = 25 the ray meets the cart's face at x = 24; the tilted one passes y = 25.8 at x = 25
+        assert w.dynamic_index_of[ids[0]] == 0 and frac[0] * 12.0 == pytest.approx(9.0, abs=1e-3)
+        assert w.dynamic_index_of[ids[1]] == -1
+    finally:
+        w.close()

@@ -86,6 +86,47 @@ def swept_dynamic(mav_p0, mav_p1, obs_p0, obs_p1, radii, mav_radius: float) -> D
     return DynamicContact(True, float(frac[i]), i, min_clearance)
 
 
+SHAPE_STEP_M = 0.05
+"""Largest relative displacement (m) between two real-shape samples of one step (shape_dynamic)."""
+
+MAX_SHAPE_SAMPLES = 64
+"""Most real-shape samples per step and body."""
+
+
+def shape_dynamic(field, bodies: np.ndarray, base0: np.ndarray, base1: np.ndarray, mav_p0, mav_p1, step1: int,
+                  mav_radius: float, to3, swept: bool) -> DynamicContact:
+    """Contact of the MAV ball with moving bodies of an imported world by their real shapes (pbdyn.world.shapes
+    .ShapeField): ``bodies`` [M] body indices, base0/base1 [M, 3] their base positions at t_k and t_k+1 (m),
+    ``step1`` the rollout step of t_k+1, ``to3`` maps MAV points [.., d] to 3D (2D: the flight plane). Sampled: the
+    signed distance at t_k+1 only. Swept: samples along the step no more than SHAPE_STEP_M of relative motion apart
+    (at most MAX_SHAPE_SAMPLES), each body translated linearly between its poses (its orientation at t_k+1): the
+    signed distance of the MAV centre shifted by the body's remaining displacement to the body at t_k+1.
+    fraction: the first sample in contact (1.0 when none); min_clearance: distance - r_MAV (m)."""
+    if len(bodies) == 0:
+        return _NO_DYNAMIC
+    p0 = to3(np.asarray(mav_p0, dtype=float))
+    p1 = to3(np.asarray(mav_p1, dtype=float))
+    best = (1.0 + 1.0, -1)
+    clearance = math.inf
+    for j, b in enumerate(np.asarray(bodies).tolist()):
+        move = base1[j] - base0[j]
+        if swept:
+            rel = float(np.linalg.norm((p1 - p0) - move))
+            n = int(min(MAX_SHAPE_SAMPLES, max(1, math.ceil(rel / SHAPE_STEP_M))))
+            s = np.arange(1, n + 1) / n
+        else:
+            s = np.ones(1)
+        pts = p0[None, :] + s[:, None] * (p1 - p0)[None, :] + (1.0 - s)[:, None] * move[None, :]
+        d = field.body_distance(b, pts, step1) - float(mav_radius)
+        clearance = min(clearance, float(d.min()))
+        hit = np.flatnonzero(d < 0.0)
+        if hit.size and s[hit[0]] < best[0]:
+            best = (float(s[hit[0]]), j)
+    if best[1] < 0:
+        return DynamicContact(False, 1.0, -1, clearance)
+    return DynamicContact(True, best[0] if swept else 1.0, best[1], clearance)
+
+
 def sampled_dynamic(mav_p1, obs_p1, radii, mav_radius: float) -> DynamicContact:
     """The thesis' per-step check: overlap at the sample t_k+1 only (centre distance < r_i + r_MAV).
 

@@ -20,7 +20,7 @@ from pbdyn.perception.grid import OccupancyGrid
 from pbdyn.perception.perceive import Perception
 from pbdyn.perception.tracker import KalmanTracks
 from pbdyn.planning.view import MAVLimits, View
-from pbdyn.sim.collision import sampled_dynamic, sampled_static, swept_dynamic, swept_static
+from pbdyn.sim.collision import sampled_dynamic, sampled_static, shape_dynamic, swept_dynamic, swept_static
 from pbdyn.sim.outcome import Outcome
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.sim.start import trial_start
@@ -47,15 +47,17 @@ class Action:
 
 
 def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, client=None) -> PyBulletWorld:
-    """The PyBullet world of a trial's map: MAV, obstacles, static bodies, walls (imported worlds: static bodies
-    by their real shapes, moving ones as their bounding spheres). Reusable for every trial of the same map and
+    """The PyBullet world of a trial's map: MAV, obstacles, static bodies, walls (imported worlds: every body by
+    its real shape; the moving ones' bounding spheres only cull rays). Reusable for every trial of the same map and
     scenario (run_trial(..., world=...)): trials only move the MAV and the obstacles, which every step sets.
     ``client``: an existing BulletClient to reset and reuse (see PyBulletWorld)."""
     sc = spec.scenario
+    bodies = rollout.bodies
+    urdfs = None if bodies is None or not bodies.moving.any() else \
+        [(bodies.urdf[b], tuple(bodies.scale[b])) for b in bodies.moving_index]
     world = PyBulletWorld(dims=sc.world.dims, arena_size=sc.world.size, flight_height=sc.world.flight_height,
                           mav_radius=sc.drone.radius, obstacle_radii=rollout.radii, static_bodies=rollout.static,
-                          mav_urdf=str(sc.mav_urdf_path()), gui=gui, client=client)
-    bodies = rollout.bodies
+                          mav_urdf=str(sc.mav_urdf_path()), gui=gui, client=client, obstacle_urdfs=urdfs)
     if bodies is not None:
         try:
             for b in np.flatnonzero(~bodies.moving).tolist():
@@ -117,6 +119,8 @@ class TrialEnv:
         self.bounds = (lo, hi)
         self.fov_deg = float(fov_deg) if fov_deg is not None else sc.sensor.fov_deg
         self.swept = sc.collision_check == "swept"
+        bodies = rollout.bodies
+        self.shape_bodies = None if bodies is None or not bodies.moving.any() else bodies.moving_index
         self.sense_ahead = 1 if sc.sensor.obstacles_at == "next" else 0
         self.grid: OccupancyGrid | None = None
         self.perception: Perception | None = None
@@ -179,8 +183,9 @@ class TrialEnv:
         """Steps (1)-(3) at t_k: obstacle poses from the rollout (at t_k+1 with sensor.obstacles_at = "next"), MAV
         pose, ray sensing, tracker update."""
         c0 = time.perf_counter()
-        obs_p, _ = self.rollout.at(self.k0 + self.k + self.sense_ahead)
-        self.world.set_obstacle_positions(obs_p)                       # (1)
+        k = self.k0 + self.k + self.sense_ahead
+        obs_p, _ = self.rollout.at(k)
+        self.world.set_obstacle_positions(obs_p, self._body_poses(k))  # (1)
         self.world.set_mav_pose(self.position, self.yaw)
         c1 = time.perf_counter()
         self.detections = self.perception.sense(self.position, self.yaw)   # (2)
@@ -189,6 +194,14 @@ class TrialEnv:
         self.tracks = self.tracker.tracks(self.radii)
         c3 = time.perf_counter()
         self.sense_timings = (c1 - c0, c2 - c1, c3 - c2)
+
+    def _body_poses(self, k: int):
+        """(base positions [M, 3], orientations [M, 4]) of an imported world's moving bodies at rollout step k, or
+        None (generated obstacles)."""
+        if self.shape_bodies is None:
+            return None
+        b = self.rollout.bodies
+        return b.position[k, self.shape_bodies], b.orientation[k, self.shape_bodies]
 
     def view(self, trajectory=None) -> View:
         """The read-only snapshot planners see at t_k, with the plan in execution (or None)."""
@@ -237,12 +250,17 @@ class TrialEnv:
         None, clearance m)."""
         obs0, _ = self.rollout.at(self.k0 + k)
         obs1, _ = self.rollout.at(self.k0 + k + 1)
-        if self.swept:
-            st = swept_static(self.world, p0, p1)
-            dy = swept_dynamic(p0, p1, obs0, obs1, self.radii, self.spec.scenario.drone.radius)
+        r = self.spec.scenario.drone.radius
+        st = swept_static(self.world, p0, p1) if self.swept else sampled_static(self.world, p1)
+        if self.shape_bodies is not None:      # an imported world's moving bodies: their real shapes
+            b = self.rollout.bodies
+            k0, k1 = self.k0 + k, self.k0 + k + 1
+            dy = shape_dynamic(b.field(), self.shape_bodies, b.position[k0, self.shape_bodies],
+                               b.position[k1, self.shape_bodies], p0, p1, k1, r, self.world.to_world3, self.swept)
+        elif self.swept:
+            dy = swept_dynamic(p0, p1, obs0, obs1, self.radii, r)
         else:
-            st = sampled_static(self.world, p1)
-            dy = sampled_dynamic(p1, obs1, self.radii, self.spec.scenario.drone.radius)
+            dy = sampled_dynamic(p1, obs1, self.radii, r)
         clearance = min(float(st.min_clearance), float(dy.min_clearance))
         if st.hit and (not dy.hit or st.fraction <= dy.fraction):
             return Outcome.STATIC_COLLISION, clearance

@@ -225,7 +225,8 @@ class PyBulletWorld:
 
     def __init__(self, *, dims: int, arena_size: Sequence[float], flight_height: float = 2.0, mav_radius: float,
                  obstacle_radii, static_bodies: Sequence[StaticBody] = (), mav_urdf: str | None = None,
-                 wall_thickness: float = 1.0, gui: bool = False, exact_pillars: bool = False, client=None):
+                 wall_thickness: float = 1.0, gui: bool = False, exact_pillars: bool = False, client=None,
+                 obstacle_urdfs: Sequence[tuple[str, Sequence[float]]] | None = None):
         if dims not in (2, 3):
             raise ConfigError("dims", "must be 2 or 3", dims)
         self.dims = int(dims)
@@ -239,6 +240,10 @@ class PyBulletWorld:
         if np.any(~np.isfinite(radii)) or np.any(radii <= 0):
             raise ConfigError("obstacle_radii", "must all be finite and > 0", radii.tolist())
         self.obstacle_radii = radii
+        if obstacle_urdfs is not None and len(obstacle_urdfs) != radii.shape[0]:
+            raise ConfigError("obstacle_urdfs", f"must give one (urdf, scale) per obstacle ({radii.shape[0]})",
+                              len(obstacle_urdfs))
+        self.obstacle_urdfs = None if obstacle_urdfs is None else tuple(obstacle_urdfs)
         self.wall_thickness = check_positive("wall_thickness", wall_thickness)
         if mav_urdf is not None and not Path(mav_urdf).is_file():
             raise ConfigError("mav_urdf", "file not found", str(mav_urdf))
@@ -286,8 +291,11 @@ class PyBulletWorld:
         if self.dims == 2:
             parked[:, 1] = 0.5 * size[1]
         ids = []
-        for r, p in zip(radii, parked):
-            if self.dims == 2:
+        for i, (r, p) in enumerate(zip(radii, parked)):
+            if self.obstacle_urdfs is not None:          # an imported world's moving body, by its real shape
+                path, scale = self.obstacle_urdfs[i]
+                ids.append(load_scaled_urdf(self.client, path, scale, self.to_world3(p)))
+            elif self.dims == 2:
                 ids.append(load_scaled_urdf(self.client, urdf_path("pillar"), (r, r, 2.0 * h), self.to_world3(p),
                                             cylinders_as_spheres=not exact_pillars))
             else:
@@ -410,13 +418,23 @@ class PyBulletWorld:
         z = np.full(pts.shape[:-1] + (1,), self.flight_height)
         return np.concatenate([pts, z], axis=-1)
 
-    def set_obstacle_positions(self, positions) -> None:
-        """Move the dynamic obstacles to ``positions`` [N, d] (m); 2D pillars stay centred on the flight plane."""
+    def set_obstacle_positions(self, positions, poses=None) -> None:
+        """Move the dynamic obstacles to ``positions`` [N, d] (m; their bounding spheres' centres, which ray culling
+        uses); 2D pillars stay centred on the flight plane. A world of real-shape obstacles (obstacle_urdfs) also
+        needs ``poses`` = (base positions [N, 3] (m), orientations [N, 4] xyzw) for its bodies."""
         if os.getpid() != self._pid:
             raise RuntimeError("a PyBulletWorld cannot be used in a process forked after its creation")
         pos = np.array(positions, dtype=float).reshape(self.obstacle_ids.shape[0], self.dims)
         self.obstacle_positions = pos
         reset = self._reset_pose
+        if self.obstacle_urdfs is not None:
+            if poses is None:
+                raise ValueError("a world of real-shape obstacles needs their poses")
+            base, quat = poses
+            for body, p, q in zip(self.obstacle_ids.tolist(), np.asarray(base, float).tolist(),
+                                  np.asarray(quat, float).tolist()):
+                reset(body, p, q)
+            return
         for body, p in zip(self.obstacle_ids.tolist(), self.to_world3(pos).tolist()):
             reset(body, p, _IDENTITY)
 
