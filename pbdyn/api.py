@@ -265,9 +265,10 @@ def export_results(results: str | Path, path: str | Path, *, format: str | None 
         store.close()
 
 
-def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000):
+def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, pool: bool = False):
     """How well each metric ranks maps like the planners' success (thesis table 4-5) for one or more stores (the
-    first is the reference set): (report dict, text table, written figure paths)."""
+    first is the reference set; ``pool``: all stores' maps as one dataset, e.g. generated maps and imported worlds
+    together): (report dict, text table, written figure paths)."""
     from pbdyn.experiments.evaluate import evaluate_stores
 
     paths = [results] if isinstance(results, (str, Path)) else list(results)
@@ -277,7 +278,7 @@ def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000):
         check_path_length("plots", plots)
         if Path(plots).exists() and not Path(plots).is_dir():
             raise ConfigError("plots", "is a file; give a folder for the figures", str(plots))
-    return evaluate_stores([str(p) for p in paths], plots=plots, n_boot=n_boot)
+    return evaluate_stores([str(p) for p in paths], plots=plots, n_boot=n_boot, pool=pool)
 
 
 def run_demo(scenario, *, n_maps: int = 4, n_pairs: int = 3, json_out: bool = False) -> list[dict]:

@@ -103,6 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--plots", help="write the PNG figures into this folder")
     ev.add_argument("--bootstrap", type=_nonneg_int, default=1000, help="bootstrap draws for the SRCC CIs (1000)")
     ev.add_argument("--json", action="store_true", help="print the whole report as one JSON document")
+    ev.add_argument("--pool", action="store_true",
+                    help="evaluate every store's maps as one dataset (a heterogeneous set: no reference set)")
 
     exp = sub.add_parser("export", help="export a results store's trials")
     exp.add_argument("results", help="results store")
@@ -222,7 +224,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    report, table, figures = api.evaluate(args.results, plots=args.plots, n_boot=args.bootstrap)
+    report, table, figures = api.evaluate(args.results, plots=args.plots, n_boot=args.bootstrap, pool=args.pool)
     if args.json:
         sys.stdout.write(json.dumps(report, sort_keys=True, allow_nan=False) + "\n")
     else:

@@ -581,3 +581,22 @@ def test_a_bad_planner_entry_stops_the_batch_before_it_starts(tmp_path):
                name="bad2.toml")
     res = batch([str(sc), "--out", str(out)])
     assert res.returncode == 2 and "planners[0].trajectory_params" in res.stderr and not out.exists()
+
+
+def test_evaluate_pools_generated_maps_and_an_imported_world(reference, tmp_path):
+    """--pool: every store's maps are one dataset (no reference set), e.g. generated maps and an imported world,
+    whose map has no setup label but has the baselines and a fitted difficulty."""
+    _, out = reference
+    world = tmp_path / "warehouse.sqlite"
+    res = batch([str(SCENARIOS / "worlds" / "warehouse_2d.toml"), "--out", str(world), "--limit", "12", "--json"])
+    assert res.returncode == 0, res.stderr
+    res = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), str(world), "--pool", "--json", "--bootstrap", "20"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["controlled_dataset"] == "pooled" and doc["datasets"] == {"pooled": 3}
+    assert doc["metrics"]["flux"]["n_maps"] == 3
+    assert any(m.startswith("warehouse_2d/") for m in doc["fitted_difficulty"]["maps"])
+    plain = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), str(world), "--json", "--bootstrap", "20"],
+                           capture_output=True, text=True, timeout=300)
+    assert plain.returncode == 0 and json.loads(plain.stdout)["datasets"] == {"batch_small": 2, "warehouse_2d": 1}

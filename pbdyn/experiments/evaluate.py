@@ -17,11 +17,16 @@ def _task(row: dict) -> str | None:
     return f"{','.join(f'{float(x):g}' for x in start)}->{','.join(f'{float(x):g}' for x in goal)}"
 
 
-def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], str]:
+POOLED = "pooled"
+"""The dataset name of every map when stores are pooled (load_results(pool=True))."""
+
+
+def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict], dict[str, dict], str]:
     """(trials, maps, controlled dataset name) from one or more stores: the first store's scenario is the
     reference (controlled) set, the others are compared with it (e.g. the uncontrolled sets). Map ids are prefixed
     with their store's scenario name so that maps of different stores never collide. Stores of different profiles
-    ("physical", "thesis_program") are refused: their rows are never pooled."""
+    ("physical", "thesis_program") are refused: their rows are never pooled. ``pool``: every map belongs to one
+    dataset, POOLED (a heterogeneous set; map ids keep their store's prefix)."""
     trials: list[dict] = []
     maps: dict[str, dict] = {}
     names: list[str] = []
@@ -42,7 +47,8 @@ def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], 
             raise ConfigError("RESULTS", f"mixes profiles ({listed}); evaluate one profile at a time", str(path))
         names.append(name)
         for mid, m in store_maps.items():
-            maps[f"{name}/{mid}"] = {"setup": m["setup"], "dataset": name, "metrics": m["metrics"],
+            maps[f"{name}/{mid}"] = {"setup": m["setup"], "dataset": POOLED if pool else name,
+                                     "metrics": m["metrics"],
                                      "metric_times": m["metric_times"],
                                      "mean_obstacle_speed": m["mean_obstacle_speed"],
                                      "mean_obstacle_radius": m["mean_obstacle_radius"]}
@@ -50,27 +56,28 @@ def load_results(paths: list[str | Path]) -> tuple[list[dict], dict[str, dict], 
             mid = f"{name}/{r.get('map_id')}"
             if mid not in maps:   # a store run with --no-metrics: the map without metrics
                 maps[mid] = {"setup": {"count": r.get("obstacle_count"), "radius": r.get("obstacle_radius"),
-                                       "speed": r.get("obstacle_speed")}, "dataset": name, "metrics": {},
+                                       "speed": r.get("obstacle_speed")}, "dataset": POOLED if pool else name,
+                             "metrics": {},
                              "metric_times": {}, "mean_obstacle_speed": None, "mean_obstacle_radius": None}
             trials.append({"map_id": mid, "pair": r.get("planner_label"), "trajectory": r.get("planner"),
                            "gaze": r.get("gaze"), "mav_speed": r.get("mav_speed"), "outcome": r.get("outcome"),
                            "obstacle_count": r.get("obstacle_count"), "obstacle_radius": r.get("obstacle_radius"),
-                           "obstacle_speed": r.get("obstacle_speed"), "dataset": name,
+                           "obstacle_speed": r.get("obstacle_speed"), "dataset": POOLED if pool else name,
                            "task": _task(r), "task_survivability_s": r.get("task_survivability_s"),
                            "task_flux_per_s": r.get("task_flux_per_s")})
     if not trials:
         raise ConfigError("RESULTS", "holds no trials", [str(p) for p in paths])
-    return trials, maps, names[0]
+    return trials, maps, POOLED if pool else names[0]
 
 
 def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None, n_boot: int = 1000,
-                    seed: int = 0) -> tuple[dict, str, list[Path]]:
+                    seed: int = 0, pool: bool = False) -> tuple[dict, str, list[Path]]:
     """(report dict, formatted table, figure paths) of the stores (see load_results); report["figures"] holds the
     numbers of figs 5-9, 5-10 and 5-14 (pbdyn.analysis.figure_tables)."""
     from pbdyn.analysis.figure_tables import figure_tables
     from pbdyn.analysis.report import evaluate, format_table
 
-    trials, maps, controlled = load_results(paths)
+    trials, maps, controlled = load_results(paths, pool)
     report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
     report["figures"] = figure_tables(trials, maps, report)
     figures: list[Path] = []
