@@ -160,3 +160,25 @@ def test_corridor_rows_are_map_means_of_the_task_metrics():
     assert rep["baselines"]["rows"] == [SETUP_MODEL, "flux", "corridor_flux", "flux_model"]
     assert rep["baselines"]["flux_model"]["features"] == ["flux", "corridor_flux"]
     assert m["corridor_survivability"]["srcc_mean"] > 0.8
+
+
+def test_within_family_srcc_with_intervals_for_structured_maps():
+    trials, maps, hidden = synthetic(seed=3, per_setup=4, n_trials=12)
+    maps = _with_flux(maps)
+    for k, e in maps.items():              # two "structures" per setup: maps 0-1 and 2-3 of each setup
+        if e["dataset"] == "controlled":
+            e["setup"] = {**e["setup"], "structure": "a" if int(k.rsplit("-", 1)[1]) < 2 else "b"}
+    rep = evaluate(trials, maps, n_boot=200, seed=2)
+    r = rep["metrics"]["survivability"]
+    assert r["within_family_n_groups"] == 0          # families of 2 maps: below the 3 maps a within-group SRCC needs
+    for k, e in maps.items():
+        if e["dataset"] == "controlled":
+            e["setup"]["structure"] = "a"          # one family per setup: the within-setup groups
+    rep = evaluate(trials, maps, n_boot=200, seed=2)
+    r = rep["metrics"]["survivability"]
+    assert r["within_family_srcc"] == pytest.approx(r["within_setup_srcc"], abs=1e-12)
+    lo, hi = r["within_family_ci95"]
+    assert lo < r["within_family_srcc"] < hi and lo > 0
+    c = r["vs_baselines"]["flux"]
+    assert c["within_family_diff"] == pytest.approx(c["within_diff"], abs=1e-12)
+    assert "Within structure families" in format_table(rep)

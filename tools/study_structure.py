@@ -63,7 +63,8 @@ def summarise(name: str, rep: dict) -> list[str]:
         fit = r.get("fitted") or {}
         tag = " (baseline)" if r.get("kind") == "baseline" else (" *" if r.get("beats_baselines") else "")
         lines.append(f"| {m}{tag} | {_f(r['srcc_mean'])} {_ci(r['srcc_ci95'])} | {_f(fit.get('srcc'))} "
-                     f"{_ci(fit.get('ci95'))} | {_f(r.get('within_family_srcc'))} | " +
+                     f"{_ci(fit.get('ci95'))} | {_f(r.get('within_family_srcc'))} "
+                     f"{_ci(r.get('within_family_ci95'))} | " +
                      " | ".join(_cmp(r, b) for b in bases) + f" | {_gain(tl.get(m))} |")
     for t in ("task_survivability", "task_flux"):
         if t in tl:

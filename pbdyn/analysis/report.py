@@ -24,7 +24,9 @@ Conventions (documented in the report itself):
   the same bootstrap draws (pbdyn.analysis.validation): "vs_baselines" holds the SRCC difference and its 95%
   interval across maps and within setups; "beats_baselines" is True only when every interval lies above 0.
 - Structured maps (a "structure" in their setup): "within_family_srcc" is the within-setup Srcc over the maps of one
-  setup and one structure (they differ only by seed), beside the within-setup Srcc over all structures of a setup.
+  setup and one structure (they differ only by seed), beside the within-setup Srcc over all structures of a setup,
+  with a 95% interval over resampled families ("within_family_ci95") and, in "vs_baselines", the paired
+  within-family difference to each baseline ("within_family_diff", "within_family_ci95").
 - Fitted difficulty: a 1PL item-response model (pbdyn.analysis.irt) of every flown trial, items = maps,
   respondents = planner pair at one MAV speed; "fitted_difficulty" holds the planners' abilities (a score
   comparable across maps) and each map's difficulty with its standard error, and every row's "fitted" its SRCC
@@ -42,7 +44,7 @@ from pbdyn.analysis.bands import band_fit, band_shares
 from pbdyn.analysis.cv import LEVELS, cv_by_level, cv_summary
 from pbdyn.analysis.normalise import Normaliser, fit_normaliser
 from pbdyn.analysis.regression import FEATURES, LinearFit, fit_linear, setup_features, setup_key
-from pbdyn.analysis.validation import Agreement, agreement, agreement_dict, compare, verdict
+from pbdyn.analysis.validation import Agreement, agreement, agreement_dict, compare, verdict, within_ci
 from pbdyn.analysis.success import (OUTCOMES, SuccessTable, rate_and_se, success_table, trial_arrays,
                                    within_setup_reliability)
 from pbdyn.errors import ConfigError
@@ -314,14 +316,16 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
     difficulty: dict = {}
     agree: dict = {}
     agree_fit: dict = {}
+    agree_fam: dict = {}
     for name, v in values.items():
         norm = fit_normaliser(v[c], rate_c)
         d = norm.difficulty(v)
         difficulty[name] = d
         row, agree[name] = _metric_row(d[c], rate_c, st.pairs, keys_c, n_boot, seed)
         if fam_c is not None:
-            fam = agreement(d[c], rate_c, fam_c, 0, seed)
+            fam = agree_fam[name] = agreement(d[c], rate_c, fam_c, 0, seed)
             row["within_family_srcc"], row["within_family_n_groups"] = fam.within_mean, fam.n_setups
+            row["within_family_ci95"] = within_ci(fam, n_boot, seed)
         row["compute_time_s"] = None if name in (SETUP_MODEL, BASELINE_MODEL) else _mean_time(maps, map_ids, name)
         row["normalisation"] = norm.as_dict()
         if has_fit:
@@ -334,6 +338,10 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
         if name in base_rows:
             continue
         comps = {b: compare(agree[name], agree[b], n_boot, seed) for b in base_rows}
+        if agree_fam:
+            for b, cmp in comps.items():
+                fc = compare(agree_fam[name], agree_fam[b], n_boot, seed)
+                cmp["within_family_diff"], cmp["within_family_ci95"] = fc["within_diff"], fc["within_ci95"]
         row["vs_baselines"] = comps
         row["beats_baselines"] = verdict(comps)
         row["beats_baselines_within_setup"] = verdict(comps, "within_ci95")
@@ -475,8 +483,9 @@ def format_table(report: dict) -> str:
     if fams:
         fr = report.get("within_family_reliability") or {}
         lines += ["", f"Within structure families (maps of one setup and structure; reliability "
-                      f"{_f(fr.get('mean_reliability'), '.2f')}): " +
-                  ", ".join(f"{n} {_f(r['within_family_srcc'])}" for n, r in fams)]
+                      f"{_f(fr.get('mean_reliability'), '.2f')}; 95% CI over families): " +
+                  ", ".join(f"{n} {_f(r['within_family_srcc'])} [{_f(r['within_family_ci95'][0], '.2f')}, "
+                            f"{_f(r['within_family_ci95'][1], '.2f')}]" for n, r in fams)]
     rel = report.get("within_setup_reliability") or {}
     if rel.get("n_setups"):
         lines += ["", f"Within-setup reliability of per-map success: {_f(rel['mean_reliability'], '.2f')} (mean over "

@@ -82,6 +82,23 @@ def compare(a: Agreement, b: Agreement, n_boot: int, seed: int) -> dict:
     return out
 
 
+def within_ci(a: Agreement, n_boot: int, seed: int) -> list[float]:
+    """95% interval of a row's mean within-group Srcc when the groups (setups, or structure families) are resampled
+    with replacement (numpy.random.default_rng(seed)); NaN when fewer than 2 groups have a value."""
+    nan2 = [float("nan")] * 2
+    if not a.within.size or n_boot <= 0:
+        return nan2
+    ok = np.isfinite(a.within)
+    sums = np.where(ok, a.within, 0.0).sum(axis=1)
+    counts = ok.sum(axis=1).astype(float)
+    if np.count_nonzero(counts) < 2:
+        return nan2
+    idx = np.random.default_rng(seed).integers(0, sums.shape[0], size=(n_boot, sums.shape[0]))
+    tot = counts[idx].sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return list(percentile_ci(np.where(tot > 0, sums[idx].sum(axis=1) / np.maximum(tot, 1.0), np.nan)))
+
+
 def verdict(comparisons: dict[str, dict], key: str = "ci95") -> bool | None:
     """True when the metric beats every baseline (the interval of each difference lies above 0), False when some
     interval does not, None without baselines or intervals."""
