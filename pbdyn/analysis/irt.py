@@ -26,6 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 
+PRIOR_SD = 2.0
+"""Default standard deviation (logits) of fit_rasch_sparse's normal prior."""
+
+
 @dataclass(frozen=True)
 class RaschFit:
     """A fitted 1PL model. items [I] and respondents [R] (labels, sorted); difficulty, difficulty_se [I] and
@@ -125,7 +129,7 @@ def fit_rasch(items: Sequence[str], respondents: Sequence[str], success: np.ndar
 
 
 def fit_rasch_sparse(items: Sequence[str], respondents: Sequence[str], success: np.ndarray, *,
-                     prior_sd: float = 2.0) -> RaschFit:
+                     prior_sd: float = PRIOR_SD) -> RaschFit:
     """1PL fit by scikit-learn's L2 logistic regression on a sparse design (module doc), for many items (tasks).
     ``prior_sd`` (logits, > 0): the normal prior's standard deviation on every parameter."""
     from scipy import sparse

@@ -117,6 +117,16 @@ def _metric_row(d: np.ndarray, rate: np.ndarray, pairs: tuple[str, ...], keys: l
              "n_maps": int(np.isfinite(d).sum())}, ag)
 
 
+def _vs_baselines(out: dict, agree: dict, name: str, bases: list[str], n_boot: int, seed: int) -> dict:
+    """Row ``name`` against every baseline (pbdyn.analysis.validation.compare, same draws), written into ``out`` as
+    vs_baselines, beats_baselines and beats_baselines_within_setup; returns the comparisons."""
+    comps = {b: compare(agree[name], agree[b], n_boot, seed) for b in bases}
+    out["vs_baselines"] = comps
+    out["beats_baselines"] = verdict(comps)
+    out["beats_baselines_within_setup"] = verdict(comps, "within_ci95")
+    return comps
+
+
 def _respondent(pair: str, speed: float) -> str:
     return f"{pair} @ {speed:g} m/s"
 
@@ -130,6 +140,22 @@ CORRIDOR_ROWS = {"corridor_survivability": "task_survivability_s", "corridor_flu
 CORRIDOR_BASELINE = "corridor_flux"
 """The map mean of the closed-form task metric: a baseline (it needs no simulation)."""
 
+BASELINE_ROWS = (SETUP_MODEL, *BASELINES, CORRIDOR_BASELINE, BASELINE_MODEL)
+"""Every row that is a baseline (kind "baseline"), in report order."""
+
+TASK_BASELINE = "task_flux"
+"""The closed-form task metric: a baseline predictor at the trial level."""
+
+
+def _trial_values(trials: list[dict], idx: np.ndarray, key: str) -> np.ndarray:
+    """The float field ``key`` of trials[idx] (NaN where None)."""
+    return np.array([np.nan if trials[i].get(key) is None else float(trials[i][key]) for i in idx])
+
+
+def _respondents(ta, idx: np.ndarray) -> list[str]:
+    """The respondent (planner pair at its MAV speed) of trials idx."""
+    return [_respondent(ta.pairs[p], v) for p, v in zip(ta.pair_idx[idx], ta.mav_speed[idx])]
+
 
 def corridor_means(ta, trials: list[dict], n_maps: int) -> dict[str, np.ndarray]:
     """Per map [n_maps] the mean of each task metric over its flown trials (CORRIDOR_ROWS; NaN where none): the
@@ -137,7 +163,7 @@ def corridor_means(ta, trials: list[dict], n_maps: int) -> dict[str, np.ndarray]
     flown = np.flatnonzero(ta.flown)
     out = {}
     for name, key in CORRIDOR_ROWS.items():
-        v = np.array([np.nan if trials[i].get(key) is None else float(trials[i][key]) for i in flown])
+        v = _trial_values(trials, flown, key)
         ok = np.isfinite(v)
         if not ok.any():
             continue
@@ -160,15 +186,14 @@ def _trial_level(ta, trials: list[dict], difficulty: dict, controlled: np.ndarra
     success = ta.is_outcome(Outcome.SUCCESS)[sel].astype(float)
     if np.unique(success).size < 2:
         return None
-    resp_names = [_respondent(ta.pairs[p], v) for p, v in zip(ta.pair_idx[sel], ta.mav_speed[sel])]
-    _, resp = np.unique(np.asarray(resp_names, dtype=str), return_inverse=True)
+    _, resp = np.unique(np.asarray(_respondents(ta, sel), dtype=str), return_inverse=True)
     preds = {name: d[ta.map_idx[sel]] for name, d in difficulty.items()}
     for name, key in TASK_FIELDS.items():
-        v = np.array([np.nan if trials[i].get(key) is None else float(trials[i][key]) for i in sel])
+        v = _trial_values(trials, sel, key)
         if np.isfinite(v).any():
             preds[name] = v
     scores = trial_level(success, resp, ta.map_idx[sel], preds)
-    bases = [b for b in (SETUP_MODEL, *BASELINES, CORRIDOR_BASELINE, BASELINE_MODEL, "task_flux") if b in scores]
+    bases = [b for b in (*BASELINE_ROWS, TASK_BASELINE) if b in scores]
     out = public(scores)
     for name in scores:
         if name in bases or name == REFERENCE:
@@ -185,12 +210,11 @@ def fitted_difficulty(ta, trials: list[dict], map_ids: tuple[str, ...]) -> tuple
     """The 1PL fit of the flown trials (pbdyn.analysis.irt): (difficulty [maps] (logits; NaN for a map without
     flown trials), JSON-able summary with the planners' abilities, each map's difficulty and se, and the task-level
     fit's summary)."""
-    from pbdyn.analysis.irt import fit_rasch, fit_rasch_sparse
+    from pbdyn.analysis.irt import PRIOR_SD, fit_rasch, fit_rasch_sparse
 
     flown = np.flatnonzero(ta.flown)
     success = ta.is_outcome(Outcome.SUCCESS)[flown].astype(float)
-    pair_names = np.asarray(ta.pairs, dtype=object)[ta.pair_idx[flown]]
-    resp = [_respondent(p, v) for p, v in zip(pair_names, ta.mav_speed[flown])]
+    resp = _respondents(ta, flown)
     items = [map_ids[i] for i in ta.map_idx[flown]]
     both = 0 < success.sum() < success.size          # the sparse fit needs successes and failures
     fit = (fit_rasch_sparse if len(set(items)) > MAX_GLM_ITEMS and both else fit_rasch)(items, resp, success)
@@ -210,7 +234,7 @@ def fitted_difficulty(ta, trials: list[dict], map_ids: tuple[str, ...]) -> tuple
         within = np.concatenate([bt[by_map == m] - bt[by_map == m].mean() for m in np.unique(by_map)])
         total = float(bt.var())
         noise = float(np.mean(tf.difficulty_se ** 2))
-        summary["tasks"] = {"method": tf.method, "n_tasks": len(tf.items), "prior_sd": 2.0,
+        summary["tasks"] = {"method": tf.method, "n_tasks": len(tf.items), "prior_sd": PRIOR_SD,
                             "difficulty_sd": float(bt.std()), "within_map_sd": float(within.std()),
                             "within_map_share_of_variance": float(within.var() / total) if total > 0 else None,
                             "within_map_share_noise_corrected": float(max(within.var() - noise, 0.0) / total)
@@ -332,24 +356,18 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
             agree_fit[name] = agreement(d[c], fitted_target[c], keys_c, n_boot, seed)
             row["fitted"] = agreement_dict(agree_fit[name])
         rows[name] = row
-    base_rows = [n for n in (SETUP_MODEL, *BASELINES, CORRIDOR_BASELINE, BASELINE_MODEL) if n in rows]
+    base_rows = [n for n in BASELINE_ROWS if n in rows]
     for name, row in rows.items():
         row["kind"] = "baseline" if name in base_rows else "metric"
         if name in base_rows:
             continue
-        comps = {b: compare(agree[name], agree[b], n_boot, seed) for b in base_rows}
+        comps = _vs_baselines(row, agree, name, base_rows, n_boot, seed)
         if agree_fam:
             for b, cmp in comps.items():
                 fc = compare(agree_fam[name], agree_fam[b], n_boot, seed)
                 cmp["within_family_diff"], cmp["within_family_ci95"] = fc["within_diff"], fc["within_ci95"]
-        row["vs_baselines"] = comps
-        row["beats_baselines"] = verdict(comps)
-        row["beats_baselines_within_setup"] = verdict(comps, "within_ci95")
         if has_fit:
-            fc = {b: compare(agree_fit[name], agree_fit[b], n_boot, seed) for b in base_rows}
-            row["fitted"]["vs_baselines"] = fc
-            row["fitted"]["beats_baselines"] = verdict(fc)
-            row["fitted"]["beats_baselines_within_setup"] = verdict(fc, "within_ci95")
+            _vs_baselines(row["fitted"], agree_fit, name, base_rows, n_boot, seed)
 
     band_name = next((n for n in BAND_METRICS if n in difficulty), None)
     bands = None

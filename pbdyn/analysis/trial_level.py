@@ -64,13 +64,11 @@ def loss_difference_ci(a: np.ndarray, b: np.ndarray, groups: np.ndarray, n_boot:
                        seed: int = 0) -> list[float]:
     """95% percentile interval of mean(a - b) over trials when the groups (maps) are resampled with replacement
     (a, b: per-trial losses [T] of two models on the same trials; numpy.random.default_rng(seed))."""
-    from pbdyn.analysis.srcc import percentile_ci
+    from pbdyn.analysis.validation import grouped_mean_ci
 
     keys, inv = np.unique(groups, return_inverse=True)
     sums = np.bincount(inv, weights=a - b, minlength=keys.size)
-    cnt = np.bincount(inv, minlength=keys.size).astype(float)
-    idx = np.random.default_rng(seed).integers(0, keys.size, size=(n_boot, keys.size))
-    return list(percentile_ci(sums[idx].sum(axis=1) / cnt[idx].sum(axis=1)))
+    return grouped_mean_ci(sums, np.bincount(inv, minlength=keys.size).astype(float), n_boot, seed)
 
 
 def trial_level(success: np.ndarray, respondent: np.ndarray, map_idx: np.ndarray,

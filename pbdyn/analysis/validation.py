@@ -56,47 +56,47 @@ def agreement(d: np.ndarray, target: np.ndarray, keys: Sequence[str], n_boot: in
     return Agreement(mean, std, per, draws, within, w_mean, w_std, n_setups)
 
 
+def grouped_mean_ci(sums: np.ndarray, counts: np.ndarray, n_boot: int, seed: int) -> list[float]:
+    """95% percentile interval of the pooled mean sum(sums) / sum(counts) when the groups (entries of ``sums`` and
+    ``counts`` [G]: per group a sum of values and their number) are resampled with replacement, from
+    numpy.random.default_rng(seed); NaN when fewer than 2 groups hold a value or n_boot is 0."""
+    if n_boot <= 0 or np.count_nonzero(counts) < 2:
+        return [float("nan")] * 2
+    idx = np.random.default_rng(seed).integers(0, sums.shape[0], size=(n_boot, sums.shape[0]))
+    tot = counts[idx].sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return list(percentile_ci(np.where(tot > 0, sums[idx].sum(axis=1) / np.maximum(tot, 1.0), np.nan)))
+
+
+def _group_sums(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(per-row sums of the finite entries, their counts) of values [G, k]."""
+    ok = np.isfinite(values)
+    return np.where(ok, values, 0.0).sum(axis=1), ok.sum(axis=1).astype(float)
+
+
 def compare(a: Agreement, b: Agreement, n_boot: int, seed: int) -> dict:
     """Row a minus row b (same maps, same target, same bootstrap draws): across maps ("diff", "ci95") and within
     setups ("within_diff": the mean over the (setup, column) entries defined for both, like within_mean;
-    "within_ci95": that mean bootstrapped over setups, from numpy.random.default_rng(seed))."""
+    "within_ci95": that mean bootstrapped over setups, grouped_mean_ci)."""
     nan2 = [float("nan")] * 2
     out = {"diff": a.srcc - b.srcc, "ci95": list(percentile_ci(a.draws - b.draws)) if a.draws.size else nan2,
            "within_diff": float("nan"), "within_ci95": nan2}
     if not (a.within.size and a.within.shape == b.within.shape):
         return out
-    diff = a.within - b.within
-    ok = np.isfinite(diff)
-    sums = np.where(ok, diff, 0.0).sum(axis=1)
-    counts = ok.sum(axis=1).astype(float)
+    sums, counts = _group_sums(a.within - b.within)
     if counts.sum() == 0:
         return out
     out["within_diff"] = float(sums.sum() / counts.sum())
-    if n_boot > 0 and np.count_nonzero(counts) >= 2:
-        rng = np.random.default_rng(seed)
-        idx = rng.integers(0, sums.shape[0], size=(n_boot, sums.shape[0]))
-        tot = counts[idx].sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            draws = np.where(tot > 0, sums[idx].sum(axis=1) / np.maximum(tot, 1.0), np.nan)
-        out["within_ci95"] = list(percentile_ci(draws))
+    out["within_ci95"] = grouped_mean_ci(sums, counts, n_boot, seed)
     return out
 
 
 def within_ci(a: Agreement, n_boot: int, seed: int) -> list[float]:
     """95% interval of a row's mean within-group Srcc when the groups (setups, or structure families) are resampled
-    with replacement (numpy.random.default_rng(seed)); NaN when fewer than 2 groups have a value."""
-    nan2 = [float("nan")] * 2
-    if not a.within.size or n_boot <= 0:
-        return nan2
-    ok = np.isfinite(a.within)
-    sums = np.where(ok, a.within, 0.0).sum(axis=1)
-    counts = ok.sum(axis=1).astype(float)
-    if np.count_nonzero(counts) < 2:
-        return nan2
-    idx = np.random.default_rng(seed).integers(0, sums.shape[0], size=(n_boot, sums.shape[0]))
-    tot = counts[idx].sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return list(percentile_ci(np.where(tot > 0, sums[idx].sum(axis=1) / np.maximum(tot, 1.0), np.nan)))
+    with replacement (grouped_mean_ci)."""
+    if not a.within.size:
+        return [float("nan")] * 2
+    return grouped_mean_ci(*_group_sums(a.within), n_boot, seed)
 
 
 def verdict(comparisons: dict[str, dict], key: str = "ci95") -> bool | None:

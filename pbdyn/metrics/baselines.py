@@ -22,30 +22,12 @@ import time as _time
 
 import numpy as np
 
+from pbdyn.metrics.density import shape_points
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.survivability import positive
 
 _CHUNK_POINTS = 200_000
-
-
-def _inside_points(rollout, b: int, k: int, cell: float) -> np.ndarray:
-    """World points [P, d] on a grid of ``cell`` m (cell midpoints over the body's bounding box) inside imported body
-    b at step k; in 2D the cross-section in the flight plane."""
-    field = rollout.bodies.field()
-    d = rollout.dims
-    lo, hi = field.world_bounds(b, k)
-    h = float(rollout.meta.get("flight_height", 2.0))
-    if d == 2 and not lo[2] <= h <= hi[2]:
-        return np.zeros((0, 2))
-    axes = [np.arange(lo[a] + 0.5 * cell, hi[a], cell) for a in range(d)]
-    out = []
-    xs = axes[0]
-    rows = max(1, _CHUNK_POINTS // max(1, int(np.prod([len(a) for a in axes[1:]]))))
-    for s in range(0, len(xs), rows):
-        grid = np.stack(np.meshgrid(xs[s:s + rows], *axes[1:], indexing="ij"), axis=-1).reshape(-1, d)
-        q = np.concatenate([grid, np.full((grid.shape[0], 1), h)], axis=1) if d == 2 else grid
-        out.append(grid[field.body_distance(b, q, k) < 0.0])
-    return np.concatenate(out, axis=0) if out else np.zeros((0, d))
+"""Grid points per chunk of static_share."""
 
 
 def swept_width(points: np.ndarray, velocity: np.ndarray, cell: float) -> float:
@@ -76,10 +58,30 @@ def projected_area(points: np.ndarray, velocity: np.ndarray, cell: float) -> flo
     return float(np.unique(cells, axis=0).shape[0] * cell * cell)
 
 
+def equivalent_radii(rollout, time: float, cell: float | None = None) -> np.ndarray:
+    """Per obstacle the radius (m) of the band it sweeps at ``time`` (s): the disc/ball radius of generated
+    obstacles; for imported bodies half their swept width across their velocity (2D) or the radius of the disc of
+    their projected area (3D), measured on cells of ``cell`` m (default 0.02 m in 2D, 0.05 m in 3D); 0 for a body
+    that misses the flight plane."""
+    bodies = getattr(rollout, "bodies", None)
+    if bodies is None:
+        return np.asarray(rollout.radii, dtype=float)
+    d = rollout.dims
+    cell = positive("cell", cell if cell is not None else (0.02 if d == 2 else 0.05))
+    k = rollout.step_index(float(time))
+    v = np.asarray(rollout.velocities[k], dtype=float).reshape(-1, d)
+    out = np.zeros(rollout.n_obstacles)
+    for i, b in enumerate(bodies.moving_index.tolist()):
+        pts = shape_points(rollout, b, k, cell)
+        out[i] = 0.5 * swept_width(pts, v[i], cell) if d == 2 else math.sqrt(projected_area(pts, v[i], cell) / math.pi)
+    return out
+
+
 def flux(rollout, *, time: float = 0.0, mav_radius: float = 1.0, cell: float | None = None) -> MetricResult:
     """Swept-area rate (1/s; higher = harder): sum_i w_i |v_i| / arena measure at ``time`` (s), w_i = 2 (r_i + r_MAV)
-    in 2D, pi (r_i + r_MAV)^2 in 3D (module doc; imported worlds: the real shapes, cells of ``cell`` m, default
-    0.02 m in 2D and 0.05 m in 3D). per_sample: each obstacle's w_i |v_i| (m^2/s in 2D, m^3/s in 3D)."""
+    in 2D, pi (r_i + r_MAV)^2 in 3D with r_i from equivalent_radii (module doc; imported worlds: the real shapes,
+    cells of ``cell`` m, and no band for a body that misses the flight plane). per_sample: each obstacle's
+    w_i |v_i| (m^2/s in 2D, m^3/s in 3D)."""
     t0 = _time.perf_counter()
     mav_radius = positive("mav_radius", mav_radius)
     k = rollout.step_index(float(time))
@@ -87,19 +89,11 @@ def flux(rollout, *, time: float = 0.0, mav_radius: float = 1.0, cell: float | N
     cell = positive("cell", cell if cell is not None else (0.02 if d == 2 else 0.05))
     v = np.asarray(rollout.velocities[k], dtype=float).reshape(-1, d)
     speed = np.sqrt(np.sum(v * v, axis=1))
+    r = equivalent_radii(rollout, time, cell)
+    width = 2.0 * (r + mav_radius) if d == 2 else math.pi * (r + mav_radius) ** 2
     bodies = getattr(rollout, "bodies", None)
-    if bodies is None:
-        r = rollout.radii
-        width = 2.0 * (r + mav_radius) if d == 2 else math.pi * (r + mav_radius) ** 2
-    else:
-        width = np.zeros(rollout.n_obstacles)
-        for i, b in enumerate(bodies.moving_index.tolist()):
-            pts = _inside_points(rollout, b, k, cell)
-            if d == 2:
-                width[i] = swept_width(pts, v[i], cell) + 2.0 * mav_radius if pts.shape[0] else 0.0
-            else:
-                area = projected_area(pts, v[i], cell)
-                width[i] = math.pi * (math.sqrt(area / math.pi) + mav_radius) ** 2 if area > 0 else 0.0
+    if bodies is not None:
+        width = np.where(r > 0, width, 0.0)
     per = np.asarray(width * speed, dtype=float)
     per.setflags(write=False)
     total = float(np.prod(rollout.arena_size))

@@ -21,31 +21,37 @@ def static_measure(body: StaticBody, arena_size: np.ndarray) -> float:
     return float(np.prod(np.asarray(body.size, dtype=float)[:d]))
 
 
+def shape_points(rollout, b: int, k: int, cell: float, *, clip: bool = False) -> np.ndarray:
+    """The midpoints [P, d] of cells of ``cell`` m over imported body b's bounding box at step k (``clip``: only the
+    part inside the arena) that lie inside its real shape; in 2D its cross-section in the flight plane."""
+    field = rollout.bodies.field()
+    d = rollout.dims
+    lo, hi = field.world_bounds(b, k)
+    if clip:
+        lo = np.maximum(lo[:d], 0.0).tolist() + list(lo[d:])
+        hi = np.minimum(hi[:d], rollout.arena_size).tolist() + list(hi[d:])
+    h = float(rollout.meta.get("flight_height", 2.0))
+    if d == 2 and not lo[2] <= h <= hi[2]:
+        return np.zeros((0, 2))
+    axes = [np.arange(lo[a] + 0.5 * cell, hi[a], cell) for a in range(d)]
+    out = []
+    xs = axes[0]
+    rows = max(1, 400_000 // max(1, int(np.prod([len(a) for a in axes[1:]]))))
+    for s in range(0, len(xs), rows):
+        grid = np.stack(np.meshgrid(xs[s:s + rows], *axes[1:], indexing="ij"), axis=-1).reshape(-1, d)
+        q = np.concatenate([grid, np.full((grid.shape[0], 1), h)], axis=1) if d == 2 else grid
+        out.append(grid[field.body_distance(b, q, k) < 0.0])
+    return np.concatenate(out, axis=0) if out else np.zeros((0, d))
+
+
 def shape_measure(rollout, b: int, k: int, cell: float) -> float:
     """Cross-section area in the flight plane (2D, m^2) or volume (3D, m^3) of imported body b at step k: exact for
     a single-primitive body in 3D, else the cells of ``cell`` m (midpoint rule over the part of the body's bounding
     box inside the arena) whose centre is inside its real shape."""
     field = rollout.bodies.field()
-    d = rollout.dims
-    if d == 3 and len(field.prims[b]) == 1 and np.isfinite(field.prims[b][0].volume()):
+    if rollout.dims == 3 and len(field.prims[b]) == 1 and np.isfinite(field.prims[b][0].volume()):
         return field.prims[b][0].volume()
-    lo, hi = field.world_bounds(b, k)
-    lo = np.maximum(lo[:d], 0.0).tolist() + list(lo[d:])          # only the part inside the arena counts
-    hi = np.minimum(hi[:d], rollout.arena_size).tolist() + list(hi[d:])
-    axes = [np.arange(lo[a] + 0.5 * cell, hi[a], cell) for a in range(d)]
-    if d == 2:
-        h = float(rollout.meta.get("flight_height", 2.0))
-        if not lo[2] <= h <= hi[2]:
-            return 0.0
-    total = 0
-    xs = axes[0]
-    rows = max(1, 400_000 // max(1, int(np.prod([len(a) for a in axes[1:]]))))
-    for s in range(0, len(xs), rows):
-        grid = np.stack(np.meshgrid(xs[s:s + rows], *axes[1:], indexing="ij"), axis=-1).reshape(-1, d)
-        if d == 2:
-            grid = np.concatenate([grid, np.full((grid.shape[0], 1), h)], axis=1)
-        total += int(np.count_nonzero(field.body_distance(b, grid, k) < 0.0))
-    return float(total * cell ** d)
+    return float(shape_points(rollout, b, k, cell, clip=True).shape[0] * cell ** rollout.dims)
 
 
 def density(rollout, *, time: float = 0.0, mav_radius: float = 1.0, include_static: bool = True,

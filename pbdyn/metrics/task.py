@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from pbdyn.metrics.baselines import equivalent_radii
 from pbdyn.metrics.survivability import _kernel, positive, split_static
 
 
@@ -66,33 +67,11 @@ def corridor_survivability(rollout, start, goal, *, start_time: float = 0.0, mav
     return float(np.mean(times)), int(pts.shape[0])
 
 
-def equivalent_radii(rollout, time: float, cell: float | None = None) -> np.ndarray:
-    """Per obstacle the radius (m) its swept band has: the disc radius for generated obstacles; for imported bodies
-    half their swept width across their velocity (2D) or the radius of the disc of their projected area (3D)."""
-    bodies = getattr(rollout, "bodies", None)
-    if bodies is None:
-        return np.asarray(rollout.radii, dtype=float)
-    from pbdyn.metrics.baselines import _inside_points, projected_area, swept_width
-
-    d = rollout.dims
-    cell = positive("cell", cell if cell is not None else (0.02 if d == 2 else 0.05))
-    k = rollout.step_index(float(time))
-    v = np.asarray(rollout.velocities[k], dtype=float).reshape(-1, d)
-    out = np.zeros(rollout.n_obstacles)
-    for i, b in enumerate(bodies.moving_index.tolist()):
-        pts = _inside_points(rollout, b, k, cell)
-        if d == 2:
-            out[i] = 0.5 * swept_width(pts, v[i], cell)
-        else:
-            out[i] = math.sqrt(projected_area(pts, v[i], cell) / math.pi)
-    return out
-
-
 def corridor_flux(rollout, start, goal, *, start_time: float = 0.0, mav_radius: float = 1.0,
                   horizon: float = 12.0, spacing: float = 3.0, half_width: float = 3.0,
                   radii: np.ndarray | None = None) -> tuple[float, int]:
     """(corridor flux (1/s), number of samples) of the task start -> goal (module doc); NaN for no sample.
-    ``radii``: the obstacles' equivalent radii (equivalent_radii; computed when None)."""
+    ``radii``: the obstacles' equivalent radii (pbdyn.metrics.baselines.equivalent_radii; computed when None)."""
     horizon = positive("horizon", horizon)
     pts = corridor_points(start, goal, rollout.arena_size, spacing=spacing, half_width=half_width,
                           mav_radius=mav_radius)

@@ -106,7 +106,7 @@ def shape_dynamic(field, bodies: np.ndarray, base0: np.ndarray, base1: np.ndarra
         return _NO_DYNAMIC
     p0 = to3(np.asarray(mav_p0, dtype=float))
     p1 = to3(np.asarray(mav_p1, dtype=float))
-    best = (1.0 + 1.0, -1)
+    best = (math.inf, -1)                     # (first contact fraction, body row)
     clearance = math.inf
     for j, b in enumerate(np.asarray(bodies).tolist()):
         move = base1[j] - base0[j]

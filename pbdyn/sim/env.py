@@ -248,19 +248,17 @@ class TrialEnv:
     def check(self, k: int, p0: np.ndarray, p1: np.ndarray) -> tuple[Outcome | None, float]:
         """Step (7) collision part for the move p0 (t_k) -> p1 (t_k+1) of trial step k: (static/dynamic outcome or
         None, clearance m)."""
-        obs0, _ = self.rollout.at(self.k0 + k)
-        obs1, _ = self.rollout.at(self.k0 + k + 1)
         r = self.spec.scenario.drone.radius
+        k0, k1 = self.k0 + k, self.k0 + k + 1
         st = swept_static(self.world, p0, p1) if self.swept else sampled_static(self.world, p1)
         if self.shape_bodies is not None:      # an imported world's moving bodies: their real shapes
             b = self.rollout.bodies
-            k0, k1 = self.k0 + k, self.k0 + k + 1
             dy = shape_dynamic(b.field(), self.shape_bodies, b.position[k0, self.shape_bodies],
                                b.position[k1, self.shape_bodies], p0, p1, k1, r, self.world.to_world3, self.swept)
         elif self.swept:
-            dy = swept_dynamic(p0, p1, obs0, obs1, self.radii, r)
+            dy = swept_dynamic(p0, p1, self.rollout.at(k0)[0], self.rollout.at(k1)[0], self.radii, r)
         else:
-            dy = sampled_dynamic(p1, obs1, self.radii, r)
+            dy = sampled_dynamic(p1, self.rollout.at(k1)[0], self.radii, r)
         clearance = min(float(st.min_clearance), float(dy.min_clearance))
         if st.hit and (not dy.hit or st.fraction <= dy.fraction):
             return Outcome.STATIC_COLLISION, clearance
