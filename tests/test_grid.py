@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pbdyn.perception.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 
@@ -38,3 +39,23 @@ def test_clearance_3d():
     g = OccupancyGrid([0, 0, 0], [10, 10, 10], 1.0)
     g.mark_occupied(np.array([[2.5, 2.5, 2.5]]))
     np.testing.assert_allclose(g.clearance(np.array([[4.0, 4.0, 4.0]]), 5.0), [np.sqrt(3.0)])
+
+
+def test_clearance_skips_only_points_far_from_every_occupied_cell():
+    """The near-occupied shortcut of clearance() gives exactly the full search's distances (2D and 3D, points
+    inside and outside the grid, several caps), and follows direct writes to ``cells``."""
+    rng = np.random.default_rng(3)
+    for it in range(40):
+        d = 2 if it % 2 else 3
+        g = OccupancyGrid(np.zeros(d), np.full(d, 20.0 if d == 2 else 10.0), 1.0)
+        g.cells[rng.random(g.shape) < rng.uniform(0.0, 0.03)] = OCCUPIED
+        pts = rng.uniform(-3.0, (23.0 if d == 2 else 13.0), size=(300, d))
+        for cap in (0.5, 1.5, 2.5, 3.7):
+            assert np.array_equal(g.clearance(pts, cap), g._clearance_search(pts, g.index(pts), cap))
+    g = OccupancyGrid(np.zeros(2), np.full(2, 20.0), 1.0)
+    p = np.array([[10.5, 10.5]])
+    assert g.clearance(p, 2.5)[0] == 2.5
+    g.cells[12, 11] = OCCUPIED                        # a direct write: the cell [10, 11) x [9, 10) in world metres
+    assert g.clearance(p, 2.5)[0] == pytest.approx(0.5)
+    g.cells[12, 11] = FREE
+    assert g.clearance(p, 2.5)[0] == 2.5

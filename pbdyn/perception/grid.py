@@ -34,6 +34,7 @@ class OccupancyGrid:
         self._last = np.asarray(self.shape, dtype=np.int64) - 1
         self._strides = np.cumprod((self.shape[1:] + (1,))[::-1])[::-1].astype(np.int64)  # C-order, in cells
         self._window_cache: dict[int, np.ndarray] = {}
+        self._near_cache: tuple = (None, {})   # (OCCUPIED mask it was built from, {h: dilated mask})
 
     @property
     def dims(self) -> int:
@@ -96,17 +97,61 @@ class OccupancyGrid:
             self._window_cache[reach] = w
         return w
 
+    def near_occupied(self, h: int) -> np.ndarray | None:
+        """Bool mask [shape]: cells within Chebyshev index distance ``h`` of an OCCUPIED cell (None if no cell is
+        OCCUPIED). Rebuilt when the OCCUPIED cells differ from those it was built from (any write to ``cells``)."""
+        occ = self.cells == OCCUPIED
+        built_from, masks = self._near_cache
+        if built_from is None or not np.array_equal(occ, built_from):
+            masks = {}
+            self._near_cache = (occ, masks)
+        mask = masks.get(h)
+        if mask is None:
+            if not occ.any():
+                return None
+            mask = occ.copy()
+            for axis in range(mask.ndim):          # a separable square dilation: shift-OR along each axis
+                src = mask.copy()
+                n = mask.shape[axis]
+                for k in range(1, min(h, n - 1) + 1):
+                    lo = [slice(None)] * mask.ndim
+                    hi = [slice(None)] * mask.ndim
+                    lo[axis], hi[axis] = slice(0, n - k), slice(k, n)
+                    mask[tuple(lo)] |= src[tuple(hi)]
+                    mask[tuple(hi)] |= src[tuple(lo)]
+            masks[h] = mask
+        return mask
+
     def clearance(self, points: np.ndarray, max_dist: float) -> np.ndarray:
         """Distance (m) from each world point [K, d] to the nearest OCCUPIED cell square/cube, capped at max_dist.
 
-        Exact point-to-box distance over the cells within max_dist; 0 inside an occupied cell.
+        Exact point-to-box distance over the cells within max_dist; 0 inside an occupied cell. Points whose cell is
+        more than ceil(max_dist / res) cells from every OCCUPIED cell (near_occupied) get max_dist without the
+        search: every box is at least that far from them (a point outside the grid is farther from each box than
+        the border cell it is clipped to).
         """
         pts = np.asarray(points, dtype=float).reshape(-1, self.dims)
         out = np.full(pts.shape[0], float(max_dist))
-        if pts.shape[0] == 0 or not np.any(self.cells == OCCUPIED):
+        if pts.shape[0] == 0:
             return out
-        reach = int(np.ceil(max_dist / self.res)) + 1
+        h = max(int(np.ceil(max_dist / self.res)), 0)
+        near = self.near_occupied(h)
+        if near is None:
+            return out
         base = self.index(pts)                                   # [K, d]
+        close = near[tuple(base.T)]
+        if not close.all():
+            rows = np.flatnonzero(close)
+            if rows.shape[0] == 0:
+                return out
+            out[rows] = self._clearance_search(pts[rows], base[rows], max_dist)
+            return out
+        return self._clearance_search(pts, base, max_dist)
+
+    def _clearance_search(self, pts: np.ndarray, base: np.ndarray, max_dist: float) -> np.ndarray:
+        """clearance() by searching the OCCUPIED cells within ceil(max_dist / res) + 1 cells of each point's cell."""
+        out = np.full(pts.shape[0], float(max_dist))
+        reach = int(np.ceil(max_dist / self.res)) + 1
         cand = base[:, None, :] + self._window(reach)[None]      # [K, W, d]
         shape = np.asarray(self.shape)
         inside = np.all((cand >= 0) & (cand < shape), axis=-1)
@@ -131,4 +176,5 @@ class OccupancyGrid:
         g.__dict__.update(self.__dict__)
         g.cells = self.cells.copy()
         g._window_cache = {}
+        g._near_cache = (None, {})
         return g
