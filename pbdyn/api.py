@@ -13,6 +13,7 @@ like the TOML file, or a loaded Scenario. Bad values raise pbdyn.ConfigError nam
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import inspect
 import math
 from collections.abc import Iterator, Mapping
@@ -29,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover - the heavy modules load on first use
     from pbdyn.sim.result import TrialResult
     from pbdyn.world.rollout import Rollout
 
-__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "open_results",
+__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "merge_results", "open_results",
            "Results", "export_results", "evaluate", "check_planner", "run_demo"]
 
 
@@ -160,7 +161,8 @@ def metric_backend(scenario, backend: str = "auto") -> str:
 
 def run_batch(scenario, out: str | Path, *, workers: int | None = None, scheduler=None, limit: int | None = None,
               extend: bool = False, metrics: bool = True, rerun_changed: bool = False, retry_errors: bool = False,
-              progress: bool = True, command: str = ""):
+              progress: bool = True, shard: str | tuple[int, int] | None = None, lockstep: int | None = None,
+              command: str = ""):
     """Run (or resume) every trial and map metric of ``scenario`` into the results store ``out`` (SQLite) and
     return a BatchSummary (total, skipped, ran, errors, stored_errors, rerun, maps_computed, wall_time_s).
 
@@ -168,15 +170,27 @@ def run_batch(scenario, out: str | Path, *, workers: int | None = None, schedule
     ("tcp://host:8786"; checked and probed, a bounded wait) or a dask.distributed Client (tls: a Client made with a
     Security object); limit: only the
     first N trials; extend: accept added grid values, planners, MAV speeds or maps; metrics: compute each map's
-    metrics; rerun_changed: re-fly rows whose planner code changed; retry_errors: re-fly stored error rows.
+    metrics; rerun_changed: re-fly rows whose planner code changed; retry_errors: re-fly stored error rows;
+    shard: "I/N" or (I, N), only the I-th of N contiguous blocks of maps (their stores join with merge_stores);
+    lockstep: trials of one map flown together per task (default 72; 1: one per task; rows are the same).
     Planners must be given by name in the scenario (workers import them)."""
     from pbdyn.experiments.runner import BatchOptions
     from pbdyn.experiments.runner import run_batch as batch
 
     sc = load_scenario(scenario)
     opts = BatchOptions(workers=workers, scheduler=scheduler, limit=limit, extend=extend, metrics=metrics,
-                        progress=progress, rerun_changed=rerun_changed, retry_errors=retry_errors)
+                        progress=progress, rerun_changed=rerun_changed, retry_errors=retry_errors, shard=shard)
+    if lockstep is not None:
+        opts = dataclasses.replace(opts, lockstep=lockstep)
     return batch(sc, out, opts, command=command)
+
+
+def merge_results(out: str | Path, inputs):
+    """Join results stores of one experiment (e.g. the shards of run_batch(..., shard="I/N")) into ``out``; trials
+    held by several inputs are stored once. Returns a MergeSummary (trials, added, duplicates, conflicts, maps)."""
+    from pbdyn.experiments.merge import merge_stores
+
+    return merge_stores(out, [inputs] if isinstance(inputs, (str, Path)) else list(inputs))
 
 
 class Results:

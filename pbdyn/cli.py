@@ -96,7 +96,16 @@ def build_parser() -> argparse.ArgumentParser:
                      help="re-fly the stored trials whose planner code changed since they were flown (else they stop "
                           "the batch)")
     bat.add_argument("--retry-errors", action="store_true", help="re-fly the stored trials whose outcome is error")
+    bat.add_argument("--shard", help="run only shard I of N (I/N, 1 <= I <= N; maps split into N contiguous blocks), "
+                     "e.g. one SLURM array task; join the shards' stores with `pbdyn merge`")
+    bat.add_argument("--lockstep", type=_nonneg_int, default=None,
+                     help="trials of one map flown together per task (default 72; 1: one trial per task)")
     bat.add_argument("--json", action="store_true", help="print a JSON summary")
+
+    mrg = sub.add_parser("merge", help="join results stores of one experiment (e.g. `pbdyn batch --shard` shards)")
+    mrg.add_argument("results", nargs="+", help="results stores to join")
+    mrg.add_argument("--out", required=True, help="the joined store (created, or an existing store of the experiment)")
+    mrg.add_argument("--json", action="store_true", help="print a JSON summary")
 
     ev = sub.add_parser("evaluate", help="success rates and how well each metric ranks maps (table 4-5), figures")
     ev.add_argument("results", nargs="+", help="results store(s); the first is the reference (controlled) set")
@@ -122,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
          "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
-         "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "out": "--out", "plots": "--plots",
+         "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep", "out": "--out", "plots": "--plots",
          "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
@@ -200,9 +209,12 @@ def cmd_batch(args: argparse.Namespace) -> int:
         raise ConfigError("--workers", "must be >= 1", 0)
     if args.limit == 0:
         raise ConfigError("--limit", "must be >= 1", 0)
+    if args.lockstep == 0:
+        raise ConfigError("--lockstep", "must be >= 1", 0)
     s = api.run_batch(args.scenario, args.out, workers=args.workers, scheduler=args.scheduler, limit=args.limit,
                       extend=args.extend, metrics=not args.no_metrics, rerun_changed=args.rerun_changed,
-                      retry_errors=args.retry_errors, command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
+                      retry_errors=args.retry_errors, shard=args.shard, lockstep=args.lockstep,
+                      command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
     doc = {"results": str(args.out), "trials": s.total, "already_stored": s.skipped, "ran": s.ran, "rerun": s.rerun,
            "errors": s.errors, "stored_errors": s.stored_errors, "maps_computed": s.maps_computed,
            "wall_time_s": s.wall_time_s}
@@ -213,6 +225,19 @@ def cmd_batch(args: argparse.Namespace) -> int:
         sys.stdout.write(f"{args.out}: {s.total} trials ({s.skipped} already stored, {s.ran} run now{rerun}, "
                          f"{s.errors} errors; {s.stored_errors} error rows in the store), {s.maps_computed} maps' "
                          f"metrics, {s.wall_time_s:.1f} s\n")
+    return 0
+
+
+def cmd_merge(args: argparse.Namespace) -> int:
+    s = api.merge_results(args.out, args.results)
+    doc = {"results": str(args.out), "trials": s.trials, "added": s.added, "duplicates": s.duplicates,
+           "conflicts": s.conflicts, "maps": s.maps}
+    if args.json:
+        sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+    else:
+        conflict = f", {s.conflicts} of them with another outcome or planner code (first kept)" if s.conflicts else ""
+        sys.stdout.write(f"{args.out}: {s.trials} trials ({s.added} added, {s.duplicates} duplicates skipped"
+                         f"{conflict}), {s.maps} maps\n")
     return 0
 
 
@@ -235,7 +260,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
-            "export": cmd_export, "evaluate": cmd_evaluate}
+            "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge}
 
 
 def main(argv: list[str] | None = None) -> int:

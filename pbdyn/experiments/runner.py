@@ -36,11 +36,13 @@ from pbdyn import __version__
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, PbdynError, one_line
 from pbdyn.experiments.store import ResultsStore, check_store_path, store_error
-from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialTask, enumerate_trials, run_map_task,
-                                     run_trial_task, trial_spec, worker_init)
+from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialGroupTask, TrialTask, enumerate_trials,
+                                     run_map_task, run_trial_group_task, run_trial_task, trial_spec, worker_init)
 from pbdyn.world.rollout import default_horizon, rollout_file
 
 COMMIT_INTERVAL_S = 1.0
+LOCKSTEP_TRIALS = 72
+"""Default most trials of one map flown together per task (one planner pair's start/goal pairs at one speed)."""
 MAX_POOL_RESTARTS = 3
 CONNECT_TIMEOUT_S = 10.0
 
@@ -62,6 +64,8 @@ class BatchOptions:
     progress: bool = True
     rerun_changed: bool = False
     retry_errors: bool = False
+    lockstep: int = LOCKSTEP_TRIALS
+    shard: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -469,6 +473,7 @@ class _Plan:
     """What a batch will do, worked out before the store is written: pending trial count, rows it replaces, the
     maps whose rollouts the run needs, the maps whose metrics it computes."""
 
+    start: int           # the trials start..start+total-1 of the enumeration (a shard, or all from 0)
     total: int
     pending: int
     rerun: int
@@ -478,10 +483,40 @@ class _Plan:
     stale: dict           # label -> current fingerprint of entries whose rows must be re-flown (rerun_changed)
 
 
-def _pending(trials, total: int, states_of, stale: dict, retry_errors: bool) -> Iterator[tuple[tuple, bool]]:
-    """(trial, replaces a stored row) for every trial of the first ``total`` that is not stored, or is stored and
-    must be re-flown; ``states_of(keys)`` reads the stored states of a chunk of keys (None: nothing stored)."""
-    it = trials.iter_range(0, total)
+def shard_range(trials, total: int, shard: tuple[int, int] | None) -> tuple[int, int, range]:
+    """(start, stop, map indices) of shard (i, n) of the first ``total`` trials: the maps they touch are cut into n
+    contiguous blocks of (nearly) equal size and shard i takes the i-th block with all of its trials (a map's trials
+    and its metrics stay in one shard; a shard can be empty when n exceeds the maps). None: everything."""
+    maps = trials.map_range(total)
+    if shard is None:
+        return 0, total, maps
+    i, n = shard
+    m_lo, m_hi = (i - 1) * len(maps) // n, i * len(maps) // n
+    per = trials.per_map
+    return min(m_lo * per, total), min(m_hi * per, total), range(m_lo, m_hi)
+
+
+def parse_shard(text) -> tuple[int, int]:
+    """"I/N" (1 <= I <= N) -> (I, N); ConfigError naming --shard otherwise."""
+    if isinstance(text, tuple) and len(text) == 2:
+        i, n = text
+    else:
+        parts = str(text).split("/")
+        try:
+            i, n = (int(p) for p in parts) if len(parts) == 2 else (None, None)
+        except ValueError:
+            i = n = None
+    if not (isinstance(i, int) and isinstance(n, int) and not isinstance(i, bool) and not isinstance(n, bool)
+            and 1 <= i <= n):
+        raise ConfigError("--shard", "must be I/N with integers 1 <= I <= N (e.g. 3/8)", text)
+    return i, n
+
+
+def _pending(trials, start: int, stop: int, states_of, stale: dict,
+             retry_errors: bool) -> Iterator[tuple[tuple, bool]]:
+    """(trial, replaces a stored row) for every trial start..stop-1 that is not stored, or is stored and must be
+    re-flown; ``states_of(keys)`` reads the stored states of a chunk of keys (None: nothing stored)."""
+    it = trials.iter_range(start, stop)
     while True:
         chunk = list(itertools.islice(it, 500))
         if not chunk:
@@ -500,9 +535,11 @@ def _pending(trials, total: int, states_of, stale: dict, retry_errors: bool) -> 
 def _read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchOptions) -> _Plan:
     """Read the existing store (if any) read-only and work out the plan; refuse a changed scenario or changed
     planner code here, before anything is built or written."""
-    per_map_maps = [trials.maps[i] for i in trials.map_range(total)]
+    start, stop, map_idx = shard_range(trials, total, options.shard)
+    total = stop - start
+    per_map_maps = [trials.maps[i] for i in map_idx]
     if not out.exists() or out.stat().st_size == 0:
-        return _Plan(total, total, 0, per_map_maps, per_map_maps if options.metrics else [], False, {})
+        return _Plan(start, total, total, 0, per_map_maps, per_map_maps if options.metrics else [], False, {})
     store = ResultsStore.open(out, field="out")
     try:
         if store._foreign_tables():
@@ -518,13 +555,14 @@ def _read_plan(out: Path, scenario: Scenario, trials, total: int, options: Batch
         stored = store.count() > 0
         pending = rerun = 0
         maps: dict[str, object] = {}
-        for t, rep in _pending(trials, total, store.stored_states if stored else None, stale, options.retry_errors):
+        for t, rep in _pending(trials, start, stop, store.stored_states if stored else None, stale,
+                               options.retry_errors):
             pending += 1
             rerun += rep
             maps.setdefault(t[1].map_id, t[1])
         done = store.maps_with_metrics() if options.metrics else set()
         metric_maps = [m for m in per_map_maps if m.map_id not in done] if options.metrics else []
-        return _Plan(total, pending, rerun, list(maps.values()), metric_maps, stored, stale)
+        return _Plan(start, total, pending, rerun, list(maps.values()), metric_maps, stored, stale)
     finally:
         store.conn.close()
 
@@ -547,6 +585,10 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
     if options.limit is not None and (not isinstance(options.limit, int) or isinstance(options.limit, bool)
                                       or options.limit < 1):
         raise ConfigError("limit", "must be an integer >= 1", options.limit)
+    if not isinstance(options.lockstep, int) or isinstance(options.lockstep, bool) or options.lockstep < 1:
+        raise ConfigError("lockstep", "must be an integer >= 1", options.lockstep)
+    if options.shard is not None:
+        options = replace(options, shard=parse_shard(options.shard))
     out_path = check_store_path(out, "out")
     check_planners(scenario)
     trials = enumerate_trials(scenario)
@@ -593,8 +635,8 @@ def _run(store: ResultsStore, scenario: Scenario, trials, plan: _Plan, files: di
                              "dask" if options.scheduler is not None else str(workers))
     ran = errors = maps_done = 0
     if plan.pending or plan.metric_maps:
-        items = _pending(trials, plan.total, store.stored_states if plan.stored else None, plan.stale,
-                         options.retry_errors)
+        items = _pending(trials, plan.start, plan.start + plan.total, store.stored_states if plan.stored else None,
+                         plan.stale, options.retry_errors)
         ran, errors, maps_done = _execute(store, scenario, items, plan, files, workers, options)
     store.end_run(run_id)
     return BatchSummary(plan.total, plan.total - plan.pending, ran, errors, maps_done, time.perf_counter() - t0,
@@ -613,6 +655,9 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
     trial_map_ids = {m.map_id for m in plan.trial_maps}
 
     def source() -> Iterator[tuple]:
+        return _grouped(maps_and_trials(), options.lockstep)
+
+    def maps_and_trials() -> Iterator[tuple]:
         for m in plan.metric_maps:
             if m.map_id not in trial_map_ids:
                 metric_ids.discard(m.map_id)
@@ -632,6 +677,12 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
         if kind == "map":
             store.add_map(result)
             counts["maps"] += 1
+        elif kind == "group":
+            for (key, row, err), replace_row in zip(result, rep):
+                store.add_trials([(key, row, err)], replace=replace_row)
+                counts["ran"] += 1
+                counts["errors"] += err is not None
+                progress.step()
         else:
             key, row, err = result
             store.add_trials([(key, row, err)], replace=rep)
@@ -645,7 +696,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
     last_commit = time.perf_counter()
     restarts = 0
     interrupted = False
-    window = 4 * workers if not pool.dask else max(64, 8 * workers)
+    window = (4 if options.lockstep <= 1 else 2) * workers if not pool.dask else max(64, 8 * workers)
     try:
         while True:
             try:
@@ -704,15 +755,47 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
     return counts["ran"], counts["errors"], counts["maps"]
 
 
+def _grouped(items: Iterator[tuple], size: int) -> Iterator[tuple]:
+    """The stream of ("map", map, False) and ("trial", trial, replaces) items with runs of consecutive trials of one
+    map packed into ("group", [trials], [replaces]) items of at most ``size`` (size 1: unchanged)."""
+    if size <= 1:
+        yield from items
+        return
+    trials: list = []
+    reps: list = []
+    for item in items:
+        kind, obj, rep = item
+        if trials and (kind != "trial" or obj[1].map_id != trials[0][1].map_id or len(trials) >= size):
+            yield "group", trials, reps
+            trials, reps = [], []
+        if kind == "trial":
+            trials.append(obj)
+            reps.append(rep)
+        else:
+            yield item
+    if trials:
+        yield "group", trials, reps
+
+
+def _trial_spec_of(scenario: Scenario, trial, files: dict):
+    """(key, TrialSpec, RolloutRef) of one enumerated trial."""
+    key, m, entry, v, start, goal = trial
+    if m.map_id not in files:     # not foreseen (the store changed under the batch): build it now
+        files[m.map_id] = rollout_file(scenario, m, default_horizon(scenario))
+    rkey, path = files[m.map_id]
+    return key, trial_spec(scenario, m, entry, v, start, goal), RolloutRef(rkey, str(path))
+
+
 def _submit(pool: _Pool, scenario: Scenario, item, files: dict):
     kind, obj, _ = item
+    if kind == "group":
+        specs = [_trial_spec_of(scenario, t, files) for t in obj]
+        ref = specs[0][2]
+        task = TrialGroupTask(tuple(k for k, _, _ in specs), tuple(s for _, s, _ in specs), ref)
+        return pool.submit(run_trial_group_task, task, ref.key, Path(ref.path))
     if kind == "map":
         key, path = files[obj.map_id]
         return pool.submit(run_map_task, MapTask(scenario, obj, RolloutRef(key, str(path)), METRIC_SET, "auto"),
                            key, path)
-    key, m, entry, v, start, goal = obj
-    if m.map_id not in files:     # not foreseen (the store changed under the batch): build it now
-        files[m.map_id] = rollout_file(scenario, m, default_horizon(scenario))
-    rkey, path = files[m.map_id]
-    spec = trial_spec(scenario, m, entry, v, start, goal)
-    return pool.submit(run_trial_task, TrialTask(key, spec, RolloutRef(rkey, str(path))), rkey, path)
+    key, spec, ref = _trial_spec_of(scenario, obj, files)
+    return pool.submit(run_trial_task, TrialTask(key, spec, ref), ref.key, Path(ref.path))

@@ -49,6 +49,16 @@ class TrialTask:
 
 
 @dataclass(frozen=True)
+class TrialGroupTask:
+    """Trials of one map flown together in lockstep (pbdyn.sim.lockstep): their keys and TrialSpecs, in order, and
+    where the map's rollout is."""
+
+    keys: tuple
+    specs: tuple
+    rollout: RolloutRef
+
+
+@dataclass(frozen=True)
 class MapTask:
     """One map's metrics to compute."""
 
@@ -306,11 +316,46 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
             raise
         return task.key, res.to_dict(), None
     except Exception as exc:  # any failure of a trial is recorded as an "error" row, never stops the batch
-        msg = one_line(exc)
-        tb = traceback.extract_tb(exc.__traceback__)
-        if tb:
-            msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno})"
+        msg = _error_message(exc)
         return task.key, error_row(task, msg), msg
+
+
+def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> list[tuple[str, dict, str | None]]:
+    """Fly a group of trials of one map in lockstep in this worker: per trial, in order, what run_trial_task
+    returns for it (its row, or an "error" row and message if that trial raised). If the shared part of the
+    lockstep loop fails (world, ray batch), the trials are flown one by one with run_trial_task instead."""
+    _limit_threads()
+    from pbdyn.sim.lockstep import run_lockstep
+
+    singles = [TrialTask(k, s, task.rollout) for k, s in zip(task.keys, task.specs)]
+    try:
+        ro = _rollout(task.rollout, data)
+        world = _world(singles[0], task.specs[0], ro)
+        results = run_lockstep(task.specs, ro, world)
+    except Exception:
+        _CACHE["world"] = (None, None)
+        return [run_trial_task(t, data) for t in singles]
+    out = []
+    failed = False
+    for t, res in zip(singles, results):
+        if isinstance(res, BaseException):
+            failed = True
+            msg = _error_message(res)
+            out.append((t.key, error_row(t, msg), msg))
+        else:
+            out.append((t.key, res.to_dict(), None))
+    if failed:
+        _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state: rebuild it
+    return out
+
+
+def _error_message(exc: BaseException) -> str:
+    """An error row's message: the exception in one line and where it was raised."""
+    msg = one_line(exc)
+    tb = traceback.extract_tb(exc.__traceback__)
+    if tb:
+        msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno})"
+    return msg
 
 
 def run_map_task(task: MapTask, data: bytes | None = None) -> dict:

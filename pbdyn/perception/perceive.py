@@ -47,6 +47,16 @@ class Detections:
     ranges: np.ndarray
 
 
+@dataclass(frozen=True)
+class PendingScan:
+    """A scan begun (Perception.begin) and not yet completed: sensor origin [d] (m), ray directions [d, R] and the
+    fan's rays to cast (pbdyn.world.bullet.FanRays)."""
+
+    origin: np.ndarray
+    dirs_t: np.ndarray
+    fan: object
+
+
 class Perception:
     """The MAV's depth sensor over a PyBulletWorld, writing into an OccupancyGrid.
 
@@ -211,12 +221,26 @@ class Perception:
 
     def sense(self, position, yaw: float) -> Detections:
         """Scan from ``position`` [d] (m) looking along ``yaw`` (rad): detections, and the grid updated in place."""
-        world, grid = self.world, self.grid
+        scan = self.begin(position, yaw)
+        if isinstance(scan, Detections):
+            return scan
+        return self.complete(scan, *self.world.cast_fans([scan.fan])[0])
+
+    def begin(self, position, yaw: float):
+        """The first half of sense(): the scan's rays (a PendingScan, to cast with world.cast_fans, possibly with
+        other MAVs' fans in one call, then complete()), or the finished Detections (model "marching", which casts
+        no Bullet rays)."""
         o = np.asarray(position, dtype=float).reshape(self.dims)
         dirs_t = self._rotated(yaw)                                       # [d, R]
         if self.model == "marching":
             return self._sense_marching(o, dirs_t)
-        hits, frac = world.cast_fan(o, dirs_t.T, self.range_m)
+        return PendingScan(o, dirs_t, self.world.fan_rays(o, dirs_t.T, self.range_m))
+
+    def complete(self, scan: "PendingScan", hits: np.ndarray, frac: np.ndarray) -> Detections:
+        """The second half of sense(): the detections of ``scan`` from its fan's per-ray results (body ids [R],
+        fractions [R]; world.cast_fans), and the grid updated in place."""
+        world, grid = self.world, self.grid
+        o, dirs_t = scan.origin, scan.dirs_t
         ranges = frac * self.range_m
         self._mark_free(o, dirs_t, np.where(hits >= 0, ranges, np.inf))
 

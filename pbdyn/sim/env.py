@@ -131,9 +131,10 @@ class TrialEnv:
         self.max_accel = 0.0
 
     # -------------------------------------------------------------------------------------------- episode
-    def reset(self) -> None:
+    def reset(self, *, sense: bool = True) -> None:
         """Start the trial: fresh grid, tracks and sensor noise; the MAV at the start, at rest, facing the goal
-        (or task.start_yaw_deg); then sense at t_0 (steps (1)-(3))."""
+        (or task.start_yaw_deg); then sense at t_0 (steps (1)-(3); ``sense=False`` leaves that to the caller, e.g.
+        pbdyn.sim.lockstep, which must then set detections, tracks and sense_timings as _sense does)."""
         sc = self.spec.scenario
         lo, hi = self.bounds
         self.grid = OccupancyGrid(lo, hi, sc.world.grid_resolution)
@@ -162,7 +163,8 @@ class TrialEnv:
         self.max_speed = 0.0
         self.max_accel = 0.0
         self.collision_wall_s = 0.0
-        self._sense()
+        if sense:
+            self._sense()
 
     @property
     def t(self) -> float:
@@ -183,17 +185,30 @@ class TrialEnv:
         """Steps (1)-(3) at t_k: obstacle poses from the rollout (at t_k+1 with sensor.obstacles_at = "next"), MAV
         pose, ray sensing, tracker update."""
         c0 = time.perf_counter()
-        k = self.k0 + self.k + self.sense_ahead
-        obs_p, _ = self.rollout.at(k)
-        self.world.set_obstacle_positions(obs_p, self._body_poses(k))  # (1)
+        self.pose_obstacles()                                               # (1)
         self.world.set_mav_pose(self.position, self.yaw)
         c1 = time.perf_counter()
         self.detections = self.perception.sense(self.position, self.yaw)   # (2)
         c2 = time.perf_counter()
-        self.tracker.step(self.detections.ids, self.detections.centers)    # (3)
-        self.tracks = self.tracker.tracks(self.radii)
+        self.track()                                                        # (3)
         c3 = time.perf_counter()
         self.sense_timings = (c1 - c0, c2 - c1, c3 - c2)
+
+    def sense_index(self) -> int:
+        """The rollout step whose obstacle poses this step senses (self.rollout)."""
+        return self.k0 + self.k + self.sense_ahead
+
+    def pose_obstacles(self) -> None:
+        """Step (1): the world's obstacles at the rollout step sense_index() (trials that share the world, the
+        rollout and that step need it once)."""
+        k = self.sense_index()
+        obs_p, _ = self.rollout.at(k)
+        self.world.set_obstacle_positions(obs_p, self._body_poses(k))
+
+    def track(self) -> None:
+        """Step (3): every track predicts, the detected ones update (self.detections); self.tracks is the result."""
+        self.tracker.step(self.detections.ids, self.detections.centers)
+        self.tracks = self.tracker.tracks(self.radii)
 
     def _body_poses(self, k: int):
         """(base positions [M, 3], orientations [M, 4]) of an imported world's moving bodies at rollout step k, or
@@ -210,10 +225,10 @@ class TrialEnv:
                     self.goal_radius, self.limits, self.bounds[0], self.bounds[1], self.grid, self.tracks,
                     trajectory, self.fov_deg, sc.sensor.range, sc.sensor.vfov_deg)
 
-    def step(self, action: Action) -> None:
+    def step(self, action: Action, *, sense: bool = True) -> None:
         """Steps (6)-(7): move the MAV to the action's state at t_k+1 and turn it by the clipped yaw rate, then
         check static collision, dynamic collision, goal, time limit and deadlock, in that order; the first that
-        holds ends the trial. If it goes on, sense at t_k+1."""
+        holds ends the trial. If it goes on, sense at t_k+1 (unless ``sense=False``, as in reset)."""
         if self.outcome is not None:
             raise RuntimeError("step() after the trial ended; call reset()")
         c5 = time.perf_counter()
@@ -237,7 +252,7 @@ class TrialEnv:
             self.end(Outcome.FREEZING)
         elif action.consecutive_failures >= self.deadlock_steps and float(np.linalg.norm(self.velocity)) < REST_SPEED:
             self.end(Outcome.DEADLOCK)
-        else:
+        elif sense:
             self._sense()
 
     def end(self, outcome: Outcome, reason: str | None = None) -> None:

@@ -30,6 +30,7 @@ import sys
 import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -203,6 +204,17 @@ def new_client(gui: bool = False):
     """A new BulletClient (DIRECT, or GUI), its banner silenced; the caller disconnects it."""
     with silenced_stdout():
         return bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+
+
+@dataclass(frozen=True)
+class FanRays:
+    """The rays of one sensor fan that need Bullet (PyBulletWorld.fan_rays): n_rays of the fan, the indices of the
+    ones kept (None: all), and their start and end points [k, 3] (m, world frame)."""
+
+    n_rays: int
+    selected: np.ndarray | None
+    starts: np.ndarray
+    ends: np.ndarray
 
 
 class PyBulletWorld:
@@ -532,6 +544,14 @@ class PyBulletWorld:
         Culling is skipped (cull=False, or bodies in the client this world did not create) and relies on bodies
         being moved only through set_obstacle_positions.
         """
+        fan = self.fan_rays(origin, directions, range_m, cull=cull)
+        if fan.starts.shape[0] == 0:
+            return self.fan_results(fan, np.empty(0, np.int64), np.empty(0))
+        return self.fan_results(fan, *self.cast_rays(fan.starts, fan.ends))
+
+    def fan_rays(self, origin, directions, range_m: float, *, cull: bool = True) -> "FanRays":
+        """The rays cast_fan sends to Bullet for this fan (culled as there), to cast later, possibly together
+        with other fans in one cast_rays call (lockstep trials); fan_results turns their hits into cast_fan's."""
         o = np.asarray(origin, dtype=float).reshape(self.dims)
         dirs = np.asarray(directions, dtype=float).reshape(-1, self.dims)
         n = dirs.shape[0]
@@ -542,21 +562,38 @@ class PyBulletWorld:
                 sel = None
         else:
             sel = None
-        ids = np.full(n, -1, dtype=np.int64)
-        frac = np.ones(n)
         k = n if sel is None else sel.shape[0]
-        if k == 0:
-            return ids, frac
         starts = np.empty((k, 3))
         starts[:] = o3
         ends = starts.copy()
-        ends[:, : self.dims] += float(range_m) * (dirs if sel is None else dirs[sel])
-        hit_ids, hit_frac = self.cast_rays(starts, ends)
-        if sel is None:
+        if k:
+            ends[:, : self.dims] += float(range_m) * (dirs if sel is None else dirs[sel])
+        return FanRays(n, sel, starts, ends)
+
+    @staticmethod
+    def fan_results(fan: "FanRays", hit_ids: np.ndarray, hit_frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """cast_fan's (body_ids [R], fractions [R]) from the hits of the fan's rays (cast_rays on its starts, ends)."""
+        if fan.selected is None and fan.starts.shape[0] == fan.n_rays:
             return hit_ids, hit_frac
-        ids[sel] = hit_ids
-        frac[sel] = hit_frac
+        ids = np.full(fan.n_rays, -1, dtype=np.int64)
+        frac = np.ones(fan.n_rays)
+        ids[fan.selected] = hit_ids
+        frac[fan.selected] = hit_frac
         return ids, frac
+
+    def cast_fans(self, fans: Sequence["FanRays"]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """cast_fan's results for several fans of rays (fan_rays), cast in one cast_rays call."""
+        if not fans:
+            return []
+        counts = [f.starts.shape[0] for f in fans]
+        if sum(counts) == 0:
+            return [self.fan_results(f, np.empty(0, np.int64), np.empty(0)) for f in fans]
+        ids, frac = self.cast_rays(np.concatenate([f.starts for f in fans]), np.concatenate([f.ends for f in fans]))
+        out, lo = [], 0
+        for f, c in zip(fans, counts):
+            out.append(self.fan_results(f, ids[lo:lo + c], frac[lo:lo + c]))
+            lo += c
+        return out
 
     def clearance_to_bodies(self, position, body_ids, max_dist: float) -> np.ndarray:
         """Signed distance (m) from the MAV sphere at ``position`` [d] to each body in ``body_ids``, capped at max_dist.

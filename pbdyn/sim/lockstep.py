@@ -1,0 +1,168 @@
+"""Lockstep trials: the trials that share a map, flown together in one PyBullet world (DESIGN.md "sim").
+
+Obstacles never react to the MAV, so every trial on a map sees the same obstacle poses at the same rollout step.
+A trial starts at the tick of its start step k0 (the start rule), so at tick T every running trial senses rollout
+step T (T + 1 with sensor.obstacles_at = "next"): the obstacles are posed once per tick and rollout (the thesis
+program's start-dependent layouts are rollouts of their own), and every running MAV's rays go to Bullet in one
+batch. Then, trial by trial, the agent decides and the environment steps exactly as in run_trial (planners keep
+their per-trial interface), so each row is bit-identical to run_trial's (tests/test_lockstep.py); only the wall
+times differ (the shared posing and ray batch are shared out equally among the trials they served).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pbdyn.perception.perceive import Detections
+from pbdyn.sim.agent import Agent
+from pbdyn.sim.env import TrialEnv
+from pbdyn.sim.observers import SPLITS
+from pbdyn.sim.outcome import Outcome
+from pbdyn.sim.result import TrialResult
+from pbdyn.sim.spec import TrialSpec
+from pbdyn.world.bullet import PyBulletWorld
+from pbdyn.world.rollout import Rollout
+
+
+@dataclass
+class _Trial:
+    """One trial's state in a lockstep run."""
+
+    index: int
+    spec: TrialSpec
+    wall0: float
+    agent: Agent | None = None
+    env: TrialEnv | None = None
+    timings: dict = field(default_factory=dict)
+    step_walls: list = field(default_factory=list)
+    sensed: tuple = (0.0, 0.0, 0.0)
+
+
+def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWorld) -> list:
+    """Fly ``specs`` (trials of one map and scenario, in any mix of planner pairs, MAV speeds and start/goal pairs)
+    together on ``rollout`` in ``world`` (make_world of that map; left open). Returns, per spec in order, its
+    TrialResult (bit-identical to run_trial(spec, rollout, world=world) apart from wall times) or the Exception
+    that ended it (a planner or trial that raised ends only its own trial; the others fly on)."""
+    out: list = [None] * len(specs)
+    waiting: list[_Trial] = []
+    for i, spec in enumerate(specs):
+        tr = _Trial(i, spec, time.perf_counter())
+        try:
+            tr.agent = Agent(spec)
+            tr.env = TrialEnv(spec, rollout, fov_deg=tr.agent.fov_deg, world=world)
+        except Exception as exc:
+            out[i] = exc
+            continue
+        tr.timings = {"wall_setup_s": time.perf_counter() - tr.wall0, **{name: 0.0 for name in SPLITS}}
+        waiting.append(tr)
+    waiting.sort(key=lambda t: (t.env.k0, t.index))
+    running: list[_Trial] = []
+    tick = waiting[0].env.k0 if waiting else 0
+    while waiting or running:
+        while waiting and waiting[0].env.k0 <= tick:
+            tr = waiting.pop(0)
+            tr.env.reset(sense=False)
+            running.append(tr)
+        for tr in _sense_all(running, world, out):
+            running.remove(tr)
+        for tr in list(running):
+            try:
+                done = _act_and_step(tr)
+            except Exception as exc:
+                out[tr.index] = exc
+                running.remove(tr)
+                continue
+            if done:
+                running.remove(tr)
+                out[tr.index] = _finish(tr, rollout)
+        tick += 1
+    return out
+
+
+def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list) -> list[_Trial]:
+    """Steps (1)-(3) for every running trial: obstacles posed once per (rollout, step), the rays of all scans
+    cast in one batch, then each trial's detections and tracks. Returns the trials that raised (recorded in out)."""
+    failed = []
+    groups: dict = {}
+    for tr in running:
+        groups.setdefault((id(tr.env.rollout), tr.env.sense_index()), []).append(tr)
+    for members in groups.values():
+        c0 = time.perf_counter()
+        members[0].env.pose_obstacles()
+        c1 = time.perf_counter()
+        pending = []
+        for tr in members:
+            env = tr.env
+            try:
+                env.world.set_mav_pose(env.position, env.yaw)
+                scan = env.perception.begin(env.position, env.yaw)
+            except Exception as exc:
+                out[tr.index] = exc
+                failed.append(tr)
+                continue
+            if isinstance(scan, Detections):
+                env.detections = scan
+            else:
+                pending.append((tr, scan))
+        c2 = time.perf_counter()
+        hits = world.cast_fans([scan.fan for _, scan in pending])
+        share = (time.perf_counter() - c2) / max(len(pending), 1)
+        pose_share = (c1 - c0) / len(members)
+        for tr, (scan, (ids, frac)) in zip([t for t, _ in pending], zip([s for _, s in pending], hits)):
+            try:
+                t0 = time.perf_counter()
+                tr.env.detections = tr.env.perception.complete(scan, ids, frac)
+                tr.sensed = (0.0, share + time.perf_counter() - t0, 0.0)
+            except Exception as exc:
+                out[tr.index] = exc
+                failed.append(tr)
+        for tr in members:
+            if tr in failed:
+                continue
+            t0 = time.perf_counter()
+            try:
+                tr.env.track()
+            except Exception as exc:
+                out[tr.index] = exc
+                failed.append(tr)
+                continue
+            rays = tr.sensed[1] if any(tr is p for p, _ in pending) else 0.0
+            tr.sensed = (pose_share, rays, time.perf_counter() - t0)
+            tr.env.sense_timings = tr.sensed
+    return failed
+
+
+def _act_and_step(tr: _Trial) -> bool:
+    """Steps (4)-(7) of one trial, as run_trial's loop body; True once the trial has ended."""
+    env, agent = tr.env, tr.agent
+    sensed = env.sense_timings
+    decision = agent.act(env.view(agent.trajectory))
+    if decision.violation is not None:
+        env.end(Outcome.INVALID_PLAN, decision.violation.reason)
+        return True
+    env.step(decision.action, sense=False)
+    splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, env.collision_wall_s)
+    for name, value in zip(SPLITS, splits):
+        tr.timings[name] += value
+    tr.step_walls.append(sum(splits))
+    return env.done
+
+
+def _finish(tr: _Trial, rollout: Rollout) -> TrialResult:
+    """The ended trial's TrialResult, as run_trial makes it."""
+    from pbdyn.sim.trial import _result
+
+    env = tr.env
+    grid_discovered = env.grid.discovered()
+    tracked = int(env.tracker.ever_tracked)
+    tracked_time = float(env.tracker.tracked_time_s)
+    env.close()
+    walls = tr.step_walls
+    tr.timings["wall_step_mean_s"] = float(np.mean(walls)) if walls else 0.0
+    tr.timings["wall_step_median_s"] = float(np.median(walls)) if walls else 0.0
+    wall = tr.timings["wall_setup_s"] + sum(walls)
+    return _result(tr.spec, rollout, env, tr.agent, grid_discovered, tracked, tracked_time, wall, tr.timings)
