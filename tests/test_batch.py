@@ -600,3 +600,51 @@ def test_evaluate_pools_generated_maps_and_an_imported_world(reference, tmp_path
     plain = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), str(world), "--json", "--bootstrap", "20"],
                            capture_output=True, text=True, timeout=300)
     assert plain.returncode == 0 and json.loads(plain.stdout)["datasets"] == {"batch_small": 2, "warehouse_2d": 1}
+
+
+def test_shards_merge_into_the_unsharded_store_without_duplicates(reference, tmp_path):
+    """Two `--shard I/2` stores (one trial per task, so the lockstep default is compared as well) merge into
+    exactly the rows and map metrics of the unsharded, lockstep-flown reference; merging again adds nothing."""
+    sc, ref_out = reference
+    shards = []
+    for i in (1, 2):
+        out = tmp_path / f"shard{i}.sqlite"
+        res = batch([str(sc), "--out", str(out), "--workers", "1", "--shard", f"{i}/2", "--lockstep", "1", "--json"])
+        assert res.returncode == 0, res.stderr
+        assert json.loads(res.stdout)["ran"] == 40
+        shards.append(out)
+    assert not set(rows_without_wall(shards[0])) & set(rows_without_wall(shards[1]))
+    merged = tmp_path / "merged.sqlite"
+    res = subprocess.run(pbdyn_cmd() + ["merge", *map(str, shards), "--out", str(merged), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout) == {"results": str(merged), "trials": 80, "added": 80, "duplicates": 0,
+                                      "conflicts": 0, "maps": 2}
+    assert rows_without_wall(merged) == rows_without_wall(ref_out)
+    store = ResultsStore.open(merged)
+    try:
+        assert len(store.maps()) == 2 and all(m["metrics"] for m in store.maps().values())
+    finally:
+        store.close()
+    again = subprocess.run(pbdyn_cmd() + ["merge", str(ref_out), str(shards[0]), "--out", str(merged), "--json"],
+                           capture_output=True, text=True, timeout=120)
+    assert json.loads(again.stdout)["added"] == 0 and json.loads(again.stdout)["duplicates"] == 120
+    assert len(rows_without_wall(merged)) == 80
+    other = small(tmp_path, name="other.toml", **{"root_seed = 3": "root_seed = 4"})
+    res = batch([str(other), "--out", str(tmp_path / "other.sqlite"), "--workers", "1", "--limit", "2",
+                 "--no-metrics"])
+    assert res.returncode == 0, res.stderr
+    bad = subprocess.run(pbdyn_cmd() + ["merge", str(shards[0]), str(tmp_path / "other.sqlite"), "--out",
+                                        str(tmp_path / "mixed.sqlite")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "another scenario" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "mixed.sqlite").exists() and not list(tmp_path.glob(".mixed*"))
+
+
+@pytest.mark.parametrize("args, fragment", [(["--shard", "3/2"], "--shard"), (["--shard", "0/2"], "--shard"),
+                                            (["--shard", "a/b"], "--shard"), (["--lockstep", "0"], "--lockstep")])
+def test_bad_shard_and_lockstep_are_one_line_errors(tmp_path, args, fragment):
+    sc = small(tmp_path)
+    out = tmp_path / "bad.sqlite"
+    res = batch([str(sc), "--out", str(out), *args])
+    assert res.returncode == 2 and fragment in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert not out.exists()
