@@ -350,29 +350,34 @@ class LocalPrimitives:
     def _build_many(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray) -> list:
         """_build for n candidates at once (targets, vels [n, d], bases [n, d, d]): a list of (p, v, a) or None,
         bit for bit what _build returns for each. Each rebuild stage runs ruckig once per candidate still open and
-        takes every candidate's peaks in one array evaluation."""
+        takes every candidate's peaks in one array evaluation; the frame changes are stacked matrix products (the
+        same products, candidate by candidate, as _build's)."""
         d = self.dims
         n = targets.shape[0]
         v_max, a_max = self.limits.v_max, self.limits.a_max
         inputs = self._inputs(n)
+        cur_v = (bases @ view.velocity).tolist()
+        cur_a = (bases @ view.acceleration).tolist()
+        tgt_p = (bases @ (np.asarray(targets, dtype=float) - view.position)[:, :, None])[:, :, 0].tolist()
+        tgt_v = (bases @ np.asarray(vels, dtype=float)[:, :, None])[:, :, 0].tolist()
         for c in range(n):
-            basis = bases[c]
             inp = inputs[c]
-            inp.current_velocity = (basis @ view.velocity).tolist()
-            inp.current_acceleration = (basis @ view.acceleration).tolist()
-            inp.target_position = (basis @ (np.asarray(targets[c], dtype=float) - view.position)).tolist()
-            inp.target_velocity = (basis @ np.asarray(vels[c], dtype=float)).tolist()
+            inp.current_velocity = cur_v[c]
+            inp.current_acceleration = cur_a[c]
+            inp.target_position = tgt_p[c]
+            inp.target_velocity = tgt_v[c]
         lims = [[v_max, a_max] for _ in range(n)]
         stage = [0] * n
-        out: list = [None] * n
+        accepted: dict = {}
         open_ = list(range(n))
         last = _N_SCALED_REBUILDS + 1
+        dt = view.dt
         while open_:
             built, keep = [], []
             for c in open_:
                 if stage[c] == last:
                     lims[c] = [v_max / math.sqrt(d), a_max / math.sqrt(d)]
-                samples = self._calculate_with(inputs[c], view.dt, lims[c][0], lims[c][1])
+                samples = self._calculate_with(inputs[c], dt, lims[c][0], lims[c][1])
                 if samples is None:
                     if stage[c] < last:
                         stage[c] = last          # nothing to scale from: go to the conservative limits
@@ -383,10 +388,7 @@ class LocalPrimitives:
                 v_peaks, a_peaks = self._peaks([s for _, s in built])
                 for (c, samples), v_peak, a_peak in zip(built, v_peaks, a_peaks):
                     if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                        world = samples @ bases[c]             # [K, 3, d]: frame -> world (rows of basis)
-                        world[:, 0] += view.position
-                        world[0] = view.position, view.velocity, view.acceleration
-                        out[c] = (world[:, 0], world[:, 1], world[:, 2])
+                        accepted[c] = samples
                         continue
                     if stage[c] >= last:
                         continue
@@ -397,6 +399,20 @@ class LocalPrimitives:
                     stage[c] += 1
                     keep.append(c)
             open_ = sorted(keep)
+        out: list = [None] * n
+        if not accepted:
+            return out
+        rows = sorted(accepted)
+        lengths = [accepted[c].shape[0] for c in rows]
+        frame = np.zeros((len(rows), max(lengths), 3, d))
+        for i, c in enumerate(rows):
+            frame[i, :lengths[i]] = accepted[c]
+        world = frame @ bases[rows][:, None]                  # [m, K, 3, d]: frame -> world (rows of basis)
+        world[:, :, 0] += view.position
+        world[:, 0] = view.position, view.velocity, view.acceleration
+        for i, c in enumerate(rows):
+            w = world[i, :lengths[i]]
+            out[c] = (w[:, 0], w[:, 1], w[:, 2])
         return out
 
     def _inputs(self, n: int) -> list:

@@ -42,12 +42,16 @@ class _Trial:
     sensed: tuple = (0.0, 0.0, 0.0)
 
 
-def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWorld) -> list:
+def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWorld, *,
+                 step_walls: list | None = None) -> list:
     """Fly ``specs`` (trials of one map and scenario, in any mix of planner pairs, MAV speeds and start/goal pairs)
     together on ``rollout`` in ``world`` (make_world of that map; left open). Returns, per spec in order, its
     TrialResult (bit-identical to run_trial(spec, rollout, world=world) apart from wall times) or the Exception
-    that ended it (a planner or trial that raised ends only its own trial; the others fly on)."""
+    that ended it (a planner or trial that raised ends only its own trial; the others fly on). ``step_walls``: a
+    list that receives, per spec in order, the wall time (s) of each of its steps (its share of the shared work
+    included)."""
     out: list = [None] * len(specs)
+    trials: list[_Trial] = []
     waiting: list[_Trial] = []
     for i, spec in enumerate(specs):
         tr = _Trial(i, spec, time.perf_counter())
@@ -59,6 +63,7 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
             continue
         tr.timings = {"wall_setup_s": time.perf_counter() - tr.wall0, **{name: 0.0 for name in SPLITS}}
         waiting.append(tr)
+        trials.append(tr)
     waiting.sort(key=lambda t: (t.env.k0, t.index))
     running: list[_Trial] = []
     tick = waiting[0].env.k0 if waiting else 0
@@ -80,6 +85,9 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
                 running.remove(tr)
                 out[tr.index] = _finish(tr, rollout)
         tick += 1
+    if step_walls is not None:
+        walls = {tr.index: tr.step_walls for tr in trials}
+        step_walls.extend(walls.get(i, []) for i in range(len(specs)))
     return out
 
 
