@@ -1,13 +1,14 @@
 """pbdyn: a PyBullet testbed for MAV dynamic obstacle avoidance and environment difficulty.
 
 The public Python API (pbdyn.api, README "Python API"): load_scenario, rollout, run_trial, compute_metrics,
-run_batch, open_results, check_planner; the errors they raise (ConfigError, PbdynError); TrialResult and Outcome.
+run_batch, merge_results, open_results, check_planner; the errors they raise (ConfigError, PbdynError); TrialResult and Outcome.
 Names are imported on first use, so ``import pbdyn`` stays fast.
 """
 
 __version__ = "0.1.0"
 
-_API = ("load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "open_results",
+_API = ("load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "merge_results",
+        "open_results",
         "Results", "export_results", "evaluate", "check_planner", "run_demo")
 _OTHER = {"ConfigError": "pbdyn.errors", "PbdynError": "pbdyn.errors", "TrialResult": "pbdyn.sim.result",
           "Outcome": "pbdyn.sim.outcome", "Scenario": "pbdyn.config"}

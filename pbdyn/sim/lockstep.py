@@ -28,7 +28,7 @@ from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
 
-@dataclass
+@dataclass(eq=False)
 class _Trial:
     """One trial's state in a lockstep run."""
 
@@ -39,7 +39,6 @@ class _Trial:
     env: TrialEnv | None = None
     timings: dict = field(default_factory=dict)
     step_walls: list = field(default_factory=list)
-    sensed: tuple = (0.0, 0.0, 0.0)
 
 
 def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWorld, *,
@@ -72,18 +71,21 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
             tr = waiting.pop(0)
             tr.env.reset(sense=False)
             running.append(tr)
-        for tr in _sense_all(running, world, out):
-            running.remove(tr)
-        for tr in list(running):
+        failed = _sense_all(running, world, out)
+        if failed:
+            running = [tr for tr in running if tr not in failed]
+        still = []
+        for tr in running:
             try:
                 done = _act_and_step(tr)
             except Exception as exc:
                 out[tr.index] = exc
-                running.remove(tr)
                 continue
             if done:
-                running.remove(tr)
                 out[tr.index] = _finish(tr, rollout)
+            else:
+                still.append(tr)
+        running = still
         tick += 1
     if step_walls is not None:
         walls = {tr.index: tr.step_walls for tr in trials}
@@ -94,54 +96,50 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
 def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list) -> list[_Trial]:
     """Steps (1)-(3) for every running trial: obstacles posed once per (rollout, step), the rays of all scans
     cast in one batch, then each trial's detections and tracks. Returns the trials that raised (recorded in out)."""
-    failed = []
+    failed: dict[int, _Trial] = {}
     groups: dict = {}
     for tr in running:
         groups.setdefault((id(tr.env.rollout), tr.env.sense_index()), []).append(tr)
     for members in groups.values():
         c0 = time.perf_counter()
         members[0].env.pose_obstacles()
-        c1 = time.perf_counter()
+        pose_share = (time.perf_counter() - c0) / len(members)
         pending = []
+        rays = dict.fromkeys((tr.index for tr in members), 0.0)
         for tr in members:
             env = tr.env
             try:
                 env.world.set_mav_pose(env.position, env.yaw)
                 scan = env.perception.begin(env.position, env.yaw)
             except Exception as exc:
-                out[tr.index] = exc
-                failed.append(tr)
+                out[tr.index] = failed[tr.index] = exc
                 continue
             if isinstance(scan, Detections):
                 env.detections = scan
             else:
                 pending.append((tr, scan))
-        c2 = time.perf_counter()
+        c1 = time.perf_counter()
         hits = world.cast_fans([scan.fan for _, scan in pending])
-        share = (time.perf_counter() - c2) / max(len(pending), 1)
-        pose_share = (c1 - c0) / len(members)
-        for tr, (scan, (ids, frac)) in zip([t for t, _ in pending], zip([s for _, s in pending], hits)):
+        share = (time.perf_counter() - c1) / max(len(pending), 1)
+        for (tr, scan), (ids, frac) in zip(pending, hits):
+            t0 = time.perf_counter()
             try:
-                t0 = time.perf_counter()
                 tr.env.detections = tr.env.perception.complete(scan, ids, frac)
-                tr.sensed = (0.0, share + time.perf_counter() - t0, 0.0)
             except Exception as exc:
-                out[tr.index] = exc
-                failed.append(tr)
+                out[tr.index] = failed[tr.index] = exc
+                continue
+            rays[tr.index] = share + time.perf_counter() - t0
         for tr in members:
-            if tr in failed:
+            if tr.index in failed:
                 continue
             t0 = time.perf_counter()
             try:
                 tr.env.track()
             except Exception as exc:
-                out[tr.index] = exc
-                failed.append(tr)
+                out[tr.index] = failed[tr.index] = exc
                 continue
-            rays = tr.sensed[1] if any(tr is p for p, _ in pending) else 0.0
-            tr.sensed = (pose_share, rays, time.perf_counter() - t0)
-            tr.env.sense_timings = tr.sensed
-    return failed
+            tr.env.sense_timings = (pose_share, rays[tr.index], time.perf_counter() - t0)
+    return [tr for tr in running if tr.index in failed]
 
 
 def _act_and_step(tr: _Trial) -> bool:

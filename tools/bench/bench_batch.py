@@ -7,7 +7,7 @@ Overhead = 1 - (sum of the trials' own wall_time_s) / (workers x batch wall time
 not spent flying (transport, store, scheduling, start-up). The store alone is timed by inserting the same rows
 into a fresh store with a commit per second.
 
-    .venv/bin/python tools/bench/bench_batch.py [--trials 96] [--repeat 3] [--no-dask]
+    .venv/bin/python tools/bench/bench_batch.py [--trials 96] [--repeat 3] [--no-dask] [--lockstep N]
 """
 
 from __future__ import annotations
@@ -77,20 +77,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=96)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--lockstep", type=int, default=None, help="trials of one map per task (default: pbdyn batch's)")
     args = ap.parse_args(argv)
+    opts = {} if args.lockstep is None else {"lockstep": args.lockstep}
     sc = load_scenario(ROOT / "scenarios" / "quickstart.toml")
     print(machine())
-    print(f"workload: first {args.trials} trials of quickstart.toml, {args.repeat} runs each (median)")
+    print(f"workload: first {args.trials} trials of quickstart.toml, {args.repeat} runs each (median), lockstep "
+          f"{args.lockstep if args.lockstep is not None else BatchOptions().lockstep}")
     one_run(sc, min(args.trials, 8), 1)            # warm the rollout cache
     results = {}
     for label, w in (("pool, 1 worker", 1), ("pool, 2 workers", 2)):
-        results[label] = ([one_run(sc, args.trials, w) for _ in range(args.repeat)], w)
+        results[label] = ([one_run(sc, args.trials, w, **opts) for _ in range(args.repeat)], w)
     if not args.no_dask:
         from dask.distributed import Client, LocalCluster
 
         with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
                 Client(cluster) as client:
-            runs = [one_run(sc, args.trials, 2, scheduler=client) for _ in range(args.repeat)]
+            runs = [one_run(sc, args.trials, 2, scheduler=client, **opts) for _ in range(args.repeat)]
         results["dask LocalCluster, 2 workers"] = (runs, 2)
     print(f"{'configuration':32s}{'trials/s':>10s}{'wall s':>9s}{'overhead':>10s}{'steady':>9s}")
     rates = {}
