@@ -199,7 +199,7 @@ def _alive(pid: int, started: float) -> bool:
 def test_sigterm_and_sigint_stop_the_workers_keep_committed_rows_and_resume_exactly(reference, tmp_path, sig, status):
     sc, ref_out = reference
     out = tmp_path / "signalled.sqlite"
-    args = [str(sc), "--out", str(out), "--workers", "2", "--no-metrics", "--limit", "40"]
+    args = [str(sc), "--out", str(out), "--workers", "2", "--no-metrics", "--limit", "40", "--lockstep", "20"]
     proc = subprocess.Popen(pbdyn_cmd() + ["batch", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     try:

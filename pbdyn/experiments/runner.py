@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures as cf
+import queue as queue_module
 import contextlib
 import itertools
 import multiprocessing
@@ -230,8 +231,21 @@ class _Pool:
     def _start(self) -> None:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")
+        ctx = multiprocessing.get_context("spawn")
+        self.queue = ctx.Queue()        # rows of lockstep groups, sent by the workers as each trial ends
         self.executor = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=worker_init,
-                                               mp_context=multiprocessing.get_context("spawn"))
+                                               initargs=(self.queue,), mp_context=ctx)
+
+    def rows(self) -> Iterator[tuple]:
+        """The rows the workers have sent so far through the queue (none for Dask: they come with each result)."""
+        q = getattr(self, "queue", None)
+        while q is not None:
+            try:
+                yield q.get_nowait()
+            except queue_module.Empty:
+                return
+            except (OSError, EOFError, ValueError):   # a worker died while writing: its rows come again
+                return
 
     @property
     def dask(self) -> bool:
@@ -239,6 +253,7 @@ class _Pool:
 
     def restart(self) -> None:
         self.executor.shutdown(wait=False, cancel_futures=True)
+        self.queue.close()
         self._start()
 
     def submit(self, fn, task, key: str, path: Path):
@@ -672,17 +687,33 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
                 metric_ids.discard(m.map_id)
                 yield "map", m, False
 
+    streamed: dict = {}       # key -> (replaces, taken) of every trial of the lockstep groups in flight
+
+    def take_row(key: str, row: dict, err) -> None:
+        """Store one row of a lockstep group (streamed or with its group's result), once."""
+        state = streamed.get(key)
+        if state is None or state[1]:
+            return
+        streamed[key] = (state[0], True)
+        store.add_trials([(key, row, err)], replace=state[0])
+        counts["ran"] += 1
+        counts["errors"] += err is not None
+        progress.step()
+
+    def drain() -> None:
+        for key, row, err in pool.rows():
+            take_row(key, row, err)
+
     def take(item, result) -> None:
         kind, obj, rep = item
         if kind == "map":
             store.add_map(result)
             counts["maps"] += 1
         elif kind == "group":
-            for (key, row, err), replace_row in zip(result, rep):
-                store.add_trials([(key, row, err)], replace=replace_row)
-                counts["ran"] += 1
-                counts["errors"] += err is not None
-                progress.step()
+            for key, row, err in result:
+                take_row(key, row, err)
+            for t in obj:
+                streamed.pop(t[0], None)
         else:
             key, row, err = result
             store.add_trials([(key, row, err)], replace=rep)
@@ -705,6 +736,10 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
                         item = retry.popleft() if retry else next(stream, None)
                         if item is None:
                             break
+                        if item[0] == "group":
+                            item = _unfinished(item, streamed)
+                            if item is None:
+                                continue
                         try:
                             fut = _submit(pool, scenario, item, files)
                         except BrokenProcessPool:
@@ -713,7 +748,9 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
                         in_flight[fut] = item
                     if not in_flight:
                         break
-                    finished, _ = cf.wait(list(in_flight), return_when=cf.FIRST_COMPLETED)
+                    finished, _ = cf.wait(list(in_flight), timeout=None if pool.dask else 0.5,
+                                          return_when=cf.FIRST_COMPLETED)
+                    drain()
                     for fut in finished:
                         result = fut.result()
                         take(in_flight.pop(fut), result)
@@ -723,6 +760,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
                         last_commit = now
                 break
             except BrokenProcessPool:
+                drain()
                 lost = []
                 for fut, item in in_flight.items():
                     if fut.done() and not fut.cancelled() and fut.exception() is None:
@@ -743,6 +781,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
         store.commit()
     except KeyboardInterrupt:
         interrupted = True
+        drain()                                     # rows of trials that ended inside groups still in flight
         for fut, item in list(in_flight.items()):   # keep what has arrived
             if fut.done() and not fut.cancelled() and fut.exception() is None:
                 take(item, fut.result())
@@ -775,6 +814,20 @@ def _grouped(items: Iterator[tuple], size: int) -> Iterator[tuple]:
             yield item
     if trials:
         yield "group", trials, reps
+
+
+def _unfinished(item: tuple, streamed: dict) -> tuple | None:
+    """A lockstep group item without the trials whose rows have already been stored (a group re-queued after its
+    worker died); registers the rest in ``streamed`` (key -> (replaces, taken)). None if nothing is left."""
+    _, trials, reps = item
+    keep = [(t, r) for t, r in zip(trials, reps) if not streamed.get(t[0], (r, False))[1]]
+    if not keep:
+        for t in trials:
+            streamed.pop(t[0], None)
+        return None
+    for t, r in keep:
+        streamed[t[0]] = (r, False)
+    return "group", [t for t, _ in keep], [r for _, r in keep]
 
 
 def _trial_spec_of(scenario: Scenario, trial, files: dict):

@@ -239,7 +239,7 @@ def enumerate_trials(scenario: Scenario, maps=None) -> TrialSequence:
 
 
 # ------------------------------------------------------------------------------------------------ worker side
-_CACHE: dict = {"rollout": (None, None), "world": (None, None), "client": None}
+_CACHE: dict = {"rollout": (None, None), "world": (None, None), "client": None, "queue": None, "failed": False}
 
 
 def _limit_threads() -> None:
@@ -322,29 +322,42 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
 
 def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> list[tuple[str, dict, str | None]]:
     """Fly a group of trials of one map in lockstep in this worker: per trial, in order, what run_trial_task
-    returns for it (its row, or an "error" row and message if that trial raised). If the shared part of the
-    lockstep loop fails (world, ray batch), the trials are flown one by one with run_trial_task instead."""
+    returns for it (its row, or an "error" row and message if that trial raised). Each row is also put on the
+    worker's row queue (worker_init) the moment its trial ends, so the coordinator can commit it before the whole
+    group is done. If the shared part of the lockstep loop fails (world, ray batch), the trials not yet ended are
+    flown one by one with run_trial_task instead."""
     _limit_threads()
     from pbdyn.sim.lockstep import run_lockstep
 
     singles = [TrialTask(k, s, task.rollout) for k, s in zip(task.keys, task.specs)]
+    queue = _CACHE.get("queue")
+    out: list = [None] * len(singles)
+
+    def deliver(i: int, item: tuple) -> None:
+        out[i] = item
+        if queue is not None:
+            queue.put(item)
+
+    def ended(i: int, res) -> None:
+        t = singles[i]
+        if isinstance(res, BaseException):
+            msg = _error_message(res)
+            _CACHE["failed"] = True
+            deliver(i, (t.key, error_row(t, msg), msg))
+        else:
+            deliver(i, (t.key, res.to_dict(), None))
+
+    _CACHE["failed"] = False
     try:
         ro = _rollout(task.rollout, data)
         world = _world(singles[0], task.specs[0], ro)
-        results = run_lockstep(task.specs, ro, world)
+        run_lockstep(task.specs, ro, world, on_result=ended)
     except Exception:
         _CACHE["world"] = (None, None)
-        return [run_trial_task(t, data) for t in singles]
-    out = []
-    failed = False
-    for t, res in zip(singles, results):
-        if isinstance(res, BaseException):
-            failed = True
-            msg = _error_message(res)
-            out.append((t.key, error_row(t, msg), msg))
-        else:
-            out.append((t.key, res.to_dict(), None))
-    if failed:
+        for i, t in enumerate(singles):
+            if out[i] is None:
+                deliver(i, run_trial_task(t, data))
+    if _CACHE["failed"]:
         _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state: rebuild it
     return out
 
@@ -381,10 +394,14 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
             "metrics_json": metrics, "metric_times_json": times, "backend": backend}
 
 
-def worker_init() -> None:
+def worker_init(queue=None) -> None:
     """Process-pool worker start: ignore SIGINT (a Ctrl-C reaches the whole process group; the coordinator stops
-    the workers itself) and limit BLAS/OpenMP threads."""
+    the workers itself), limit BLAS/OpenMP threads, and keep ``queue`` (a multiprocessing queue of the coordinator)
+    for the rows of lockstep groups, sent as each trial ends."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _limit_threads()
+    if queue is not None:
+        queue.cancel_join_thread()   # rows also travel with each task's result: never hang at exit on a full pipe
+    _CACHE["queue"] = queue

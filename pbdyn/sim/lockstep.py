@@ -42,14 +42,14 @@ class _Trial:
 
 
 def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWorld, *,
-                 step_walls: list | None = None) -> list:
+                 step_walls: list | None = None, on_result=None) -> list:
     """Fly ``specs`` (trials of one map and scenario, in any mix of planner pairs, MAV speeds and start/goal pairs)
     together on ``rollout`` in ``world`` (make_world of that map; left open). Returns, per spec in order, its
     TrialResult (bit-identical to run_trial(spec, rollout, world=world) apart from wall times) or the Exception
     that ended it (a planner or trial that raised ends only its own trial; the others fly on). ``step_walls``: a
     list that receives, per spec in order, the wall time (s) of each of its steps (its share of the shared work
-    included)."""
-    out: list = [None] * len(specs)
+    included). ``on_result(index, result_or_exception)`` is called as each trial ends (batch workers stream rows)."""
+    out = _Results(len(specs), on_result)
     trials: list[_Trial] = []
     waiting: list[_Trial] = []
     for i, spec in enumerate(specs):
@@ -90,7 +90,20 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
     if step_walls is not None:
         walls = {tr.index: tr.step_walls for tr in trials}
         step_walls.extend(walls.get(i, []) for i in range(len(specs)))
-    return out
+    return list(out.items)
+
+
+class _Results:
+    """The per-trial results of a lockstep run; setting one also reports it to ``on_result``."""
+
+    def __init__(self, n: int, on_result=None):
+        self.items: list = [None] * n
+        self.on_result = on_result
+
+    def __setitem__(self, i: int, value) -> None:
+        self.items[i] = value
+        if self.on_result is not None:
+            self.on_result(i, value)
 
 
 def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list) -> list[_Trial]:
