@@ -699,6 +699,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
         counts["ran"] += 1
         counts["errors"] += err is not None
         progress.step()
+        maybe_commit()
 
     def drain() -> None:
         for key, row, err in pool.rows():
@@ -724,7 +725,13 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
     stream = source()
     retry: collections.deque = collections.deque()
     in_flight: dict = {}
-    last_commit = time.perf_counter()
+    last_commit = [time.perf_counter()]
+
+    def maybe_commit() -> None:
+        now = time.perf_counter()
+        if now - last_commit[0] >= COMMIT_INTERVAL_S:
+            store.commit()
+            last_commit[0] = now
     restarts = 0
     interrupted = False
     window = (4 if options.lockstep <= 1 else 2) * workers if not pool.dask else max(64, 8 * workers)
@@ -754,10 +761,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
                     for fut in finished:
                         result = fut.result()
                         take(in_flight.pop(fut), result)
-                    now = time.perf_counter()
-                    if now - last_commit >= COMMIT_INTERVAL_S:
-                        store.commit()
-                        last_commit = now
+                    maybe_commit()
                 break
             except BrokenProcessPool:
                 drain()
