@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover - the heavy modules load on first use
     from pbdyn.sim.result import TrialResult
     from pbdyn.world.rollout import Rollout
 
-__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "merge_results", "open_results",
+__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "merge_results", "replay", "open_results",
            "Results", "export_results", "evaluate", "check_planner", "run_demo"]
 
 
@@ -183,6 +183,15 @@ def run_batch(scenario, out: str | Path, *, workers: int | None = None, schedule
     if lockstep is not None:
         opts = dataclasses.replace(opts, lockstep=lockstep)
     return batch(sc, out, opts, command=command)
+
+
+def replay(trace: str | Path, out: str | Path, *, fps: float | None = None, every: int = 1):
+    """`pbdyn replay`: draw a trace (run_trial(..., trace=...)) into ``out`` -- .gif or .mp4 (one frame every
+    ``every`` steps and the final state, at ``fps``, default real time) or .png (the final state). Returns a
+    ReplaySummary (path, frames, width, height in px)."""
+    from pbdyn.analysis.replay import write_replay
+
+    return write_replay(trace, out, fps=fps, every=every)
 
 
 def merge_results(out: str | Path, inputs):

@@ -7,14 +7,16 @@ document on stdout; progress and logs go to stderr.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 from pbdyn import api
-from pbdyn.errors import ConfigError, PbdynError
+from pbdyn.errors import ConfigError, PbdynError, check_writable_file
 
 EXIT_USAGE = 2
 
@@ -62,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--vmax", type=_positive_float, help="MAV speed limit in m/s (default: the first drone.v_max)")
     run.add_argument("--gui", action="store_true", help="show the PyBullet GUI (real time)")
     run.add_argument("--trace", help="save per-step MAV state, yaw, tracks and plans to this .npz file")
+    run.add_argument("--replay", help="also write the trial's replay (.gif, .mp4 or .png; see pbdyn replay)")
     run.add_argument("--json", action="store_true", help="print the result as one JSON document")
 
     ro = sub.add_parser("rollout", help="compute a map's rollout and save it as .npz")
@@ -102,6 +105,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="trials of one map flown together per task (default 72; 1: one trial per task)")
     bat.add_argument("--json", action="store_true", help="print a JSON summary")
 
+    rep = sub.add_parser("replay", help="draw a trace (pbdyn run --trace) as an animation or a still")
+    rep.add_argument("trace", help="trace .npz written by pbdyn run --trace")
+    rep.add_argument("--out", required=True, help="output .gif, .mp4 (H.264) or .png (the final state)")
+    rep.add_argument("--fps", type=_positive_float, help="frames per second (default: real time)")
+    rep.add_argument("--every", type=_nonneg_int, default=1, help="one frame every N steps (default 1)")
+    rep.add_argument("--json", action="store_true", help="print a JSON summary")
+
     mrg = sub.add_parser("merge", help="join results stores of one experiment (e.g. `pbdyn batch --shard` shards)")
     mrg.add_argument("results", nargs="+", help="results stores to join")
     mrg.add_argument("--out", required=True, help="the joined store (created, or an existing store of the experiment)")
@@ -131,14 +141,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
          "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
-         "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep", "out": "--out", "plots": "--plots",
+         "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep",
+         "replay": "--replay", "fps": "--fps", "every": "--every", "out": "--out", "plots": "--plots",
          "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    result = api.run_trial(args.scenario, planner=args.planner, gaze=args.gaze, map=args.map, start=args.start,
-                           goal=args.goal, v_max=args.vmax, trace=args.trace, gui=args.gui)
+    if args.replay is not None:
+        from pbdyn.analysis.replay import check_output
+
+        check_output(args.replay, "replay")
+        check_writable_file("replay", args.replay)
+    with contextlib.ExitStack() as stack:
+        trace = args.trace
+        if args.replay is not None and trace is None:
+            trace = str(Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pbdyn-replay-"))) / "trace.npz")
+        result = api.run_trial(args.scenario, planner=args.planner, gaze=args.gaze, map=args.map, start=args.start,
+                               goal=args.goal, v_max=args.vmax, trace=trace, gui=args.gui)
+        if args.replay is not None:
+            summary = api.replay(trace, args.replay)
+            sys.stderr.write(f"pbdyn run: replay of {summary.frames} frames in {summary.path}\n")
     if args.json:
         sys.stdout.write(json.dumps(result.to_dict(), sort_keys=True) + "\n")
     else:
@@ -228,6 +251,18 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    if args.every == 0:
+        raise ConfigError("--every", "must be >= 1", 0)
+    s = api.replay(args.trace, args.out, fps=args.fps, every=args.every)
+    doc = {"out": s.path, "frames": s.frames, "width": s.width, "height": s.height}
+    if args.json:
+        sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(f"{s.path}: {s.frames} frames of {s.width} x {s.height} px\n")
+    return 0
+
+
 def cmd_merge(args: argparse.Namespace) -> int:
     s = api.merge_results(args.out, args.results)
     doc = {"results": str(args.out), "trials": s.trials, "added": s.added, "duplicates": s.duplicates,
@@ -260,7 +295,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
-            "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge}
+            "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge, "replay": cmd_replay}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -96,6 +96,7 @@ class TraceObserver:
     planned: list = field(default_factory=list)
     plan_ok: list = field(default_factory=list)
     track_mean: list = field(default_factory=list)
+    track_std: list = field(default_factory=list)
     track_active: list = field(default_factory=list)
     seen: list = field(default_factory=list)
 
@@ -111,8 +112,12 @@ class TraceObserver:
         self.planned.append(None if traj is None else traj.remaining(record.t).p.copy())
         n, d = env.rollout.n_obstacles, env.dims
         mean = np.full((n, d), np.nan)
+        std = np.full((n, d), np.nan)
         tr = record.tracks
         mean[tr.ids] = tr.position
+        if len(tr):
+            std[tr.ids] = np.sqrt(np.maximum(np.diagonal(tr.covariance[:, :d, :d], axis1=1, axis2=2), 0.0))
+        self.track_std.append(std)
         active = np.zeros(n, dtype=bool)
         active[tr.ids] = True
         self.track_mean.append(mean)
@@ -123,17 +128,37 @@ class TraceObserver:
 
     def on_end(self, env, agent) -> None:
         k0, s = env.k0, len(self.t)
-        obstacles = {"obstacle_p": np.asarray(env.rollout.positions[k0:k0 + s + 1]),
-                     "obstacle_r": np.asarray(env.rollout.radii), "start_step": np.array(k0)}
-        save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome, obstacles)
+        sc = env.spec.scenario
+        static = env.rollout.static
+        d = env.dims
+        extra = {"obstacle_p": np.asarray(env.rollout.positions[k0:k0 + s + 1]),
+                 "obstacle_r": np.asarray(env.rollout.radii), "start_step": np.array(k0),
+                 "dt": np.array(env.dt), "arena_lo": env.bounds[0], "arena_hi": env.bounds[1],
+                 "start": np.asarray(env.spec.start, dtype=float), "goal": env.goal,
+                 "goal_radius": np.array(env.goal_radius), "mav_radius": np.array(sc.drone.radius),
+                 "fov_deg": np.array(env.fov_deg), "range_m": np.array(sc.sensor.range),
+                 "vfov_deg": np.array(sc.sensor.vfov_deg if d == 3 else np.nan),
+                 "reason": np.array(env.reason), "label": np.array(f"{sc.name} map {env.spec.map_spec.index}, "
+                                                                   f"{env.spec.planner.label}, v_max "
+                                                                   f"{env.spec.v_max:g} m/s"),
+                 "static_kind": np.array([b.kind for b in static], dtype=str),
+                 "static_center": np.array([np.asarray(b.center, float)[:d] for b in static]).reshape(len(static), d),
+                 "static_radius": np.array([b.radius for b in static], dtype=float),
+                 "static_size": np.array([np.asarray(b.size if b.size else (0.0,) * d, float)[:d]
+                                          for b in static]).reshape(len(static), d),
+                 "static_yaw": np.array([b.yaw for b in static], dtype=float)}
+        save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome, extra)
 
 
 def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | None = None) -> None:
     """Write the trace .npz atomically: per-step t [S], p/v/a [S, d], yaw [S], yaw_rate [S], plan_ok [S],
-    plan [S, Kmax, d] (NaN-padded remaining plan at each step), track_mean [S, N, d] (NaN if inactive),
-    track_active [S, N], seen [S, N], final_p/v/a [d], final_yaw, outcome; ``extra`` arrays (run_trial: the
-    obstacles' true positions obstacle_p [S + 1, N, d] at trial steps 0..S and radii obstacle_r [N], and
-    start_step, the rollout step of the trial's t = 0, pbdyn.sim.start)."""
+    plan [S, Kmax, d] (NaN-padded remaining plan at each step), track_mean [S, N, d] and track_std [S, N, d] (the
+    tracks' position means and standard deviations per axis, m; NaN if inactive), track_active [S, N], seen [S, N],
+    final_p/v/a [d], final_yaw, outcome; ``extra`` arrays (run_trial: the obstacles' true positions obstacle_p
+    [S + 1, N, d] at trial steps 0..S and radii obstacle_r [N], start_step (the rollout step of the trial's t = 0,
+    pbdyn.sim.start), dt, arena_lo/arena_hi [d], start/goal [d], goal_radius, mav_radius, fov_deg, range_m,
+    vfov_deg (NaN in 2D), reason, label (scenario, map, planner pair, v_max), and the static bodies static_kind
+    [B], static_center/static_size [B, d], static_radius/static_yaw [B]: what pbdyn replay draws)."""
     kmax = max([0] + [x.shape[0] for x in trace.planned if x is not None])
     d = p.shape[0]
     plans = np.full((len(trace.t), max(kmax, 1), d), np.nan)
@@ -146,6 +171,7 @@ def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | 
         "a": np.asarray(trace.a).reshape(-1, d), "yaw": np.asarray(trace.yaw), "yaw_rate": np.asarray(trace.yaw_rate),
         "plan_ok": np.asarray(trace.plan_ok, dtype=bool), "plan": plans,
         "track_mean": np.asarray(trace.track_mean, dtype=float).reshape(len(trace.t), n, d),
+        "track_std": np.asarray(trace.track_std, dtype=float).reshape(len(trace.t), n, d),
         "track_active": np.asarray(trace.track_active, dtype=bool).reshape(len(trace.t), n),
         "seen": np.asarray(trace.seen, dtype=bool).reshape(len(trace.t), n),
         "final_p": p, "final_v": v, "final_a": a, "final_yaw": np.array(yaw), "outcome": np.array(outcome.value),
