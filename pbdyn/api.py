@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover - the heavy modules load on first use
     from pbdyn.sim.result import TrialResult
     from pbdyn.world.rollout import Rollout
 
-__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_backend", "run_batch", "merge_results", "replay", "open_results",
+__all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_heatmaps", "metric_backend", "run_batch", "merge_results", "replay", "open_results",
            "Results", "export_results", "evaluate", "check_planner", "run_demo"]
 
 
@@ -149,6 +149,26 @@ def compute_metrics(scenario, map: int = 0, *, metrics=None, dense: bool = False
     names = metric_names(metrics, dense)
     chosen = resolve_backend(sc, backend)
     return map_metrics(sc, _map(sc, map), names, backend=chosen)
+
+
+def metric_heatmaps(scenario, map: int = 0, out: str | Path = "heatmap.png", *, metrics=None, dense: bool = False,
+                    backend: str = "auto"):
+    """`pbdyn metrics --plot`: draw the per-sample values of survivability and VO feasibility (or the requested ones
+    of them; the dense grids with ``dense``) of one map as heat maps with its obstacles into ``out`` (.png at 200
+    dpi, .pdf, .svg). Returns a HeatmapFigure (path, figure, panels); each metric's samples are
+    pbdyn.analysis.heatmap.metric_samples."""
+    from pbdyn.analysis.heatmap import check_figure_path, heatmap_metrics, metric_samples, plot_heatmaps
+    from pbdyn.metrics.cached import resolve_backend
+    from pbdyn.world.rollout import default_horizon, get_rollout
+
+    sc = load_scenario(scenario)
+    out = check_figure_path(out)
+    names = heatmap_metrics([metrics] if isinstance(metrics, str) else metrics, dense)
+    chosen = resolve_backend(sc, backend)
+    spec = _map(sc, map)
+    ro = get_rollout(sc, spec, default_horizon(sc))
+    samples = [metric_samples(sc, ro, n, chosen) for n in names]
+    return plot_heatmaps(ro, samples, out, title=f"{sc.name} map {spec.index}")
 
 
 def metric_backend(scenario, backend: str = "auto") -> str:

@@ -82,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     met.add_argument("--backend", default="auto",
                      help="survivability backend: analytic, bullet or mesh; auto (default): bullet for imported "
                           "worlds with moving bodies (real shapes), else analytic")
+    met.add_argument("--plot", help="draw the survivability and VO samples as heat maps over the map (.png, .pdf, .svg)")
     met.add_argument("--json", action="store_true")
 
     bat = sub.add_parser("batch", help="run (or resume) every trial and map metric of a scenario into a results store")
@@ -142,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
 FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
          "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
          "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep",
-         "replay": "--replay", "fps": "--fps", "every": "--every", "out": "--out", "plots": "--plots",
+         "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot", "out": "--out", "plots": "--plots",
          "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
@@ -197,6 +198,11 @@ def cmd_rollout(args: argparse.Namespace) -> int:
 def cmd_metrics(args: argparse.Namespace) -> int:
     scenario = api.load_scenario(args.scenario)
     backend = api.metric_backend(scenario, args.backend)
+    if args.plot is not None:
+        fig = api.metric_heatmaps(scenario, args.map, args.plot, metrics=args.metric, dense=args.dense,
+                                  backend=backend)
+        drawn = ", ".join(dict.fromkeys(name for name, _, _ in fig.panels))
+        sys.stderr.write(f"pbdyn metrics: heat maps of {drawn} in {fig.path}\n")
     values = api.compute_metrics(scenario, args.map, metrics=args.metric, dense=args.dense, backend=backend)
     ro_meta = api.map_info(scenario, args.map)
     doc = {"scenario": scenario.name, "map_index": args.map, "map_id": ro_meta["map_id"],
@@ -213,10 +219,15 @@ def cmd_metrics(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(f"map {args.map} ({doc['map_id']}) {doc['setup']} replicate {doc['replicate']}, "
                          f"backend {backend}\n")
+    from pbdyn.metrics.catalog import INFO
+
     for name, v in values.items():
         err = f" +- {v['stderr']:.3f}" if v.get("stderr") is not None else ""
-        sys.stdout.write(f"{name:>24}: {v['value']:.4f}{err}  (n={v['n_samples']}, excluded {v['n_excluded']}, "
-                         f"{1000 * v['wall_time_s']:.1f} ms{', cached' if v['cached'] else ''})\n")
+        info = INFO.get(name)
+        unit = "" if info is None or info.unit == "1" else f" {info.unit}"
+        sense = f" [{info.direction}]" if info is not None else ""
+        sys.stdout.write(f"{name:>24}: {v['value']:.4f}{err}{unit}{sense}  (n={v['n_samples']}, excluded "
+                         f"{v['n_excluded']}, {1000 * v['wall_time_s']:.1f} ms{', cached' if v['cached'] else ''})\n")
     return 0
 
 

@@ -1,0 +1,193 @@
+"""Heat maps of a map's per-sample metrics (`pbdyn metrics --plot FILE`): where on the map survivability (thesis eq.
+3-6) and VO feasibility (eq. 3-4, 3-5) are low.
+
+Each sample of the metric is drawn as a square of the sample spacing centred on its point, coloured by its value
+(the metric's own per-sample values, nothing interpolated), over the arena with its static bodies and the obstacles
+at the time the metric looks at (survivability: its start time; VO: its snapshot time). 3D maps get one panel per
+z layer of the sample grid, obstacles drawn as their cross-sections with that layer.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pbdyn.errors import ConfigError
+
+HEATMAP_METRICS = ("survivability", "survivability_dense", "vo_feasibility", "vo_feasibility_dense")
+"""Metrics whose per-sample values belong to points of the map (what a heat map can show)."""
+FIGURE_FORMATS = (".png", ".pdf", ".svg")
+DPI = 200
+CMAP = "viridis"
+
+
+@dataclass(frozen=True)
+class MetricSamples:
+    """One metric's samples on a map: name, sample points [n, d] (m), values [n] (the metric's per_sample), the
+    metric's value (their mean), its unit, the colour scale (lo, hi) and the time (s) the obstacles are drawn at."""
+
+    name: str
+    points: np.ndarray
+    values: np.ndarray
+    value: float
+    unit: str
+    scale: tuple[float, float]
+    time: float
+    spacing: float
+
+
+def metric_samples(scenario, rollout, name: str, backend: str) -> MetricSamples:
+    """Compute ``name`` on ``rollout`` with the parameters of the scenario's map metrics and return its samples."""
+    from pbdyn.metrics.cached import metric_params
+    from pbdyn.metrics.catalog import INFO
+    from pbdyn.metrics.registry import compute
+    from pbdyn.metrics.survivability import base_points, split_static
+
+    res = compute(rollout, name, **metric_params(scenario, name, backend))
+    p = res.params
+    pts, _ = split_static(rollout, base_points(rollout, p.get("points"), p["spacing"], p["margin"]), p["mav_radius"])
+    values = np.asarray(res.per_sample, dtype=float)
+    if pts.shape[0] != values.shape[0]:    # pragma: no cover - the metric's points and values are built together
+        raise RuntimeError(f"{name}: {pts.shape[0]} sample points but {values.shape[0]} values")
+    survival = name.startswith("survivability")
+    scale = (0.0, float(p["t_max"])) if survival else (0.0, 1.0)
+    time = float(p.get("start_time", 0.0)) if survival else float(p.get("time", 0.0))
+    unit = INFO[name].unit
+    return MetricSamples(name, pts, values, float(res.value), unit, scale, time, float(p["spacing"]))
+
+
+@dataclass(frozen=True)
+class HeatmapFigure:
+    """A written heat-map figure: its path, the matplotlib Figure and, per panel, (metric name, z layer or None,
+    Axes) -- the axes map data (m) to the figure's pixels."""
+
+    path: Path
+    figure: object
+    panels: list
+
+
+def plot_heatmaps(rollout, samples: list[MetricSamples], out: str | Path, *, title: str = "") -> HeatmapFigure:
+    """Draw every metric's samples (one row of panels each; 3D: a panel per z layer) into ``out`` (.png at
+    DPI dots per inch, .pdf or .svg), atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import PatchCollection
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle, Rectangle
+
+    out = Path(out)
+    suffix = out.suffix.lower()
+    d = rollout.dims
+    layers = [None] if d == 2 else sorted({round(float(z), 9) for s in samples for z in s.points[:, 2]})
+    fig = Figure(figsize=(4.6 * len(layers), 4.2 * len(samples)), dpi=DPI)
+    FigureCanvasAgg(fig)
+    size = np.asarray(rollout.arena_size, dtype=float)
+    axes_out = []
+    for row, s in enumerate(samples):
+        norm = Normalize(*s.scale)
+        pos = rollout.at(rollout.step_index(s.time))[0]
+        for col, z in enumerate(layers):
+            ax = fig.add_subplot(len(samples), len(layers), row * len(layers) + col + 1)
+            axes_out.append((s.name, z, ax))
+            keep = np.ones(s.points.shape[0], dtype=bool) if z is None else np.isclose(s.points[:, 2], z)
+            h = s.spacing / 2.0
+            lo = np.maximum(s.points[keep, :2] - h, 0.0)                  # squares clipped to the arena
+            hi = np.minimum(s.points[keep, :2] + h, size[:2])
+            rects = [Rectangle((a[0], a[1]), b[0] - a[0], b[1] - a[1]) for a, b in zip(lo, hi)]
+            coll = PatchCollection(rects, cmap=CMAP, norm=norm, edgecolors="none", zorder=1)
+            coll.set_array(s.values[keep])
+            ax.add_collection(coll)
+            for body in rollout.static:
+                _static_patch(ax, body)
+            r = np.asarray(rollout.radii, dtype=float)
+            for i in range(pos.shape[0]):
+                rad = r[i] if z is None else math.sqrt(max(r[i] ** 2 - (pos[i, 2] - z) ** 2, 0.0))
+                if rad > 0:
+                    ax.add_patch(Circle((pos[i, 0], pos[i, 1]), rad, fc="none", ec="white", lw=1.4, zorder=3))
+            ax.add_patch(Rectangle((0.0, 0.0), size[0], size[1], fill=False, ec="black", lw=1.5, zorder=4))
+            ax.set_xlim(-1.0, size[0] + 1.0)
+            ax.set_ylim(-1.0, size[1] + 1.0)
+            ax.set_aspect("equal")
+            ax.set_xlabel("x (m)")
+            ax.set_ylabel("y (m)")
+            layer = "" if z is None else f", z = {z:g} m"
+            unit = "" if s.unit == "1" else f" {s.unit}"
+            ax.set_title(f"{_label(s.name)}{layer}\nmean {s.value:.3g}{unit}, obstacles at t = {s.time:g} s",
+                         fontsize=9)
+            cb = fig.colorbar(coll, ax=ax, fraction=0.046, pad=0.03)
+            cb.set_label(_colour_label(s.name))
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}-", suffix=suffix, dir=out.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=DPI, format=suffix[1:])
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return HeatmapFigure(out, fig, axes_out)
+
+
+def _label(name: str) -> str:
+    from pbdyn.metrics.catalog import INFO
+
+    return INFO[name].label
+
+
+def _colour_label(name: str) -> str:
+    return "survival time of a static MAV (s)" if name.startswith("survivability") else \
+        "share of velocities outside every velocity obstacle"
+
+
+def _static_patch(ax, body) -> None:
+    from matplotlib.patches import Circle, Polygon
+
+    c = np.asarray(body.center, dtype=float)
+    if body.kind == "pillar":
+        ax.add_patch(Circle((c[0], c[1]), float(body.radius), fc="#4d4d4d", zorder=2))
+        return
+    sx, sy = np.asarray(body.size, dtype=float)[:2] / 2.0
+    rot = np.array([[math.cos(body.yaw), -math.sin(body.yaw)], [math.sin(body.yaw), math.cos(body.yaw)]])
+    corners = np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]]) @ rot.T + c[:2]
+    ax.add_patch(Polygon(corners, closed=True, fc="#4d4d4d", zorder=2))
+
+
+def heatmap_metrics(requested: list[str] | None, dense: bool) -> list[str]:
+    """The metrics `pbdyn metrics --plot` draws: the requested ones that have per-point samples (default:
+    survivability and VO feasibility, the dense variants with --dense); ConfigError naming --plot if none."""
+    if not requested:
+        return ["survivability_dense", "vo_feasibility_dense"] if dense else ["survivability", "vo_feasibility"]
+    names = [n if not dense or n.endswith("_dense") or f"{n}_dense" not in HEATMAP_METRICS else f"{n}_dense"
+             for n in requested]
+    chosen = [n for n in names if n in HEATMAP_METRICS]
+    if not chosen:
+        raise ConfigError("plot", f"draws per-sample maps of {', '.join(HEATMAP_METRICS)}; none of them was asked "
+                          "for with --metric", ", ".join(requested))
+    return chosen
+
+
+def check_figure_path(out: str | Path, field: str = "plot") -> Path:
+    """``out`` as a Path ending in .png, .pdf or .svg in an existing folder; ConfigError naming ``field``."""
+    p = Path(out)
+    if p.suffix.lower() not in FIGURE_FORMATS:
+        raise ConfigError(field, f"must end in {', '.join(FIGURE_FORMATS)}", str(out))
+    if not p.parent.is_dir():
+        raise ConfigError(field, "its folder does not exist", str(out))
+    return p
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
