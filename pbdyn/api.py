@@ -93,7 +93,8 @@ def _planner_name(obj, kind: str) -> str | None:
 
 def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, start=None, goal=None,
               v_max: float | None = None, trace: str | Path | None = None, gui: bool = False,
-              observers: list | None = None) -> TrialResult:
+              observers: list | None = None, gui_snapshot: str | Path | None = None,
+              follow: bool = False) -> TrialResult:
     """Fly one trial and return its TrialResult (``result.outcome``, ``result.to_dict()``).
 
     planner: a trajectory planner — a registry name ("local_primitives", "global_primitives", "mpc",
@@ -101,7 +102,9 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
         an instance (default: the scenario's first [[planners]] entry). gaze: a gaze planner, likewise (default: the entry's).
     map: the map index; start, goal: (x, y[, z]) in m (default: the first and the last candidate); v_max: the MAV's
     speed limit (m/s; default: the first drone.v_max); trace: write per-step arrays to this .npz file; gui: show
-    the PyBullet GUI in real time; observers: extra step observers (pbdyn.sim.observers.Observer).
+    the PyBullet GUI in real time, the arena framed (``follow``: the camera follows the MAV), the field of view,
+    plan and goal drawn; gui_snapshot: write a .png of the final state rendered headless (PyBullet's TinyRenderer);
+    observers: extra step observers (pbdyn.sim.observers.Observer).
     """
     from pbdyn.sim.spec import make_trial_spec, with_planner_objects
     from pbdyn.sim.trial import run_trial as fly
@@ -117,6 +120,15 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
         from pbdyn.errors import check_writable_file
 
         check_writable_file("trace", trace)
+    observers = list(observers or [])
+    if gui_snapshot is not None:
+        from pbdyn.errors import check_writable_file
+        from pbdyn.sim.gui import Snapshot
+
+        if Path(gui_snapshot).suffix.lower() != ".png":
+            raise ConfigError("gui_snapshot", "must name a .png file", str(gui_snapshot))
+        check_writable_file("gui_snapshot", gui_snapshot)
+        observers.append(Snapshot(gui_snapshot))
     spec = make_trial_spec(sc, ms, planner=None if tobj is not None else tname,
                            gaze=None if gobj is not None else gname, v_max=v_max,
                            start=_point(start, "start"), goal=_point(goal, "goal"))
@@ -124,7 +136,7 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     from pbdyn.world.rollout import get_rollout
 
     return fly(spec, get_rollout(sc, ms), gui=gui, trace_path=trace, gui_sleep=sc.world.dt if gui else 0.0,
-               trajectory_planner=tobj, gaze_planner=gobj, observers=observers)
+               trajectory_planner=tobj, gaze_planner=gobj, observers=observers, gui_follow=follow)
 
 
 def _point(value, name: str):

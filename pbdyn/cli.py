@@ -62,7 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--start", help="start X,Y[,Z] in m (default: the first candidate)")
     run.add_argument("--goal", help="goal X,Y[,Z] in m (default: the last candidate)")
     run.add_argument("--vmax", type=_positive_float, help="MAV speed limit in m/s (default: the first drone.v_max)")
-    run.add_argument("--gui", action="store_true", help="show the PyBullet GUI (real time)")
+    run.add_argument("--gui", action="store_true", help="show the PyBullet GUI (real time, the arena framed; FOV, plan "
+                     "and goal drawn)")
+    run.add_argument("--follow", action="store_true", help="with --gui: the camera follows the MAV")
+    run.add_argument("--gui-snapshot", help="write a .png of the final state, rendered headless (no display needed)")
     run.add_argument("--trace", help="save per-step MAV state, yaw, tracks and plans to this .npz file")
     run.add_argument("--replay", help="also write the trial's replay (.gif, .mp4 or .png; see pbdyn replay)")
     run.add_argument("--json", action="store_true", help="print the result as one JSON document")
@@ -143,7 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
 FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
          "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
          "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep",
-         "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot", "out": "--out", "plots": "--plots",
+         "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot", "gui_snapshot": "--gui-snapshot", "out": "--out", "plots": "--plots",
          "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
@@ -159,7 +162,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.replay is not None and trace is None:
             trace = str(Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pbdyn-replay-"))) / "trace.npz")
         result = api.run_trial(args.scenario, planner=args.planner, gaze=args.gaze, map=args.map, start=args.start,
-                               goal=args.goal, v_max=args.vmax, trace=trace, gui=args.gui)
+                               goal=args.goal, v_max=args.vmax, trace=trace, gui=args.gui,
+                               gui_snapshot=args.gui_snapshot, follow=args.follow)
         if args.replay is not None:
             summary = api.replay(trace, args.replay)
             sys.stderr.write(f"pbdyn run: replay of {summary.frames} frames in {summary.path}\n")

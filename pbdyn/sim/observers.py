@@ -1,4 +1,5 @@
-"""Observers of a trial: they watch each step and never change it (trace file, per-step profile, GUI pacing).
+"""Observers of a trial: they watch each step and never change it (trace file, per-step profile; the GUI's are
+in pbdyn.sim.gui).
 
 An observer has ``on_step(env, agent, decision, record)``, called after every executed step with ``record`` the
 step's StepRecord (what the MAV knew and did at t_k, the wall-time splits), and ``on_end(env, agent)``, called
@@ -63,20 +64,6 @@ class ProfileObserver:
             self.profile[name].append(value)
         self.profile["candidates_built"].append(getattr(agent.planner, "last_candidates_built", float("nan")))
         self.profile["planned"].append(bool(record.planned))
-
-    def on_end(self, env, agent) -> None:
-        pass
-
-
-class GuiPacer:
-    """Sleeps ``seconds`` after every step that did not end the trial (real-time pacing of the GUI)."""
-
-    def __init__(self, seconds: float):
-        self.seconds = float(seconds)
-
-    def on_step(self, env, agent, decision, record: StepRecord) -> None:
-        if not env.done and self.seconds > 0:
-            time.sleep(self.seconds)
 
     def on_end(self, env, agent) -> None:
         pass

@@ -15,7 +15,7 @@ import numpy as np
 from pbdyn.planning.registry import pair_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
 from pbdyn.sim.env import TrialEnv, make_world
-from pbdyn.sim.observers import SPLITS, GuiPacer, ProfileObserver, StepRecord, TraceObserver
+from pbdyn.sim.observers import SPLITS, ProfileObserver, StepRecord, TraceObserver
 from pbdyn.sim.outcome import Outcome
 from pbdyn.sim.result import TrialResult
 from pbdyn.sim.spec import TrialSpec, make_trial_spec
@@ -28,10 +28,13 @@ __all__ = ["SPLITS", "TrialEnv", "TrialSpec", "brake", "build_planners", "make_t
 
 def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_path: str | Path | None = None,
               gui_sleep: float = 0.0, profile: dict | None = None, world: PyBulletWorld | None = None,
-              trajectory_planner=None, gaze_planner=None, observers: list | None = None) -> TrialResult:
+              trajectory_planner=None, gaze_planner=None, observers: list | None = None,
+              gui_follow: bool = False) -> TrialResult:
     """Fly one trial and return its TrialResult.
 
-    trace_path: save a per-step trace .npz there. profile: if a dict is given, it receives per-step lists of each
+    gui: show the PyBullet GUI (pbdyn.sim.gui.GuiView: the arena framed, or followed with ``gui_follow``; field of
+    view, plan and goal as debug lines; paced to real time when gui_sleep > 0). trace_path: save a per-step trace
+    .npz there. profile: if a dict is given, it receives per-step lists of each
     timing split (SPLITS, s), "candidates_built" (the planner's ``last_candidates_built`` when it planned) and
     "planned" (True where replan_check asked for a plan).
     world: a PyBulletWorld from make_world for this map to reuse (batch workers); it is left open.
@@ -46,8 +49,10 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
         watchers.append(ProfileObserver(profile))
     if trace_path is not None:
         watchers.append(TraceObserver(trace_path))
-    if gui and gui_sleep > 0:
-        watchers.append(GuiPacer(gui_sleep))
+    if gui:
+        from pbdyn.sim.gui import GuiView
+
+        watchers.append(GuiView(spec.scenario.world.dt, follow=gui_follow, real_time=gui_sleep > 0))
     timings = {"wall_setup_s": time.perf_counter() - wall0, **{name: 0.0 for name in SPLITS}}
     step_walls: list[float] = []
     try:

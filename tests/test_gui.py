@@ -1,0 +1,86 @@
+"""Seeing a trial in PyBullet: the headless snapshot (TinyRenderer) frames the arena and shows the MAV's marker; the
+observers change no result; the GUI's camera and pacing helpers."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+
+import numpy as np
+
+import pbdyn
+from pbdyn.sim.gui import MAV_RGBA, SNAPSHOT_PX, GuiView, Snapshot, arena_camera, project
+from tests.conftest import pbdyn_cmd
+
+
+def _row(res) -> dict:
+    d = res.without_wall_times()
+    d.pop("planner_fingerprint", None)
+    return d
+
+
+def test_snapshot_frames_the_arena_and_shows_the_mav_without_changing_the_trial(tmp_path):
+    import imageio.v2 as iio
+
+    snap = Snapshot(tmp_path / "final.png")
+    res = pbdyn.run_trial("quickstart", map=4, trace=tmp_path / "t.npz", observers=[snap])
+    assert _row(res) == _row(pbdyn.run_trial("quickstart", map=4))         # observers change nothing
+    image = iio.imread(tmp_path / "final.png")[:, :, :3]
+    assert image.shape == (SNAPSHOT_PX, SNAPSHOT_PX, 3) and np.array_equal(image, snap.image)
+    assert len(np.unique(image.reshape(-1, 3), axis=0)) > 50                 # not blank
+    sc = pbdyn.load_scenario("quickstart")
+    h = sc.world.flight_height
+    corners = [[0.0, 0.0, h], [50.0, 0.0, h], [0.0, 50.0, h], [50.0, 50.0, h]]
+    px = project(snap.view, snap.proj, corners, SNAPSHOT_PX, SNAPSHOT_PX)
+    assert np.all((px > 0) & (px < SNAPSHOT_PX))                              # the whole arena in view
+    final = np.load(tmp_path / "t.npz")["final_p"]
+    row, col = project(snap.view, snap.proj, [[final[0], final[1], h + 0.1]], SNAPSHOT_PX, SNAPSHOT_PX)[0]
+    pixel = image[int(round(row)), int(round(col))].astype(int)
+    want = np.asarray(MAV_RGBA[:3]) * 255
+    assert pixel[0] > 150 and pixel[2] < 90 and abs(pixel[1] / pixel[0] - want[1] / want[0]) < 0.2, pixel
+
+
+def test_3d_snapshot_and_cli_flag(tmp_path):
+    out = tmp_path / "s3.png"
+    res = subprocess.run(pbdyn_cmd() + ["run", "spheres_3d", "--map", "1", "--gui-snapshot", str(out), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["outcome"]
+    import imageio.v2 as iio
+
+    image = iio.imread(out)[:, :, :3]
+    assert len(np.unique(image.reshape(-1, 3), axis=0)) > 50
+    bad = subprocess.run(pbdyn_cmd() + ["run", "quickstart", "--gui-snapshot", str(tmp_path / "s.jpg")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--gui-snapshot" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_arena_camera_fits_the_arena_and_the_gui_paces_to_the_wall_clock():
+    cam = arena_camera((50.0, 50.0), 2.0, 2)
+    assert cam.target == (25.0, 25.0, 2.0) and cam.pitch < -89.0
+    wide = arena_camera((100.0, 40.0), 2.0, 2)
+    assert wide.distance > 1.9 * cam.distance                                 # the larger side decides
+
+    view = GuiView(0.05, real_time=True)
+    t0 = time.perf_counter()
+    for _ in range(6):
+        time.sleep(0.02)                     # a step that computes for 20 ms ...
+        view.pace(done=False)
+    elapsed = time.perf_counter() - t0       # ... is paced to 50 ms of wall clock, not 20 + 50
+    assert 0.28 <= elapsed < 0.36, elapsed
+    fast = GuiView(0.05, real_time=False)
+    t0 = time.perf_counter()
+    for _ in range(6):
+        fast.pace(done=False)
+    assert time.perf_counter() - t0 < 0.05 and fast.steps == 6
+
+
+def test_the_gui_observer_runs_its_drawing_path_and_changes_nothing():
+    """Without a display PyBullet's debug items are no-ops (ids -1), but GuiView's whole path runs every step (MAV
+    marker, camera framing and following, FOV, plan and goal lines) and the trial's row is unchanged."""
+    view = GuiView(0.1, real_time=False, follow=True)
+    res = pbdyn.run_trial("quickstart", map=4, observers=[view])
+    assert view.steps == res.steps > 0
+    assert {"goal0", "goal1", "goal_post", "fov0", "fov1", "plan0", "plan23"} <= set(view.items)
+    assert _row(res) == _row(pbdyn.run_trial("quickstart", map=4))
