@@ -8,6 +8,8 @@ import itertools
 import json
 import math
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.stats import spearmanr
@@ -382,10 +384,19 @@ def test_write_plots(table, report, tmp_path):
     assert names == sorted(["metric_density.png", "metric_survivability.png", "metric_vo_feasibility.png",
                             f"metric_{SETUP_MODEL}.png", "survivability_trajectory.png", "survivability_gaze.png",
                             "velocity_ratio.png"] + [f"uncontrolled_{d}.png" for d in others])
+    import imageio.v2 as iio
+
     for p in paths:
         data = p.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n"
         assert len(data) > 10_000, p.name
+        assert p.with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"               # paper formats beside every PNG
+        assert "<svg" in p.with_suffix(".svg").read_text()[:2000]
+        assert iio.imread(p).shape[1] >= 7.0 * 200                             # >= 200 dpi at >= 7 inches
+        svg = p.with_suffix(".svg").read_text()
+        assert "eq. 4-1" not in svg and "fig. 5-" not in svg                   # labels in words, not equation numbers
+    svg = (tmp_path / "figs" / "metric_survivability.svg").read_text()
+    assert "success rate (share of trials)" in svg and "difficulty by survivability" in svg
 
 
 def test_within_setup_reliability_separates_noise_from_real_differences():
@@ -422,7 +433,9 @@ def test_figure_names_from_stores_never_leave_the_plots_folder(table, tmp_path):
     paths = write_plots(trials, maps, rep, out)
     names = {p.name for p in paths}
     assert "uncontrolled_.._.._evil_x.png" in names and "metric_a_.._b.png" in names
-    assert all(p.parent == out for p in paths) and sorted(names) == sorted(p.name for p in out.iterdir())
+    assert all(p.parent == out for p in paths)
+    assert sorted(f"{Path(n).stem}.{ext}" for n in names for ext in ("pdf", "png", "svg")) == \
+        sorted(p.name for p in out.iterdir())
     assert not list(tmp_path.rglob("x.png")) and not (tmp_path / "deep" / "evil").exists()
     assert figure_name("..hidden") == "hidden.png" and figure_name("") == "figure.png"
     assert figure_name("a b/c\x00") == "a_b_c_.png"

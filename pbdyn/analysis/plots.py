@@ -1,6 +1,8 @@
-"""PNG figures of an evaluation (matplotlib, Agg canvas; no pyplot state): metric vs success per planner pair with
-1-sigma bands (thesis figs 4-5..4-12), success/deadlock vs survivability per trajectory and per gaze planner
-(figs 5-9, 5-10), success vs the velocity ratio v_obs / v_max (fig 5-14). Controlled-dataset maps only.
+"""Figures of an evaluation (matplotlib, Agg canvas; no pyplot state), each as PNG (DPI dots per inch), PDF and SVG:
+metric vs success per planner pair with 1-sigma bands (thesis figs 4-5..4-12), success/deadlock vs survivability
+per trajectory and per gaze planner (figs 5-9, 5-10), success vs the velocity ratio v_obs / v_max (fig 5-14).
+Controlled-dataset maps only. Axis labels are words with units; the thesis' figure and equation numbers are in
+the README, not on the figures.
 """
 
 from __future__ import annotations
@@ -23,8 +25,14 @@ from pbdyn.sim.outcome import Outcome
 _CENTRES = np.arange(LEVELS) + 0.5
 
 
+DPI = 200
+"""Resolution of the PNG figures (dots per inch)."""
+FORMATS = ("png", "pdf", "svg")
+
+
 def _figure(w: float = 7.0, h: float = 4.5, ncols: int = 1) -> tuple[Figure, list]:
     fig = Figure(figsize=(w, h), layout="constrained")
+    fig.set_dpi(DPI)
     FigureCanvasAgg(fig)
     axes = [fig.add_subplot(1, ncols, i + 1) for i in range(ncols)]
     return fig, axes
@@ -42,12 +50,25 @@ def figure_name(stem: str) -> str:
 
 
 def _save(fig: Figure, out_dir: Path, stem: str, out: list[Path]) -> None:
-    """Save ``fig`` as out_dir/figure_name(stem), never outside ``out_dir``."""
+    """Save ``fig`` as out_dir/figure_name(stem) (PNG at DPI) and beside it as .pdf and .svg, never outside
+    ``out_dir``; the PNG's path goes to ``out``."""
     path = out_dir / figure_name(stem)
     if path.resolve().parent != out_dir.resolve():   # pragma: no cover - figure_name cannot produce such a name
         raise ConfigError("plots", "a figure would be written outside the folder (a symbolic link there?)", str(path))
-    fig.savefig(path, dpi=90, format="png", metadata={"Software": None})
+    for fmt in FORMATS:
+        meta = {"Software": None} if fmt == "png" else {"Creator": None} if fmt in ("pdf", "svg") else None
+        fig.savefig(path.with_suffix(f".{fmt}"), dpi=DPI, format=fmt, metadata=meta)
     out.append(path)
+
+
+def metric_label(name: str) -> str:
+    """A metric's name in words (pbdyn.metrics.catalog; the setup model and other report names made readable)."""
+    from pbdyn.metrics.catalog import INFO
+
+    info = INFO.get(name)
+    if info is not None:
+        return info.label
+    return str(name).replace("_", " ")
 
 
 def _colours(n: int) -> list:
@@ -58,7 +79,7 @@ def _colours(n: int) -> list:
 
 def _legend(ax, n: int) -> None:
     if n and ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=6 if n > 8 else 8, ncol=2 if n > 8 else 1, loc="best")
+        ax.legend(fontsize=7 if n > 8 else 8, ncol=2 if n > 8 else 1, loc="best")
 
 
 def _metric_figure(name: str, d: np.ndarray, rate: np.ndarray, pairs: tuple[str, ...], out_dir: Path,
@@ -69,11 +90,14 @@ def _metric_figure(name: str, d: np.ndarray, rate: np.ndarray, pairs: tuple[str,
         ok = cnt[:, j] > 0
         if not ok.any():
             continue
-        ax.scatter(d, rate[:, j], s=4, color=col, alpha=0.25, linewidths=0)
-        ax.plot(_CENTRES[ok], mu[ok, j], "-o", ms=3, color=col, label=pair)
+        ax.scatter(d, rate[:, j], s=16, color=col, alpha=0.6, linewidths=0.3, edgecolors="white")
+        ax.plot(_CENTRES[ok], mu[ok, j], "-o", ms=4, color=col, label=pair)
         ax.fill_between(_CENTRES[ok], (mu - sd)[ok, j], (mu + sd)[ok, j], color=col, alpha=0.15, linewidth=0)
-    ax.set(xlabel=f"{name} difficulty (normalised, eq. 4-10/4-11)", ylabel="success rate", xlim=(0, LEVELS),
-           ylim=(-0.05, 1.05), title=f"{name} vs success rate (mean +- 1 sigma per level)")
+    label = metric_label(name)
+    ax.set(xlabel=f"difficulty by {label} (0 easiest to {LEVELS} hardest)", ylabel="success rate (share of trials)",
+           xlim=(0, LEVELS), ylim=(-0.05, 1.05),
+           title=f"Success rate of each map against its {label} difficulty\n(dots: maps; lines: mean +- 1 standard "
+                 "deviation per level)")
     _legend(ax, len(pairs))
     _save(fig, out_dir, f"metric_{name}", out)
 
@@ -87,7 +111,8 @@ def _group_lines(ax, group: np.ndarray, n_groups: int, labels: tuple[str, ...], 
         ok = n[i] > 0
         if ok.any():
             ax.errorbar(_CENTRES[ok], p[i, ok], yerr=se[i, ok], fmt="-o", ms=3, capsize=2, color=col, label=lab)
-    ax.set(xlabel="survivability difficulty level", ylabel=ylabel, xlim=(0, LEVELS), ylim=(-0.05, 1.05))
+    ax.set(xlabel=f"difficulty by survivability (0 easiest to {LEVELS} hardest)", ylabel=ylabel, xlim=(0, LEVELS),
+           ylim=(-0.05, 1.05))
     _legend(ax, n_groups)
 
 
@@ -113,11 +138,11 @@ def _uncontrolled_figures(report: dict, band: str, d: np.ndarray, st, map_ids, m
                             alpha=0.25, label="+- 1 sigma")
             ax.plot(grid, m_curve[:, j], color=cols[j], label="controlled mean")
             ok = sel & np.isfinite(st.rate[:, j]) & np.isfinite(d)
-            ax.scatter(d[ok], st.rate[ok, j], s=14, color="k", label=f"{name} maps")
-            ax.set(xlabel=f"{band} difficulty", ylabel="success rate", xlim=(0, LEVELS), ylim=(-0.05, 1.05),
-                   title=pair)
+            ax.scatter(d[ok], st.rate[ok, j], s=18, color="k", label=f"{name} maps")
+            ax.set(xlabel=f"difficulty by {metric_label(band)} (0 easiest to {LEVELS} hardest)",
+                   ylabel="success rate (share of trials)", xlim=(0, LEVELS), ylim=(-0.05, 1.05), title=pair)
             _legend(ax, 4)
-        fig.suptitle(f"{name} against the controlled fit (figs. 4-14..4-16)")
+        fig.suptitle(f"Maps of {name} against the controlled dataset's mean and spread")
         _save(fig, out_dir, f"uncontrolled_{name}", out)
 
 
@@ -127,7 +152,8 @@ def _rates(cells: list[dict]) -> list[float]:
 
 
 def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[Path]:
-    """Write the evaluation figures as PNG files into ``out_dir`` (created) and return their paths:
+    """Write the evaluation figures into ``out_dir`` (created; each as .png at DPI, .pdf and .svg) and return the
+    PNG paths:
     metric_<name>.png per report metric (figs 4-5..4-12), survivability_trajectory.png (fig 5-9),
     survivability_gaze.png (fig 5-10) and uncontrolled_<dataset>.png per non-controlled dataset (figs 4-14..4-16)
     when the report has a sigma-band metric, velocity_ratio.png (fig 5-14). File names are figure_name()s: only
@@ -153,7 +179,7 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
         lev = np.where(c, difficulty_level(diff[band]), -1)[ta.map_idx]
         nt = len(ta.trajectories)
         fig, (a1, a2) = _figure(12.0, 4.5, 2)
-        _group_lines(a1, ta.trajectory_idx, nt, ta.trajectories, success, lev, on_c, "success rate")
+        _group_lines(a1, ta.trajectory_idx, nt, ta.trajectories, success, lev, on_c, "success rate (share of trials)")
         a1.set_title("success rate per trajectory planner")
         fig_5_9 = tables["fig_5_9"]
         ps = np.array([_rates(fig_5_9[lab][Outcome.SUCCESS.value]) for lab in ta.trajectories])
@@ -166,18 +192,19 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
             a2.bar(x, ps[i, ok], width, color=col, label=f"{lab} success")
             a2.bar(x, pdl[i, ok], width, bottom=ps[i, ok], color=col, alpha=0.4, hatch="//",
                    label=f"{lab} deadlock")
-        a2.set(xlabel="survivability difficulty level", ylabel="rate", xlim=(0, LEVELS), ylim=(0, 1.05),
+        a2.set(xlabel=f"difficulty by survivability (0 easiest to {LEVELS} hardest)",
+               ylabel="share of trials", xlim=(0, LEVELS), ylim=(0, 1.05),
                title="success (solid) and deadlock (hatched) rates")
         _legend(a2, 2 * nt)
-        fig.suptitle(f"Trajectory planners vs {band} (fig. 5-9)")
+        fig.suptitle(f"Trajectory planners against difficulty by {metric_label(band)}")
         _save(fig, out_dir, "survivability_trajectory", out)
 
         fig, axes = _figure(4.5 * nt, 4.0, nt)
         for i, (ax, traj) in enumerate(zip(axes, ta.trajectories)):
             _group_lines(ax, ta.gaze_idx, len(ta.gazes), ta.gazes, success, lev, on_c & (ta.trajectory_idx == i),
-                         "success rate")
+                         "success rate (share of trials)")
             ax.set_title(traj)
-        fig.suptitle(f"Gaze planners vs {band} (fig. 5-10)")
+        fig.suptitle(f"Gaze planners against difficulty by {metric_label(band)}")
         _save(fig, out_dir, "survivability_gaze", out)
 
     if band in diff:
@@ -190,8 +217,9 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
     fig, (a1, a2) = _figure(12.0, 4.5, 2)
     cols = _colours(len(ta.pairs))
     fig_5_14 = tables["fig_5_14"]
-    for a, x, sel, xl in ((a1, ratio, None, "velocity ratio v_obs / v_max"),
-                          (a2, v_obs, keep & (np.abs(ratio - 1.0) < 1e-6), "obstacle speed v_obs [m/s] at ratio 1")):
+    for a, x, sel, xl in ((a1, ratio, None, "obstacle speed / MAV speed limit"),
+                          (a2, v_obs, keep & (np.abs(ratio - 1.0) < 1e-6), "obstacle speed (m/s), where it equals "
+                                                                           "the MAV's speed limit")):
         if sel is None:      # success per ratio: the numbers of pbdyn.analysis.figure_tables
             xs = np.array(fig_5_14["ratios"], dtype=float)
             rows = [fig_5_14["success"][pair] for pair in ta.pairs]
@@ -209,10 +237,10 @@ def write_plots(trials: list[dict], maps: dict, report: dict, out_dir) -> list[P
                 a.errorbar(xs[ok], p[j, ok], yerr=se[j, ok], fmt="-o", ms=3, capsize=2, color=cols[j], label=pair)
         if not (n > 0).any():
             a.text(0.5, 0.5, "no trials", ha="center", va="center", transform=a.transAxes)
-        a.set(xlabel=xl, ylabel="success rate", ylim=(-0.05, 1.05))
+        a.set(xlabel=xl, ylabel="success rate (share of trials)", ylim=(-0.05, 1.05))
         _legend(a, len(ta.pairs))
     a1.set_title("success vs velocity ratio")
     a2.set_title("same ratio (1), different obstacle speeds")
-    fig.suptitle("Velocity ratio (fig. 5-14)")
+    fig.suptitle("Success against the ratio of obstacle speed to MAV speed limit")
     _save(fig, out_dir, "velocity_ratio", out)
     return out
