@@ -23,6 +23,7 @@ demo: $(STAMP)
 	$(VENV)/bin/pbdyn evaluate results/quickstart.sqlite --plots results/quickstart-figures
 
 test: $(STAMP)
+	@bash tools/install_sysdeps.sh
 	$(PY) -m pytest -q -p no:cacheprovider
 
 bench: $(STAMP)

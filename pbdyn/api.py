@@ -320,20 +320,39 @@ def export_results(results: str | Path, path: str | Path, *, format: str | None 
         store.close()
 
 
-def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, pool: bool = False):
+def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, pool: bool = False,
+             html: str | Path | None = None):
     """How well each metric ranks maps like the planners' success (thesis table 4-5) for one or more stores (the
     first is the reference set; ``pool``: all stores' maps as one dataset, e.g. generated maps and imported worlds
-    together): (report dict, text table, written figure paths)."""
+    together): (report dict, text table, written figure paths). ``html``: also write one self-contained HTML page
+    of the report with its figures inlined (pbdyn.analysis.html_report)."""
+    import tempfile
+
+    from pbdyn.errors import check_path_length, check_writable_file
     from pbdyn.experiments.evaluate import evaluate_stores
 
     paths = [results] if isinstance(results, (str, Path)) else list(results)
     if plots is not None:
-        from pbdyn.errors import check_path_length
-
         check_path_length("plots", plots)
         if Path(plots).exists() and not Path(plots).is_dir():
             raise ConfigError("plots", "is a file; give a folder for the figures", str(plots))
-    return evaluate_stores([str(p) for p in paths], plots=plots, n_boot=n_boot, pool=pool)
+    if html is not None:
+        if Path(html).suffix.lower() not in (".html", ".htm"):
+            raise ConfigError("html", "must name an .html file", str(html))
+        check_writable_file("html", html)
+    with tempfile.TemporaryDirectory(prefix="pbdyn-figures-") as tmp:
+        figure_dir = plots if plots is not None or html is None else tmp
+        report, table, figures = evaluate_stores([str(p) for p in paths], plots=figure_dir, n_boot=n_boot, pool=pool)
+        if html is not None:
+            from pbdyn import __version__
+            from pbdyn.analysis.html_report import render_html, write_html
+
+            with open_results(paths[0]) as res:
+                scenario = res.scenario
+            page = render_html(report, table, figures, stores=[str(p) for p in paths], scenario=scenario,
+                               version=__version__)
+            write_html(html, page)
+    return report, table, figures if plots is not None else []
 
 
 def run_demo(scenario, *, n_maps: int = 4, n_pairs: int = 3, json_out: bool = False) -> list[dict]:

@@ -123,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ev = sub.add_parser("evaluate", help="success rates and how well each metric ranks maps (table 4-5), figures")
     ev.add_argument("results", nargs="+", help="results store(s); the first is the reference (controlled) set")
-    ev.add_argument("--plots", help="write the PNG figures into this folder")
+    ev.add_argument("--plots", help="write the figures into this folder (.png at 200 dpi, .pdf, .svg)")
+    ev.add_argument("--html", help="write one self-contained HTML report (tables, figures inlined, scenario)")
     ev.add_argument("--bootstrap", type=_nonneg_int, default=1000, help="bootstrap draws for the SRCC CIs (1000)")
     ev.add_argument("--json", action="store_true", help="print the whole report as one JSON document")
     ev.add_argument("--pool", action="store_true",
@@ -146,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
 FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
          "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
          "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep",
-         "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot", "gui_snapshot": "--gui-snapshot", "out": "--out", "plots": "--plots",
+         "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot", "gui_snapshot": "--gui-snapshot", "html": "--html", "out": "--out", "plots": "--plots",
          "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
@@ -299,13 +300,16 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    report, table, figures = api.evaluate(args.results, plots=args.plots, n_boot=args.bootstrap, pool=args.pool)
+    report, table, figures = api.evaluate(args.results, plots=args.plots, n_boot=args.bootstrap, pool=args.pool,
+                                          html=args.html)
     if args.json:
         sys.stdout.write(json.dumps(report, sort_keys=True, allow_nan=False) + "\n")
     else:
         sys.stdout.write(table.rstrip("\n") + "\n")
     if figures:
         sys.stderr.write(f"pbdyn evaluate: {len(figures)} figures in {args.plots}\n")
+    if args.html:
+        sys.stderr.write(f"pbdyn evaluate: report in {args.html}\n")
     return 0
 
 

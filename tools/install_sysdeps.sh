@@ -1,16 +1,20 @@
 #!/usr/bin/env bash
-# Install system libraries that optional pbdyn dependencies need, only when they are missing.
-# open3d (extra "mesh") loads libusb-1.0 at import time.
+# Install the system packages pbdyn's optional parts and tests need, only when they are missing:
+#   libusb-1.0    open3d (extra "mesh") loads it at import time;
+#   chromium, chromium-driver   the HTML report's browser test (tests/test_html_report.py).
 set -u
-if ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so'; then
-  exit 0
-fi
+need=()
+ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so' || need+=(libusb-1.0-0)
+command -v chromium >/dev/null 2>&1 || [ -x /usr/bin/chromium ] || need+=(chromium)
+command -v chromedriver >/dev/null 2>&1 || [ -x /usr/bin/chromedriver ] || need+=(chromium-driver)
+[ ${#need[@]} -eq 0 ] && exit 0
 if ! command -v apt-get >/dev/null 2>&1; then
-  echo "pbdyn: libusb-1.0 is missing; install it with your package manager (needed by open3d)" >&2
+  echo "pbdyn: missing system packages (${need[*]}); install them with your package manager (open3d needs libusb-1.0," \
+       "the HTML report test a headless Chromium and its driver)" >&2
   exit 0
 fi
 SUDO=""
 [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && SUDO="sudo"
-echo "pbdyn: installing libusb-1.0-0 (needed by open3d)" >&2
+echo "pbdyn: installing ${need[*]}" >&2
 $SUDO apt-get update -qq >/dev/null 2>&1 || true
-$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null 2>&1 || echo "pbdyn: could not install libusb-1.0-0; open3d may fail to import" >&2
+$SUDO apt-get install -y -qq "${need[@]}" >/dev/null 2>&1 || echo "pbdyn: could not install ${need[*]}" >&2
