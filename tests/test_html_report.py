@@ -14,29 +14,7 @@ import pytest
 
 import pbdyn
 from tests.conftest import ROOT, pbdyn_cmd
-
-SMALL = """
-name = "html_small"
-[world]
-time_limit = 25.0
-[obstacles]
-count = [8, 16]
-radius = 1.0
-speed = [2.0, 4.0]
-maps_per_setup = 1
-root_seed = 5
-[drone]
-v_max = [4.0]
-[task]
-candidates = [[4.0, 4.0], [46.0, 46.0], [4.0, 46.0], [46.0, 4.0], [25.0, 25.0]]
-[[planners]]
-trajectory = "local_primitives"
-gaze = "lookahead"
-[[planners]]
-trajectory = "straight_line"
-gaze = "fullrange"
-"""
-
+from tests.test_batch import small
 
 def _browser():
     chromium = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
@@ -60,10 +38,8 @@ def _browser():
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
     d = tmp_path_factory.mktemp("html")
-    sc = d / "small.toml"
-    sc.write_text(SMALL)
     out = d / "small.sqlite"
-    pbdyn.run_batch(str(sc), out, workers=1, progress=False)
+    pbdyn.run_batch(str(small(d)), out, workers=1, progress=False)
     return out
 
 
@@ -74,7 +50,7 @@ def test_the_html_report_renders_in_a_real_browser(store, tmp_path):
     assert res.returncode == 0, res.stderr
     text = page.read_text()
     assert not re.search(r'src="(?!data:)', text)                 # self-contained: no external file
-    assert "pbdyn evaluation of html_small" in text and pbdyn.__version__ in text
+    assert "pbdyn evaluation of batch_small" in text and pbdyn.__version__ in text
     driver = _browser()
     try:
         driver.get(page.absolute().as_uri())

@@ -4,8 +4,8 @@ RULES says which pbdyn sub-packages (or top-level modules) each one may import; 
 Every import in every pbdyn module is checked with ``ast`` - module level, inside functions (lazy imports),
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
-Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, limits (resource
-limits), urdf (URDF validation), resources, config | world | perception | planning | metrics (beside perception and
+Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, files (atomic writes),
+limits (resource limits), urdf (URDF validation), resources, config | world | perception | planning | metrics (beside perception and
 planning: it sees rollouts only) | sim | analysis | experiments (evaluate feeds stored results to analysis) | api
 (the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py, which re-exports the api.
 """
@@ -20,17 +20,18 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("usercode", "errors", "limits", "urdf", "resources", "config")
+_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
 RULES: dict[str, tuple[str, ...]] = {
     "usercode": (),
     "errors": ("usercode",),
+    "files": ("usercode", "errors"),
     "limits": ("usercode", "errors"),
     "urdf": ("usercode", "errors"),
     "resources": ("usercode", "errors"),
-    "config": ("usercode", "errors", "limits", "urdf", "resources"),
+    "config": ("usercode", "errors", "files", "limits", "urdf", "resources"),
     "world": _BASE,
     "perception": _BASE + ("world",),
     "planning": _BASE + ("world", "perception"),
@@ -146,7 +147,7 @@ def test_the_rules_are_a_one_way_order():
     for unit, allowed in RULES.items():
         if unit not in _TOP:
             assert not set(allowed) & set(_TOP), f"{unit} may import {sorted(set(allowed) & set(_TOP))}"
-    assert set(RULES["config"]) <= {"usercode", "errors", "limits", "urdf", "resources"}
+    assert set(RULES["config"]) <= {"usercode", "errors", "files", "limits", "urdf", "resources"}
     assert RULES["errors"] == ("usercode",) and RULES["usercode"] == ()
     done: set[str] = set()
 

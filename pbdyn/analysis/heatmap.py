@@ -10,14 +10,13 @@ z layer of the sample grid, obstacles drawn as their cross-sections with that la
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from pbdyn.errors import ConfigError
+from pbdyn.files import atomic_write
 
 HEATMAP_METRICS = ("survivability", "survivability_dense", "vo_feasibility", "vo_feasibility_dense")
 """Metrics whose per-sample values belong to points of the map (what a heat map can show)."""
@@ -127,15 +126,7 @@ def plot_heatmaps(rollout, samples: list[MetricSamples], out: str | Path, *, tit
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}-", suffix=suffix, dir=out.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=DPI, format=suffix[1:])
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=DPI, format=suffix[1:]))
     return HeatmapFigure(out, fig, axes_out)
 
 
@@ -185,9 +176,3 @@ def check_figure_path(out: str | Path, field: str = "plot") -> Path:
     if not p.parent.is_dir():
         raise ConfigError(field, "its folder does not exist", str(out))
     return p
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -9,9 +9,9 @@ from __future__ import annotations
 import base64
 import html
 import json
-import os
-import tempfile
 from pathlib import Path
+
+from pbdyn.files import atomic_write
 
 FIGURE_CAPTIONS = {
     "metric_": "Success rate of every map against its difficulty by one metric, per planner pair (dots: maps; "
@@ -134,17 +134,5 @@ def render_html(report: dict, table_text: str, figures: list[Path], *, stores: l
 
 
 def write_html(out: str | Path, page: str) -> Path:
-    """Write ``page`` to ``out`` atomically (a temporary file beside it, then renamed)."""
-    out = Path(out)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}-", suffix=".html", dir=out.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(page)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return out
+    """Write ``page`` to ``out`` atomically (pbdyn.files.atomic_write)."""
+    return atomic_write(out, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"))

@@ -13,8 +13,6 @@ flight). Files are written atomically (a temporary file beside the target, then 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn.errors import ConfigError
+from pbdyn.files import atomic_write
 
 FORMATS = (".gif", ".mp4", ".png")
 FRAME_PX = 640
@@ -265,38 +264,29 @@ def write_replay(trace_path: str | Path, out: str | Path, *, fps: float | None =
         raise ConfigError("out", "its folder does not exist", str(out))
     rate = float(fps) if fps is not None else 1.0 / (float(trace["dt"]) * every)
     renderer = Renderer(trace)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}-", suffix=suffix, dir=out.parent)
-    os.close(fd)
-    try:
+    done: dict = {}
+
+    def write(tmp: str) -> None:
         import imageio.v2 as iio
 
         if suffix == ".png":
             img = renderer.frame(renderer.n_steps)
             iio.imwrite(tmp, img, format="PNG")
-            n, shape = 1, img.shape
+            done.update(n=1, shape=img.shape)
         elif suffix == ".gif":
             frames = list(renderer.frames(every))
             iio.mimwrite(tmp, frames, format="GIF", duration=1000.0 / rate, loop=0)
-            n, shape = len(frames), frames[0].shape
+            done.update(n=len(frames), shape=frames[0].shape)
         else:
             writer = iio.get_writer(tmp, format="FFMPEG", fps=rate, codec="libx264", macro_block_size=16,
                                     quality=7, ffmpeg_log_level="error")
-            n = 0
             try:
                 for img in renderer.frames(every):
                     writer.append_data(img)
-                    n, shape = n + 1, img.shape
+                    done.update(n=done.get("n", 0) + 1, shape=img.shape)
             finally:
                 writer.close()
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+    atomic_write(out, write)
+    n, shape = done["n"], done["shape"]
     return ReplaySummary(str(out), n, int(shape[1]), int(shape[0]))
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from numbers import Number
 from pathlib import Path
 
 from pbdyn.errors import ConfigError
+from pbdyn.files import atomic_write
 from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore
 
 _AXES = "xyz"
@@ -82,25 +81,10 @@ def trials_frame(store: ResultsStore | str | Path):
     return pd.DataFrame(data)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def _atomic(path: Path, write) -> None:
-    """Write ``path`` through a temporary file in its folder (mode 0o666 & ~umask), renamed over it at the end:
-    a failed export leaves no partial file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".export-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``path`` through a temporary file in its folder (pbdyn.files.atomic_write): a failed export leaves no
+    partial file."""
+    atomic_write(path, write, make_parents=True)
 
 
 def export_csv(store: ResultsStore, path: str | Path) -> int:

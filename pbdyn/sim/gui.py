@@ -10,13 +10,13 @@ property.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from pbdyn.files import atomic_write
 
 MAV_RGBA = (1.0, 0.75, 0.0, 1.0)        # the MAV, drawn bright so it stands out from the obstacles (red/grey)
 GOAL_RGBA = (0.1, 0.75, 0.2, 1.0)
@@ -207,14 +207,4 @@ def write_png(path: Path, image: np.ndarray) -> None:
     """Write an RGB image as PNG, atomically."""
     import imageio.v2 as iio
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        iio.imwrite(tmp, image, format="PNG")
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: iio.imwrite(tmp, image, format="PNG"))
