@@ -8,6 +8,7 @@ import subprocess
 import time
 
 import numpy as np
+import pytest
 
 import pbdyn
 from pbdyn.sim.gui import MAV_RGBA, SNAPSHOT_PX, GuiView, Snapshot, arena_camera, project
@@ -84,3 +85,46 @@ def test_the_gui_observer_runs_its_drawing_path_and_changes_nothing():
     assert view.steps == res.steps > 0
     assert {"goal0", "goal1", "goal_post", "fov0", "fov1", "plan0", "plan23"} <= set(view.items)
     assert _row(res) == _row(pbdyn.run_trial("quickstart", map=4))
+
+
+GUI_SCRIPT = r'''
+import json, time, pbdyn
+import pbdyn.sim.gui as gui
+seen = {}
+class Watch:
+    def on_step(self, env, agent, decision, record):
+        if "camera" not in seen and record.t > 0:    # GuiView framed the arena at the first step
+            cam = env.world.client.getDebugVisualizerCamera()
+            seen["camera"] = [list(cam[11]), cam[10], cam[9]]
+    def on_end(self, env, agent):
+        pass
+def on_end(self, env, agent):
+    seen["items"] = self.items
+gui.GuiView.on_end = on_end
+t0 = time.perf_counter()
+res = pbdyn.run_trial("quickstart", map=4, gui=True, observers=[Watch()])
+t1 = time.perf_counter()
+print(json.dumps({"wall": t1 - t0, "flight": res.flight_time_s, "outcome": res.outcome, **seen}))
+'''
+
+
+def test_the_gui_frames_the_arena_draws_its_lines_and_runs_in_real_time(tmp_path):
+    """A real PyBullet GUI on a virtual display (xvfb, installed by make test where apt exists): the camera looks
+    at the arena's centre from above, every debug line exists (ids >= 0), and the trial takes at least its flight
+    time on the wall clock (real time) but not much more."""
+    import shutil
+    import sys
+
+    if shutil.which("xvfb-run") is None:
+        pytest.skip("no xvfb-run on this machine (make test installs xvfb with apt)")
+    res = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24", sys.executable, "-c", GUI_SCRIPT],
+                         capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-2000:]
+    doc = json.loads(res.stdout.strip().splitlines()[-1])
+    target, distance, pitch = doc["camera"]
+    sc = pbdyn.load_scenario("quickstart")
+    assert target == pytest.approx([25.0, 25.0, sc.world.flight_height], abs=1e-3) and pitch < -89.0
+    assert distance > 20.0
+    assert all(v >= 0 for v in doc["items"].values()) and len(doc["items"]) >= 29
+    assert doc["flight"] <= doc["wall"] <= doc["flight"] + 8.0, doc
+

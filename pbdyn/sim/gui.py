@@ -105,6 +105,10 @@ class GuiView:
         sc = env.spec.scenario
         highlight_mav(world)
         cam = arena_camera(sc.world.size, world.flight_height, env.dims)
+        focal = float(c.getDebugVisualizerCamera()[3][5]) if c.getConnectionInfo()["connectionMethod"] == 1 else 0.0
+        if focal > 0.0:       # the window's own vertical field of view: fit the arena to it (GUI connection = 1)
+            scale = focal * math.tan(math.radians(CAMERA_FOV_DEG / 2.0))
+            cam = Camera(cam.target, cam.distance * scale, cam.yaw, cam.pitch)
         c.resetDebugVisualizerCamera(cam.distance, cam.yaw, cam.pitch, list(cam.target))
         g = world.to_world3(env.goal)
         r = float(env.goal_radius)
