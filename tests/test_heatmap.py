@@ -30,7 +30,7 @@ def test_heat_map_values_are_the_metric_samples_and_the_pixels_show_them(tmp_pat
     image = iio.imread(out)[:, :, :3].astype(int)
     w, h = fig.figure.canvas.get_width_height()
     assert image.shape[:2] == (h, w) and fig.figure.dpi == DPI
-    assert [name for name, _, _ in fig.panels] == ["survivability", "vo_feasibility"]
+    assert [name for name, _, _ in fig.panels] == ["vo_feasibility", "survivability"]   # catalog order
     checked = 0
     for name, _, ax in fig.panels:
         s = metric_samples(sc, ro, name, "analytic")

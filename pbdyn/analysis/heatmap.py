@@ -18,7 +18,9 @@ import numpy as np
 from pbdyn.errors import ConfigError
 from pbdyn.files import atomic_write
 
-HEATMAP_METRICS = ("survivability", "survivability_dense", "vo_feasibility", "vo_feasibility_dense")
+from pbdyn.metrics.catalog import DENSE, PER_POINT, SPARSE
+
+HEATMAP_METRICS = PER_POINT
 """Metrics whose per-sample values belong to points of the map (what a heat map can show)."""
 FIGURE_FORMATS = (".png", ".pdf", ".svg")
 DPI = 200
@@ -158,9 +160,9 @@ def heatmap_metrics(requested: list[str] | None, dense: bool) -> list[str]:
     """The metrics `pbdyn metrics --plot` draws: the requested ones that have per-point samples (default:
     survivability and VO feasibility, the dense variants with --dense); ConfigError naming --plot if none."""
     if not requested:
-        return ["survivability_dense", "vo_feasibility_dense"] if dense else ["survivability", "vo_feasibility"]
-    names = [n if not dense or n.endswith("_dense") or f"{n}_dense" not in HEATMAP_METRICS else f"{n}_dense"
-             for n in requested]
+        sparse = [n for n in SPARSE if n in HEATMAP_METRICS]
+        return [DENSE.get(n, n) for n in sparse] if dense else sparse
+    names = [DENSE.get(n, n) if dense else n for n in requested]
     chosen = [n for n in names if n in HEATMAP_METRICS]
     if not chosen:
         raise ConfigError("plot", f"draws per-sample maps of {', '.join(HEATMAP_METRICS)}; none of them was asked "

@@ -23,7 +23,8 @@ class MetricInfo:
     survivability ``backend`` parameter. table_row: its row in thesis table 4-5 (None: not in the table; the batch
     computes the table's metrics and the baselines per map). thesis_time_s: the table's compute time per map (s).
     baseline: a closed-form baseline that needs no simulation (pbdyn.metrics.baselines); every metric is judged
-    against these (DESIGN.md "Difficulty: what counts as evidence").
+    against these (DESIGN.md "Difficulty: what counts as evidence"). per_point: its per-sample values belong to
+    points of the map (the sample grid), so it can be drawn as a heat map (`pbdyn metrics --plot`).
     """
 
     name: str
@@ -38,6 +39,7 @@ class MetricInfo:
     table_row: int | None = None
     thesis_time_s: float | None = None
     baseline: bool = False
+    per_point: bool = False
 
 
 _M = "pbdyn.metrics."
@@ -50,13 +52,13 @@ METRIC_TABLE: tuple[MetricInfo, ...] = (
     MetricInfo("dynamic_traversability", "dynamic traversability", "m", EASIER, "3-3", _M + "traversability",
                table_row=3, thesis_time_s=30.0),
     MetricInfo("vo_feasibility", "VO feasibility", "1", EASIER, "3-4, 3-5", _M + "vo", dense="vo_feasibility_dense",
-               table_row=7, thesis_time_s=7.0),
+               table_row=7, thesis_time_s=7.0, per_point=True),
     MetricInfo("vo_feasibility_dense", "VO feasibility (dense)", "1", EASIER, "3-4, 3-5", _M + "vo",
-               sparse="vo_feasibility", table_row=8, thesis_time_s=15.0),
+               sparse="vo_feasibility", table_row=8, thesis_time_s=15.0, per_point=True),
     MetricInfo("survivability", "survivability", "s", EASIER, "3-6", _M + "survivability",
-               dense="survivability_dense", backend=True, table_row=4, thesis_time_s=20.0),
+               dense="survivability_dense", backend=True, table_row=4, thesis_time_s=20.0, per_point=True),
     MetricInfo("survivability_dense", "survivability (dense)", "s", EASIER, "3-6", _M + "survivability",
-               sparse="survivability", backend=True, table_row=5, thesis_time_s=90.0),
+               sparse="survivability", backend=True, table_row=5, thesis_time_s=90.0, per_point=True),
     MetricInfo("global_survivability", "global survivability", "s", EASIER, "3-7", _M + "survivability",
                backend=True, table_row=6, thesis_time_s=20.0),
     MetricInfo("flux", "swept-area rate (baseline)", "1/s", HARDER, "-", _M + "baselines", baseline=True),
@@ -73,6 +75,8 @@ DENSE: dict[str, str] = {m.name: m.dense for m in METRIC_TABLE if m.dense}
 BACKEND_METRICS: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.backend)
 BATCH: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.table_row is not None or m.baseline)
 """The metrics of thesis table 4-5 and the baselines, computed once per map by `pbdyn batch`."""
+PER_POINT: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.per_point)
+"""Metrics whose per-sample values belong to points of the map (heat maps)."""
 BASELINES: tuple[str, ...] = tuple(m.name for m in METRIC_TABLE if m.baseline)
 """The closed-form baselines (pbdyn.metrics.baselines)."""
 TABLE_ORDER: tuple[str, ...] = tuple(sorted((n for n in BATCH if INFO[n].table_row is not None),
