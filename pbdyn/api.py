@@ -341,7 +341,7 @@ def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, po
             raise ConfigError("html", "must name an .html file", str(html))
         check_writable_file("html", html)
     with tempfile.TemporaryDirectory(prefix="pbdyn-figures-") as tmp:
-        figure_dir = plots if plots is not None or html is None else tmp
+        figure_dir = tmp if plots is None and html is not None else plots   # the page needs figures to inline
         report, table, figures = evaluate_stores([str(p) for p in paths], plots=figure_dir, n_boot=n_boot, pool=pool)
         if html is not None:
             from pbdyn import __version__

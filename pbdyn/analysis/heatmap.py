@@ -19,9 +19,6 @@ from pbdyn.errors import ConfigError
 from pbdyn.files import atomic_write
 
 from pbdyn.metrics.catalog import DENSE, PER_POINT, SPARSE
-
-HEATMAP_METRICS = PER_POINT
-"""Metrics whose per-sample values belong to points of the map (what a heat map can show)."""
 FIGURE_FORMATS = (".png", ".pdf", ".svg")
 DPI = 200
 CMAP = "viridis"
@@ -160,12 +157,12 @@ def heatmap_metrics(requested: list[str] | None, dense: bool) -> list[str]:
     """The metrics `pbdyn metrics --plot` draws: the requested ones that have per-point samples (default:
     survivability and VO feasibility, the dense variants with --dense); ConfigError naming --plot if none."""
     if not requested:
-        sparse = [n for n in SPARSE if n in HEATMAP_METRICS]
+        sparse = [n for n in SPARSE if n in PER_POINT]
         return [DENSE.get(n, n) for n in sparse] if dense else sparse
     names = [DENSE.get(n, n) if dense else n for n in requested]
-    chosen = [n for n in names if n in HEATMAP_METRICS]
+    chosen = [n for n in names if n in PER_POINT]
     if not chosen:
-        raise ConfigError("plot", f"draws per-sample maps of {', '.join(HEATMAP_METRICS)}; none of them was asked "
+        raise ConfigError("plot", f"draws per-sample maps of {', '.join(PER_POINT)}; none of them was asked "
                           "for with --metric", ", ".join(requested))
     return chosen
 

@@ -28,6 +28,8 @@ _CENTRES = np.arange(LEVELS) + 0.5
 DPI = 200
 """Resolution of the PNG figures (dots per inch)."""
 FORMATS = ("png", "pdf", "svg")
+_NO_TOOL_STAMP = {"png": {"Software": None}, "pdf": {"Creator": None}, "svg": {"Creator": None}}
+"""savefig metadata leaving out matplotlib's version stamp (the files depend on the data only)."""
 
 
 def _figure(w: float = 7.0, h: float = 4.5, ncols: int = 1) -> tuple[Figure, list]:
@@ -56,8 +58,7 @@ def _save(fig: Figure, out_dir: Path, stem: str, out: list[Path]) -> None:
     if path.resolve().parent != out_dir.resolve():   # pragma: no cover - figure_name cannot produce such a name
         raise ConfigError("plots", "a figure would be written outside the folder (a symbolic link there?)", str(path))
     for fmt in FORMATS:
-        meta = {"Software": None} if fmt == "png" else {"Creator": None} if fmt in ("pdf", "svg") else None
-        fig.savefig(path.with_suffix(f".{fmt}"), dpi=DPI, format=fmt, metadata=meta)
+        fig.savefig(path.with_suffix(f".{fmt}"), dpi=DPI, format=fmt, metadata=_NO_TOOL_STAMP[fmt])
     out.append(path)
 
 

@@ -239,7 +239,7 @@ def enumerate_trials(scenario: Scenario, maps=None) -> TrialSequence:
 
 
 # ------------------------------------------------------------------------------------------------ worker side
-_CACHE: dict = {"rollout": (None, None), "world": (None, None), "client": None, "queue": None, "failed": False}
+_CACHE: dict = {"rollout": (None, None), "world": (None, None), "client": None, "queue": None}
 
 
 def _limit_threads() -> None:
@@ -342,12 +342,10 @@ def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> lis
         t = singles[i]
         if isinstance(res, BaseException):
             msg = _error_message(res)
-            _CACHE["failed"] = True
             deliver(i, (t.key, error_row(t, msg), msg))
         else:
             deliver(i, (t.key, res.to_dict(), None))
 
-    _CACHE["failed"] = False
     try:
         ro = _rollout(task.rollout, data)
         world = _world(singles[0], task.specs[0], ro)
@@ -357,7 +355,7 @@ def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> lis
         for i, t in enumerate(singles):
             if out[i] is None:
                 deliver(i, run_trial_task(t, data))
-    if _CACHE["failed"]:
+    if any(err is not None for _, _, err in out):
         _CACHE["world"] = (None, None)     # a failed trial may leave the world in any state: rebuild it
     return out
 

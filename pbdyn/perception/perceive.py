@@ -224,7 +224,7 @@ class Perception:
         scan = self.begin(position, yaw)
         if isinstance(scan, Detections):
             return scan
-        return self.complete(scan, *self.world.cast_fans([scan.fan])[0])
+        return self.complete(scan, *self.world.cast_fan_rays(scan.fan))
 
     def begin(self, position, yaw: float):
         """The first half of sense(): the scan's rays (a PendingScan, to cast with world.cast_fans, possibly with

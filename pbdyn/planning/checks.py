@@ -25,13 +25,9 @@ def first_conflict(view: View, p: np.ndarray, times: np.ndarray, margin: float =
     k = p.shape[0]
     if k == 0:
         return -1
-    bad = _static_bad(view, p, margin, grid=False)
-    tracks = view.tracks
-    if len(tracks):
-        tau = np.asarray(times, dtype=float) - view.t
-        rel = p[:, None, :] - tracks.position[None, :, :] - tau[:, None, None] * tracks.velocity[None, :, :]
-        reach = tracks.radius + (view.limits.radius + margin)
-        bad |= np.any(np.einsum("kmd,kmd->km", rel, rel) < reach * reach, axis=1)
+    bad = _wall_hits(view, p, margin)
+    if len(view.tracks):
+        bad |= _track_hits(view, p, np.asarray(times, dtype=float) - view.t, margin)
     first = int(np.argmax(bad)) if bad.any() else k
     if first > 0:  # the grid query is the expensive one: only where nothing else failed earlier
         grid_bad = view.grid.collides(p[:first], view.limits.radius + margin)
@@ -45,15 +41,10 @@ def trajectory_clear(view: View, p: np.ndarray, times: np.ndarray, margin: float
     p = np.asarray(p, dtype=float)
     if p.shape[0] == 0:
         return True
-    if _static_bad(view, p, margin, grid=False).any():
+    if _wall_hits(view, p, margin).any():
         return False
-    tracks = view.tracks
-    if len(tracks):
-        tau = np.asarray(times, dtype=float) - view.t
-        rel = p[:, None, :] - tracks.position[None, :, :] - tau[:, None, None] * tracks.velocity[None, :, :]
-        reach = tracks.radius + (view.limits.radius + margin)
-        if np.any(np.einsum("kmd,kmd->km", rel, rel) < reach * reach):
-            return False
+    if len(view.tracks) and _track_hits(view, p, np.asarray(times, dtype=float) - view.t, margin).any():
+        return False
     return not view.grid.collides(p, view.limits.radius + margin).any()
 
 
@@ -72,15 +63,10 @@ def first_clear_candidate(view: View, paths: list, margin: float = 0.5) -> int:
     pts = np.full((n, k_max, paths[0].shape[1]), np.nan)
     for c, p in enumerate(paths):
         pts[c, :lengths[c]] = p[1:]
-    wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
-    bad = np.any((pts < view.bounds_lo + wall_r) | (pts > view.bounds_hi - wall_r), axis=(1, 2))
-    tracks = view.tracks
-    if len(tracks) and not bad.all():
+    bad = _wall_hits(view, pts, margin).any(axis=1)
+    if len(view.tracks) and not bad.all():
         times = view.t + view.dt * np.arange(k_max + 1)
-        tau = times[1:] - view.t
-        rel = pts[:, :, None, :] - tracks.position[None, None] - tau[None, :, None, None] * tracks.velocity[None, None]
-        reach = tracks.radius + (view.limits.radius + margin)
-        bad |= np.any(np.einsum("nkmd,nkmd->nkm", rel, rel) < reach * reach, axis=(1, 2))
+        bad |= _track_hits(view, pts, times[1:] - view.t, margin).any(axis=1)
     left = np.flatnonzero(~bad)
     if left.shape[0] == 0:
         return -1
@@ -159,9 +145,24 @@ def program_grid_conflicts(view: View, p: np.ndarray) -> np.ndarray:
     return np.any(outside | occupied, axis=(1, 2))
 
 
-def _static_bad(view: View, p: np.ndarray, margin: float, grid: bool) -> np.ndarray:
+def _wall_hits(view: View, p: np.ndarray, margin: float) -> np.ndarray:
+    """Per sample of positions p [..., K, d] (m): True if the MAV ball (radius + min(margin, WALL_MARGIN_CAP)) meets
+    an arena wall (c). NaN samples meet nothing."""
     wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
-    bad = np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=1)
+    return np.any((p < view.bounds_lo + wall_r) | (p > view.bounds_hi - wall_r), axis=-1)
+
+
+def _track_hits(view: View, p: np.ndarray, tau: np.ndarray, margin: float) -> np.ndarray:
+    """Per sample of positions p [..., K, d] (m) at times tau [K] (s) after view.t: True if the MAV ball (radius +
+    margin) meets a track's constant-velocity prediction (a). NaN samples meet nothing."""
+    tracks = view.tracks
+    rel = p[..., None, :] - tracks.position - tau[:, None, None] * tracks.velocity          # [..., K, M, d]
+    reach = tracks.radius + (view.limits.radius + margin)
+    return np.any(np.einsum("...md,...md->...m", rel, rel) < reach * reach, axis=-1)
+
+
+def _static_bad(view: View, p: np.ndarray, margin: float, grid: bool) -> np.ndarray:
+    bad = _wall_hits(view, p, margin)
     if grid:
         bad |= view.grid.collides(p, view.limits.radius + margin)
     return bad

@@ -134,12 +134,8 @@ class LocalPrimitives:
         self.directions = self._candidate_directions(d)
         self._bases = np.stack([frame_basis(u) for u in self.directions])  # [n, d, d], rows: u first
         self._otg = ruckig.Ruckig(d)
-        self._inp = ruckig.InputParameter(d)
         self._traj = ruckig.Trajectory(d)
-        self._inp.minimum_duration = self.min_duration
-        self._input_pool: list = []
-        self._inp.target_acceleration = [0.0] * d
-        self._inp.max_jerk = [self.jerk_max] * d
+        self._input_pool: list = []    # ruckig InputParameters with the fixed fields set (_inputs)
         self.last_candidates_built = 0
         self.last_candidates_tried = 0
         self.last_rank: int | None = None
@@ -221,7 +217,7 @@ class LocalPrimitives:
         """True if no primitive this planner can return is clear, proven from the current state alone.
 
         Every returned primitive lasts >= min_duration, so it has samples k = 1..floor(min_duration / dt), and its
-        consecutive samples pass the step bounds of _step_acceleration with a_max (|v_k+1 - v_k| <= a_max dt,
+        consecutive samples pass the step bounds of _peaks with a_max (|v_k+1 - v_k| <= a_max dt,
         |p_k+1 - p_k - (v_k + v_k+1) dt / 2| <= a_max dt^2 / 4); hence sample k lies within
         b_k = a_max dt^2 (k^2 / 2 + k / 4) of p_0 + k dt v_0. If for some such k that whole ball meets a wall
         (checks.py (c)) or lies inside one track's predicted disc (a), every candidate conflicts at sample k (the
@@ -313,45 +309,19 @@ class LocalPrimitives:
 
     def _build(self, view: View, target: np.ndarray, vel: np.ndarray, basis: np.ndarray):
         """Samples (p, v, a) [K, d] of the primitive to (target, vel, 0) within the norm limits (samples 1..K-1;
-        sample 0 is the given state), else None. basis: [d, d] rows of the planning frame (world -> frame)."""
-        d = self.dims
-        inp = self._inp
-        inp.current_position = [0.0] * d
-        inp.current_velocity = (basis @ view.velocity).tolist()
-        inp.current_acceleration = (basis @ view.acceleration).tolist()
-        inp.target_position = (basis @ (np.asarray(target, dtype=float) - view.position)).tolist()
-        inp.target_velocity = (basis @ np.asarray(vel, dtype=float)).tolist()
-        v_max, a_max = self.limits.v_max, self.limits.a_max
-        v_lim, a_lim = v_max, a_max
-        stage = 0
-        while stage <= _N_SCALED_REBUILDS + 1:
-            if stage == _N_SCALED_REBUILDS + 1:
-                v_lim, a_lim = v_max / math.sqrt(d), a_max / math.sqrt(d)
-            samples = self._calculate(view, v_lim, a_lim)
-            if samples is None:
-                if stage > _N_SCALED_REBUILDS:
-                    return None
-                stage = _N_SCALED_REBUILDS + 1  # nothing to scale from: go to the conservative limits
-                continue
-            vv_peak, aa_peak = np.einsum("kij,kij->ki", samples[1:, 1:], samples[1:, 1:]).max(axis=0).tolist()
-            v_peak, a_peak = math.sqrt(vv_peak), max(math.sqrt(aa_peak), self._step_acceleration(samples))
-            if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                world = samples @ basis                      # [K, 3, d]: frame -> world (rows of basis)
-                world[:, 0] += view.position
-                world[0] = view.position, view.velocity, view.acceleration
-                return world[:, 0], world[:, 1], world[:, 2]
-            if v_peak > v_max:
-                v_lim *= _SCALE_SAFETY * v_max / v_peak
-            if a_peak > a_max:
-                a_lim *= _SCALE_SAFETY * a_max / a_peak
-            stage += 1
-        return None
+        sample 0 is the given state), else None. basis: [d, d] rows of the planning frame (world -> frame).
+
+        Norm limits from ruckig's per-axis limits (module doc): build with (v_max, a_max); while a sample's |v| or
+        |a|, or the step bound between samples (_peaks), exceeds its norm limit, rebuild with the per-axis limit
+        scaled by 0.95 * limit / peak (at most _N_SCALED_REBUILDS times), then once with v_max / sqrt(d),
+        a_max / sqrt(d); a build that still violates, or that ruckig rejects, gives None."""
+        return self._build_many(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
+                                basis[None])[0]
 
     def _build_many(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray) -> list:
-        """_build for n candidates at once (targets, vels [n, d], bases [n, d, d]): a list of (p, v, a) or None,
-        bit for bit what _build returns for each. Each rebuild stage runs ruckig once per candidate still open and
-        takes every candidate's peaks in one array evaluation; the frame changes are stacked matrix products (the
-        same products, candidate by candidate, as _build's)."""
+        """_build for n candidates at once (targets, vels [n, d], bases [n, d, d]): a list of (p, v, a) or None.
+        Each rebuild stage runs ruckig once per candidate still open and takes every candidate's peaks in one array
+        evaluation; the frame changes are stacked matrix products (the same products as candidate by candidate)."""
         d = self.dims
         n = targets.shape[0]
         v_max, a_max = self.limits.v_max, self.limits.a_max
@@ -430,16 +400,22 @@ class LocalPrimitives:
 
     def _peaks(self, samples: list) -> tuple[list, list]:
         """Per samples array [K_c, 3, d]: the peak speed over samples 1.. (m/s) and the peak acceleration (m/s^2: the
-        larger of the samples' |a| and _step_acceleration), as _build takes them, for all arrays at once (shorter ones
-        padded with zeros, which change no maximum)."""
+        larger of the samples' |a| and the step bound), for all arrays at once (shorter ones padded with zeros, which
+        change no maximum). The step bound is the least acceleration under which consecutive samples are reachable,
+        as the plan contract checks it (pbdyn.sim.contract): max over steps of |dv| / dt and
+        4 |p_k+1 - p_k - (v_k + v_k+1) dt/2| / dt^2; between samples a per-axis-limited profile can exceed the norm
+        limit even when every sample is within it."""
         n = len(samples)
-        lengths = [s.shape[0] for s in samples]
-        k_max = max(lengths)
-        arr = np.zeros((n, k_max) + samples[0].shape[1:])
-        pad = np.zeros((n, k_max - 1), dtype=bool)
-        for c, s in enumerate(samples):
-            arr[c, :lengths[c]] = s
-            pad[c, lengths[c] - 1:] = True
+        pad = None
+        if n == 1:                               # one candidate (the best one, every step): nothing to pad
+            arr = samples[0][None]
+        else:
+            lengths = [s.shape[0] for s in samples]
+            arr = np.zeros((n, max(lengths)) + samples[0].shape[1:])
+            pad = np.zeros((n, arr.shape[1] - 1), dtype=bool)
+            for c, s in enumerate(samples):
+                arr[c, :lengths[c]] = s
+                pad[c, lengths[c] - 1:] = True
         sq = np.einsum("nkij,nkij->nki", arr[:, 1:, 1:], arr[:, 1:, 1:]).max(axis=1)    # [n, 2]
         dt = self.dt
         p, v = arr[:, :, 0], arr[:, :, 1]
@@ -447,26 +423,17 @@ class LocalPrimitives:
         gap = p[:, 1:] - p[:, :-1] - 0.5 * (v[:, :-1] + v[:, 1:]) * dt
         dv2 = np.add.reduce(dv * dv, axis=2)
         gap2 = np.add.reduce(gap * gap, axis=2)
-        dv2[pad] = 0.0
-        gap2[pad] = 0.0
+        if pad is not None:
+            dv2[pad] = 0.0
+            gap2[pad] = 0.0
         step = np.maximum(np.sqrt(dv2.max(axis=1)) / dt, 4.0 * np.sqrt(gap2.max(axis=1)) / (dt * dt))
         return np.sqrt(sq[:, 0]).tolist(), np.maximum(np.sqrt(sq[:, 1]), step).tolist()
 
-    def _step_acceleration(self, samples: np.ndarray) -> float:
-        """The least acceleration bound (m/s^2) under which consecutive samples [K, 3, d] are reachable, as the plan
-        contract checks it (pbdyn.sim.contract): max over steps of |dv| / dt and 4 |p_k+1 - p_k - (v_k + v_k+1)
-        dt/2| / dt^2. Between samples a per-axis-limited profile can exceed the norm limit even when every sample
-        is within it."""
-        dt = self.dt
-        p, v = samples[:, 0], samples[:, 1]
-        dv = v[1:] - v[:-1]
-        gap = p[1:] - p[:-1] - 0.5 * (v[:-1] + v[1:]) * dt
-        dv_max = math.sqrt(float(np.add.reduce(dv * dv, axis=1).max()))      # = max |dv| (np.linalg.norm's sum)
-        gap_max = math.sqrt(float(np.add.reduce(gap * gap, axis=1).max()))
-        return max(dv_max / dt, 4.0 * gap_max / (dt * dt))
-
     def _calculate_with(self, inp, dt: float, v_lim: float, a_lim: float):
-        """_calculate on the InputParameter ``inp`` (its boundary conditions set) with per-axis limits v_lim, a_lim."""
+        """One ruckig build from the InputParameter ``inp`` (its boundary conditions set) with per-axis limits v_lim,
+        a_lim; samples [K, 3 (p, v, a), d] at 0, dt, ... (past the duration the end velocity is held: the end
+        acceleration is 0), or None when ruckig rejects the input (e.g. a target velocity above the per-axis limit,
+        or an error code the binding cannot name) or the duration exceeds MAX_PLAN_HORIZON_S."""
         d = self.dims
         inp.max_velocity = [v_lim] * d
         inp.max_acceleration = [a_lim] * d
@@ -485,31 +452,6 @@ class LocalPrimitives:
         flat: list[float] = []
         for k in range(n):
             p, v, a = at(k * dt)
-            flat += p
-            flat += v
-            flat += a
-        return np.array(flat).reshape(n, 3, d)
-
-    def _calculate(self, view: View, v_lim: float, a_lim: float):
-        """One ruckig build with per-axis limits; samples [K, 3 (p, v, a), d] at 0, dt, ..., or None on error."""
-        d = self.dims
-        inp = self._inp
-        inp.max_velocity = [v_lim] * d
-        inp.max_acceleration = [a_lim] * d
-        self.last_candidates_built += 1
-        try:
-            result = self._otg.calculate(inp, self._traj)
-        except (ruckig.RuckigError, ValueError):  # invalid input (e.g. a target velocity above the per-axis limit),
-            return None                             # or an error code the binding cannot name (e.g. -101)
-        if result != ruckig.Result.Working and result != ruckig.Result.Finished:
-            return None
-        traj = self._traj
-        if not traj.duration <= MAX_PLAN_HORIZON_S:   # e.g. a tiny jerk limit: refuse rather than sample it
-            return None
-        n = max(2, math.ceil(traj.duration / view.dt - 1e-9) + 1)
-        flat: list[float] = []
-        for k in range(n):  # past the duration the end velocity is held (end acceleration is 0)
-            p, v, a = traj.at_time(k * view.dt)
             flat += p
             flat += v
             flat += a

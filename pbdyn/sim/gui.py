@@ -167,7 +167,7 @@ class Snapshot:
         self.view = self.proj = None
 
     def on_step(self, env, agent, decision, record) -> None:
-        self.plan = None if agent.trajectory is None else agent.trajectory.remaining(record.t).p.copy()
+        self.last = (agent.trajectory, record.t)   # the plan in execution and when: drawn at the end
 
     def on_end(self, env, agent) -> None:
         world = env.world
@@ -176,7 +176,8 @@ class Snapshot:
         highlight_mav(world)
         markers = [_marker(c, world.to_world3(env.goal), max(0.6, 0.6 * float(env.goal_radius)), GOAL_RGBA),
                    _disc(c, world.to_world3(env.position), world.mav_radius, MAV_RGBA)]
-        plan = getattr(self, "plan", None)
+        traj, t = getattr(self, "last", (None, 0.0))
+        plan = None if traj is None else traj.remaining(t).p
         if plan is not None and plan.shape[0] > 1:
             for q in world.to_world3(plan[1::max(1, plan.shape[0] // 8)]):
                 markers.append(_marker(c, q, 0.3, PLAN_RGBA))
@@ -184,8 +185,7 @@ class Snapshot:
             cam = arena_camera(env.spec.scenario.world.size, world.flight_height, env.dims)
             self.view, self.proj = view_projection(c, cam, self.size, self.size)
             _, _, rgba, _, _ = c.getCameraImage(self.size, self.size, self.view, self.proj,
-                                                renderer=c.ER_TINY_RENDERER if hasattr(c, "ER_TINY_RENDERER")
-                                                else 65536)
+                                                renderer=c.ER_TINY_RENDERER)
             self.image = np.asarray(rgba, dtype=np.uint8).reshape(self.size, self.size, 4)[:, :, :3].copy()
         finally:
             for m in markers:

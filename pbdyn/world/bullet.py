@@ -544,7 +544,11 @@ class PyBulletWorld:
         Culling is skipped (cull=False, or bodies in the client this world did not create) and relies on bodies
         being moved only through set_obstacle_positions.
         """
-        fan = self.fan_rays(origin, directions, range_m, cull=cull)
+        return self.cast_fan_rays(self.fan_rays(origin, directions, range_m, cull=cull))
+
+    def cast_fan_rays(self, fan: "FanRays") -> tuple[np.ndarray, np.ndarray]:
+        """cast_fan's (body_ids [R], fractions [R]) of one fan of rays (fan_rays); Bullet is not called when culling
+        left no ray."""
         if fan.starts.shape[0] == 0:
             return self.fan_results(fan, np.empty(0, np.int64), np.empty(0))
         return self.fan_results(fan, *self.cast_rays(fan.starts, fan.ends))
@@ -573,7 +577,7 @@ class PyBulletWorld:
     @staticmethod
     def fan_results(fan: "FanRays", hit_ids: np.ndarray, hit_frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """cast_fan's (body_ids [R], fractions [R]) from the hits of the fan's rays (cast_rays on its starts, ends)."""
-        if fan.selected is None and fan.starts.shape[0] == fan.n_rays:
+        if fan.selected is None:          # every ray was cast
             return hit_ids, hit_frac
         ids = np.full(fan.n_rays, -1, dtype=np.int64)
         frac = np.ones(fan.n_rays)
@@ -583,11 +587,11 @@ class PyBulletWorld:
 
     def cast_fans(self, fans: Sequence["FanRays"]) -> list[tuple[np.ndarray, np.ndarray]]:
         """cast_fan's results for several fans of rays (fan_rays), cast in one cast_rays call."""
-        if not fans:
-            return []
+        if len(fans) <= 1:
+            return [self.cast_fan_rays(f) for f in fans]
         counts = [f.starts.shape[0] for f in fans]
         if sum(counts) == 0:
-            return [self.fan_results(f, np.empty(0, np.int64), np.empty(0)) for f in fans]
+            return [self.cast_fan_rays(f) for f in fans]
         ids, frac = self.cast_rays(np.concatenate([f.starts for f in fans]), np.concatenate([f.ends for f in fans]))
         out, lo = [], 0
         for f, c in zip(fans, counts):
