@@ -225,6 +225,7 @@ class _Pool:
             self.own_client = isinstance(scheduler, str)
             self.executor = self.client.get_executor(pure=False)
             self.scattered: dict[str, object] = {}
+            self.queue = None               # Dask: rows come with each group's result
         else:
             self._start()
 
@@ -238,10 +239,9 @@ class _Pool:
 
     def rows(self) -> Iterator[tuple]:
         """The rows the workers have sent so far through the queue (none for Dask: they come with each result)."""
-        q = getattr(self, "queue", None)
-        while q is not None:
+        while self.queue is not None:
             try:
-                yield q.get_nowait()
+                yield self.queue.get_nowait()
             except queue_module.Empty:
                 return
             except (OSError, EOFError, ValueError):   # a worker died while writing: its rows come again
@@ -689,17 +689,20 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
 
     streamed: dict = {}       # key -> (replaces, taken) of every trial of the lockstep groups in flight
 
+    def store_row(key: str, row: dict, err, replace_row: bool) -> None:
+        store.add_trials([(key, row, err)], replace=replace_row)
+        counts["ran"] += 1
+        counts["errors"] += err is not None
+        progress.step()
+        maybe_commit()
+
     def take_row(key: str, row: dict, err) -> None:
         """Store one row of a lockstep group (streamed or with its group's result), once."""
         state = streamed.get(key)
         if state is None or state[1]:
             return
         streamed[key] = (state[0], True)
-        store.add_trials([(key, row, err)], replace=state[0])
-        counts["ran"] += 1
-        counts["errors"] += err is not None
-        progress.step()
-        maybe_commit()
+        store_row(key, row, err, state[0])
 
     def drain() -> None:
         for key, row, err in pool.rows():
@@ -716,11 +719,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
             for t in obj:
                 streamed.pop(t[0], None)
         else:
-            key, row, err = result
-            store.add_trials([(key, row, err)], replace=rep)
-            counts["ran"] += 1
-            counts["errors"] += err is not None
-            progress.step()
+            store_row(*result, rep)
 
     stream = source()
     retry: collections.deque = collections.deque()

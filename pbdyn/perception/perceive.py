@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -47,8 +48,7 @@ class Detections:
     ranges: np.ndarray
 
 
-@dataclass(frozen=True)
-class PendingScan:
+class PendingScan(NamedTuple):
     """A scan begun (Perception.begin) and not yet completed: sensor origin [d] (m), ray directions [d, R] and the
     fan's rays to cast (pbdyn.world.bullet.FanRays)."""
 

@@ -30,8 +30,8 @@ import sys
 import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -206,8 +206,7 @@ def new_client(gui: bool = False):
         return bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
 
 
-@dataclass(frozen=True)
-class FanRays:
+class FanRays(NamedTuple):
     """The rays of one sensor fan that need Bullet (PyBulletWorld.fan_rays): n_rays of the fan, the indices of the
     ones kept (None: all), and their start and end points [k, 3] (m, world frame)."""
 
