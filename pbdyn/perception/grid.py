@@ -33,7 +33,7 @@ class OccupancyGrid:
         self.version = 0  # incremented whenever a cell becomes OCCUPIED
         self._last = np.asarray(self.shape, dtype=np.int64) - 1
         self._strides = np.cumprod((self.shape[1:] + (1,))[::-1])[::-1].astype(np.int64)  # C-order, in cells
-        self._window_cache: dict[int, np.ndarray] = {}
+        self._offset_cache: dict[tuple, tuple] = {}
         self._near_cache: tuple = (None, {})   # (OCCUPIED mask it was built from, {h: dilated mask})
 
     @property
@@ -89,22 +89,22 @@ class OccupancyGrid:
         """Number of cells that are no longer UNKNOWN."""
         return int(np.count_nonzero(self.cells != UNKNOWN))
 
-    def _window(self, reach: int) -> np.ndarray:
-        w = self._window_cache.get(reach)
-        if w is None:
-            rng = range(-reach, reach + 1)
-            w = np.array(list(itertools.product(rng, repeat=self.dims)), dtype=np.int64)
-            self._window_cache[reach] = w
-        return w
+    def _occupied(self) -> tuple[np.ndarray, dict]:
+        """The OCCUPIED mask [shape] and the masks cached from it; the cache is dropped when the OCCUPIED cells
+        differ from those it was built from (any write to ``cells``)."""
+        occ = self.cells == OCCUPIED
+        built_from, masks = self._near_cache
+        if built_from is None or not np.array_equal(occ, built_from):
+            self._near_cache = (occ, {})
+        return self._near_cache
 
     def near_occupied(self, h: int) -> np.ndarray | None:
         """Bool mask [shape]: cells within Chebyshev index distance ``h`` of an OCCUPIED cell (None if no cell is
         OCCUPIED). Rebuilt when the OCCUPIED cells differ from those it was built from (any write to ``cells``)."""
-        occ = self.cells == OCCUPIED
-        built_from, masks = self._near_cache
-        if built_from is None or not np.array_equal(occ, built_from):
-            masks = {}
-            self._near_cache = (occ, masks)
+        return self._near(h, *self._occupied())
+
+    @staticmethod
+    def _near(h: int, occ: np.ndarray, masks: dict) -> np.ndarray | None:
         mask = masks.get(h)
         if mask is None:
             if not occ.any():
@@ -135,7 +135,8 @@ class OccupancyGrid:
         if pts.shape[0] == 0:
             return out
         h = max(int(np.ceil(max_dist / self.res)), 0)
-        near = self.near_occupied(h)
+        occupied = self._occupied()
+        near = self._near(h, *occupied)
         if near is None:
             return out
         base = self.index(pts)                                   # [K, d]
@@ -144,27 +145,48 @@ class OccupancyGrid:
             rows = np.flatnonzero(close)
             if rows.shape[0] == 0:
                 return out
-            out[rows] = self._clearance_search(pts[rows], base[rows], max_dist)
+            out[rows] = self._clearance_search(pts[rows], base[rows], max_dist, occupied)
             return out
-        return self._clearance_search(pts, base, max_dist)
+        return self._clearance_search(pts, base, max_dist, occupied)
 
-    def _clearance_search(self, pts: np.ndarray, base: np.ndarray, max_dist: float) -> np.ndarray:
-        """clearance() by searching the OCCUPIED cells within ceil(max_dist / res) + 1 cells of each point's cell."""
+    def _clearance_search(self, pts: np.ndarray, base: np.ndarray, max_dist: float, occupied=None) -> np.ndarray:
+        """clearance() by searching the OCCUPIED cells near each point's cell (base: its indices [K, d]): one
+        gather of the cells at the offsets whose box can lie within max_dist of a point in the base cell
+        (_offsets), then exact point-to-box distances for the OCCUPIED ones only. ``occupied``: _occupied()'s
+        result when the caller has it."""
         out = np.full(pts.shape[0], float(max_dist))
         reach = int(np.ceil(max_dist / self.res)) + 1
-        cand = base[:, None, :] + self._window(reach)[None]      # [K, W, d]
-        shape = np.asarray(self.shape)
-        inside = np.all((cand >= 0) & (cand < shape), axis=-1)
-        candc = np.clip(cand, 0, shape - 1)
-        occ = self.cells[tuple(np.moveaxis(candc, -1, 0))] == OCCUPIED
-        occ &= inside
-        if not occ.any():
+        idx_off, flat_off, strides = self._offsets(max_dist, reach)
+        occ, masks = self._occupied() if occupied is None else occupied
+        padded = masks.get(("padded", reach))
+        if padded is None:                 # OCCUPIED padded by reach False cells: offsets from any cell stay inside
+            padded = masks[("padded", reach)] = np.pad(occ, reach).reshape(-1)
+        centre = (base + reach) @ strides                                              # [K] in the padded array
+        rows, cols = np.nonzero(padded[centre[:, None] + flat_off[None, :]])
+        if rows.shape[0] == 0:
             return out
-        cmin = self.origin + candc * self.res
-        delta = np.maximum(np.maximum(cmin - pts[:, None, :], pts[:, None, :] - (cmin + self.res)), 0.0)
-        dist = np.sqrt(np.sum(delta * delta, axis=-1))
-        dist = np.where(occ, dist, np.inf)
-        return np.minimum(out, dist.min(axis=1))
+        cmin = self.origin + (base[rows] + idx_off[cols]) * self.res
+        p = pts[rows]
+        delta = np.maximum(np.maximum(cmin - p, p - (cmin + self.res)), 0.0)
+        np.minimum.at(out, rows, np.sqrt(np.sum(delta * delta, axis=-1)))
+        return out
+
+    def _offsets(self, max_dist: float, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell offsets [W, d] within Chebyshev distance ``reach`` whose box can come within max_dist of a point in
+        the centre cell (per axis the gap is at least (|o| - 1) res; 1% of a cell of slack for points that floor()
+        put in a neighbouring cell), their flat offsets [W] in the OCCUPIED mask padded by ``reach``, and
+        that array's C-order strides [d]. Boxes beyond max_dist cannot change a clearance capped at max_dist."""
+        key = (float(max_dist), reach)
+        hit = self._offset_cache.get(key)
+        if hit is None:
+            w = np.array(list(itertools.product(range(-reach, reach + 1), repeat=self.dims)), dtype=np.int64)
+            gap = np.maximum(np.abs(w) - 1, 0) * self.res
+            w = w[np.sqrt(np.sum(gap * gap, axis=1)) <= max_dist + 0.01 * self.res]
+            padded = np.asarray(self.shape, dtype=np.int64) + 2 * reach
+            strides = np.cumprod(np.concatenate([padded[1:], [1]])[::-1])[::-1]
+            hit = (w, w @ strides, strides)
+            self._offset_cache[key] = hit
+        return hit
 
     def collides(self, points: np.ndarray, radius: float) -> np.ndarray:
         """True for each world point [K, d] whose ball of ``radius`` (m) overlaps an OCCUPIED cell (thesis A-3)."""
@@ -175,6 +197,6 @@ class OccupancyGrid:
         g = OccupancyGrid.__new__(OccupancyGrid)
         g.__dict__.update(self.__dict__)
         g.cells = self.cells.copy()
-        g._window_cache = {}
+        g._offset_cache = {}
         g._near_cache = (None, {})
         return g
