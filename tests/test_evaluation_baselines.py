@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import spearmanr
 
 from pbdyn.analysis.report import SETUP_MODEL, evaluate, format_table
-from pbdyn.analysis.validation import agreement, compare
+from pbdyn.analysis.validation import ALPHA, agreement, compare, holm_verdicts, one_sided_p
 from tests.test_analysis import PAIRS, controlled_ids, synthetic
 
 
@@ -67,6 +67,53 @@ def test_paired_comparison_by_hand():
     assert c["ci95"][0] > 0                                   # the exact metric beats the noisy one
     same = compare(good, good, 400, 2)
     assert same["diff"] == 0.0 and same["ci95"] == [0.0, 0.0] and same["within_diff"] == 0.0
+
+
+def test_holm_verdicts_by_hand():
+    """A metric's p-value is the largest over its baselines; Holm multiplies the smallest of m by m, the next by
+    m - 1 (step-down, monotone); a metric without a p-value for some baseline is not tested."""
+    assert one_sided_p(np.array([0.1, 0.2, -0.1, np.nan])) == pytest.approx((1 + 1) / (1 + 3))
+    assert one_sided_p(np.array([0.1, 0.0])) == pytest.approx(2 / 3)           # a tie counts against the metric
+    assert math.isnan(one_sided_p(np.empty(0)))
+    comps = {"a": {"x": {"p": 0.001}, "y": {"p": 0.004}},       # IUT p 0.004 -> Holm 3 x 0.004 = 0.012: beats
+             "b": {"x": {"p": 0.011}, "y": {"p": 0.002}},       # 0.011 -> 2 x 0.011 = 0.022: beats
+             "c": {"x": {"p": 0.020}, "y": {"p": 0.001}},       # 0.020 -> 1 x 0.020, but monotone: 0.022: beats
+             "d": {"x": {"p": 0.5}, "y": {"p": float("nan")}}}  # untested
+    v = holm_verdicts(comps)
+    assert set(v) == {"a", "b", "c"} and all(r["n_tests"] == 3 for r in v.values())
+    assert [v[k]["p"] for k in "abc"] == [0.004, 0.011, 0.020]
+    assert [v[k]["p_holm"] for k in "abc"] == pytest.approx([0.012, 0.022, 0.022])
+    assert all(v[k]["beats"] for k in "abc")
+    comps["c"]["x"]["p"] = 0.03                                # above ALPHA on its own: fails after correction too
+    v = holm_verdicts(comps)
+    assert v["c"]["p_holm"] == pytest.approx(0.03) and not v["c"]["beats"] and v["b"]["beats"]
+    comps["b"]["x"]["p"] = 0.02                                # 2 x 0.02 = 0.04 > ALPHA: b no longer beats them
+    assert not holm_verdicts(comps)["b"]["beats"] and ALPHA == 0.025
+
+
+def test_corrected_verdicts_in_the_report(study):
+    """Every metric carries the Holm-corrected verdicts; a corrected verdict is never kinder than the raw one,
+    and the p-values agree with the intervals (an interval above 0 means p about <= ALPHA)."""
+    *_, rep = study
+    m = rep["metrics"]
+    tested = [n for n, r in m.items() if r["kind"] == "metric"]
+    for name in tested:
+        r = m[name]
+        h = r["beats_baselines_holm"]
+        assert h["n_tests"] == len(tested)
+        assert h["p"] == max(c["p"] for c in r["vs_baselines"].values())
+        assert h["p_holm"] >= h["p"]
+        if h["beats"]:
+            assert r["beats_baselines"] is True
+        if r["beats_baselines"] is False:
+            assert h["p"] > ALPHA - 0.01
+        assert r["fitted"]["beats_baselines_holm"]["n_tests"] == len(tested)
+        assert "beats_baselines_within_setup_holm" in r
+    assert m["survivability"]["beats_baselines_holm"]["beats"] is True
+    assert m["density"]["beats_baselines_holm"]["beats"] is False
+    text = format_table(rep)
+    assert "] **" in next(line for line in text.splitlines() if line.startswith("survivability "))
+    assert ("Beats every baseline across maps: survivability (after Holm's correction: survivability)" in text)
 
 
 def test_fitted_difficulty_recovers_the_hidden_one_and_the_planners_order(study):

@@ -7,6 +7,7 @@ import json
 import math
 import os
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -362,3 +363,36 @@ def test_rays_see_moving_bodies_by_their_real_shapes():
         assert w.dynamic_index_of[ids[1]] == -1
     finally:
         w.close()
+
+
+def test_imported_world_set_is_what_its_tool_writes_clear_of_the_candidates_and_flies():
+    """scenarios/worlds/imported_2d (the heterogeneous study's imported worlds) are exactly what tools/make_worlds.py
+    writes; every world keeps its static bodies' real shapes >= 3 m from every start/goal candidate, has moving
+    bodies, and one world of each family flies a trial to an outcome."""
+    from pbdyn.experiments.tasks import trial_spec
+    from pbdyn.sim.outcome import Outcome
+    from pbdyn.sim.trial import run_trial
+
+    out = subprocess.run([sys.executable, str(ROOT / "tools" / "make_worlds.py"), "--check"],
+                         capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr
+    files = sorted((SCENARIOS / "worlds" / "imported_2d").glob("*.toml"))
+    assert len(files) == 12
+    flown = set()
+    for f in files:
+        sc = load_scenario(f)
+        m = enumerate_maps(sc)[0]
+        ro = build_rollout(sc, m)
+        field = ro.bodies.field()
+        assert field.indices("moving")
+        cands = np.array(sc.task.candidates, dtype=float)
+        pts = np.concatenate([cands, np.full((cands.shape[0], 1), sc.world.flight_height)], axis=1)
+        for b in field.indices("static"):
+            assert field.body_distance(b, pts, 0).min() >= 3.0 - 1e-9, (f.name, ro.bodies.names[b])
+        family = f.stem.rsplit("_", 1)[0]
+        if family not in flown:
+            flown.add(family)
+            spec = trial_spec(sc, m, sc.planners[0], sc.drone.v_max[0], sc.task.candidates[0], sc.task.candidates[-1])
+            r = run_trial(spec, ro)
+            assert r.outcome in {o.value for o in Outcome} - {"error", "invalid_plan"} and r.steps > 0
+    assert flown == {"warehouse", "plaza", "office", "orbits"}

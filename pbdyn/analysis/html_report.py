@@ -92,13 +92,16 @@ def render_html(report: dict, table_text: str, figures: list[Path], *, stores: l
     parts.append("<h2>Does a metric rank maps like success does?</h2>")
     parts.append(f"<p>{e(str(report.get('sign_convention', '')))}. Baselines need no simulation; a metric is "
                  "useful only where it beats them (bold: its 95% interval of the paired difference to every "
-                 "baseline lies above 0).</p>")
+                 "baseline lies above 0; &dagger;: it still does after Holm's correction for the number of "
+                 "metrics tested).</p>")
     rows, classes = [], []
     for name, m in report.get("metrics", {}).items():
         fitted = m.get("fitted") or {}
         baseline = m.get("kind") == "baseline"
         beats = m.get("beats_baselines")
         label = e(metric_label(name)) + (" (baseline)" if baseline and "baseline" not in metric_label(name) else "")
+        if (m.get("beats_baselines_holm") or {}).get("beats"):
+            label += " &dagger;"
         rows.append([f'<span class="beats">{label}</span>' if beats else label, _num(m.get("srcc_mean")),
                      _ci(m.get("srcc_ci95")), _num(m.get("within_setup_srcc")), _num(fitted.get("srcc")),
                      _num(m.get("cv_mean")), _num(m.get("compute_time_s"), "{:.4f}")])

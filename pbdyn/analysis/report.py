@@ -23,6 +23,10 @@ Conventions (documented in the report itself):
   linear fit of the pooled success on them, in-sample like setup_model). Every other row (kind "metric") is compared with each baseline, paired over
   the same bootstrap draws (pbdyn.analysis.validation): "vs_baselines" holds the SRCC difference and its 95%
   interval across maps and within setups; "beats_baselines" is True only when every interval lies above 0.
+  Several metrics are tested at once, so each verdict also comes corrected for their number ("*_holm": the largest
+  of a metric's one-sided bootstrap p-values over the baselines, Holm-adjusted over the metrics tested;
+  pbdyn.analysis.validation.holm_verdicts): only those verdicts bound the chance that any metric is wrongly said
+  to beat the baselines.
 - Structured maps (a "structure" in their setup): "within_family_srcc" is the within-setup Srcc over the maps of one
   setup and one structure (they differ only by seed), beside the within-setup Srcc over all structures of a setup,
   with a 95% interval over resampled families ("within_family_ci95") and, in "vs_baselines", the paired
@@ -44,7 +48,8 @@ from pbdyn.analysis.bands import band_fit, band_shares
 from pbdyn.analysis.cv import LEVELS, cv_by_level, cv_summary
 from pbdyn.analysis.normalise import Normaliser, fit_normaliser
 from pbdyn.analysis.regression import FEATURES, LinearFit, fit_linear, setup_features, setup_key
-from pbdyn.analysis.validation import Agreement, agreement, agreement_dict, compare, verdict, within_ci
+from pbdyn.analysis.validation import (Agreement, agreement, agreement_dict, compare, holm_verdicts, verdict,
+                                      within_ci)
 from pbdyn.analysis.success import (OUTCOMES, SuccessTable, rate_and_se, success_table, trial_arrays,
                                    within_setup_reliability)
 from pbdyn.errors import ConfigError
@@ -127,6 +132,12 @@ def _vs_baselines(out: dict, agree: dict, name: str, bases: list[str], n_boot: i
     return comps
 
 
+HOLM_FIELDS = {"p": "beats_baselines_holm", "within_p": "beats_baselines_within_setup_holm",
+               "within_family_p": "beats_baselines_within_family_holm"}
+"""Which p-value of the baseline comparisons (validation.compare) feeds which multiplicity-corrected verdict
+(validation.holm_verdicts: across maps, within setups, within structure families)."""
+
+
 def _respondent(pair: str, speed: float) -> str:
     return f"{pair} @ {speed:g} m/s"
 
@@ -195,12 +206,15 @@ def _trial_level(ta, trials: list[dict], difficulty: dict, controlled: np.ndarra
     scores = trial_level(success, resp, ta.map_idx[sel], preds)
     bases = [b for b in (*BASELINE_ROWS, TASK_BASELINE) if b in scores]
     out = public(scores)
+    tested = {}
     for name in scores:
         if name in bases or name == REFERENCE:
             continue
-        comps = {b: compare_predictors(scores, name, b, ta.map_idx[sel]) for b in bases}
+        comps = tested[name] = {b: compare_predictors(scores, name, b, ta.map_idx[sel]) for b in bases}
         out[name]["vs_baselines"] = comps
         out[name]["beats_baselines"] = verdict(comps)
+    for name, v in holm_verdicts(tested).items():
+        out[name]["beats_baselines_holm"] = v
     return {"method": "logistic regression of success on [predictor, planner indicators], held-out maps "
                       "(scikit-learn, GroupKFold); vs_baselines: the baseline's held-out log-loss minus the "
                       "predictor's, 95% interval over resampled maps", "baselines": bases, "predictors": out}
@@ -357,17 +371,26 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
             row["fitted"] = agreement_dict(agree_fit[name])
         rows[name] = row
     base_rows = [n for n in BASELINE_ROWS if n in rows]
+    tested: dict[str, dict] = {}
+    tested_fit: dict[str, dict] = {}
     for name, row in rows.items():
         row["kind"] = "baseline" if name in base_rows else "metric"
         if name in base_rows:
             continue
-        comps = _vs_baselines(row, agree, name, base_rows, n_boot, seed)
+        comps = tested[name] = _vs_baselines(row, agree, name, base_rows, n_boot, seed)
         if agree_fam:
             for b, cmp in comps.items():
                 fc = compare(agree_fam[name], agree_fam[b], n_boot, seed)
                 cmp["within_family_diff"], cmp["within_family_ci95"] = fc["within_diff"], fc["within_ci95"]
+                cmp["within_family_p"] = fc["within_p"]
+            row["beats_baselines_within_family"] = verdict(comps, "within_family_ci95")
         if has_fit:
-            _vs_baselines(row["fitted"], agree_fit, name, base_rows, n_boot, seed)
+            tested_fit[name] = _vs_baselines(row["fitted"], agree_fit, name, base_rows, n_boot, seed)
+    for key, field in HOLM_FIELDS.items():
+        for name, v in holm_verdicts(tested, key).items():
+            rows[name][field] = v
+    for name, v in holm_verdicts(tested_fit).items():
+        rows[name]["fitted"]["beats_baselines_holm"] = v
 
     band_name = next((n for n in BAND_METRICS if n in difficulty), None)
     bands = None
@@ -440,6 +463,23 @@ def _term(x) -> str:
     return "+ -" if x is None else f"{'-' if x < 0 else '+'} {abs(x):.3f}"
 
 
+def _mark(row: dict, raw: str, holm: str) -> str:
+    """' **' when a row beats every baseline after the multiplicity correction, ' *' when only without it."""
+    if (row.get(holm) or {}).get("beats"):
+        return " **"
+    return " *" if row.get(raw) else ""
+
+
+def _beaters(report: dict, raw: str, holm: str) -> str:
+    """The metrics that beat every baseline (verdict ``raw``), those that still do after Holm's correction."""
+    rows = report["metrics"]
+    beats = [n for n, r in rows.items() if r.get(raw)]
+    kept = [n for n in beats if (rows[n].get(holm) or {}).get("beats")]
+    if not beats:
+        return "no metric"
+    return f"{', '.join(beats)} (after Holm's correction: {', '.join(kept) if kept else 'none'})"
+
+
 def format_table(report: dict) -> str:
     """Text report laid out like thesis table 4-5 (rows: metrics and setup_model; columns: Srcc mean +- std over
     pairs, bootstrap 95% CI, within-setup Srcc, Cv mean +- std, compute time per map), then the sigma bands
@@ -457,7 +497,7 @@ def format_table(report: dict) -> str:
         ci = r["srcc_ci95"]
         vs = (r.get("vs_baselines") or {}).get(best) if best else None
         if vs is not None:
-            mark = {True: " *", False: "", None: ""}[r.get("beats_baselines")]
+            mark = _mark(r, "beats_baselines", "beats_baselines_holm")
             cmp = f"{_term(vs['diff'])} [{_f(vs['ci95'][0]):>6}, {_f(vs['ci95'][1]):>6}]{mark}"
         else:
             cmp = "(baseline)" if r.get("kind") == "baseline" else "-"
@@ -466,13 +506,13 @@ def format_table(report: dict) -> str:
                      f"[{_f(ci[0]):>6}, {_f(ci[1]):>6}]  {_f(r['within_setup_srcc']):>12} {_f(fitted):>7} "
                      f"{cmp:>27} {_f(r['cv_mean']):>7} +- {_f(r['cv_std']):<5} {_f(r['compute_time_s'], '.2f'):>9}")
     if base:
-        beats = [n for n, r in report["metrics"].items() if r.get("beats_baselines")]
-        beats_w = [n for n, r in report["metrics"].items() if r.get("beats_baselines_within_setup")]
         lines += ["", f"Baselines (need no simulation): {', '.join(base)}; best across maps: {best}. "
                       "'fitted': SRCC against the fitted difficulty (1PL). '*': beats every baseline (95% CI of the "
-                      "paired SRCC difference above 0).",
-                  f"Beats every baseline across maps: {', '.join(beats) if beats else 'no metric'}; within setups: "
-                  f"{', '.join(beats_w) if beats_w else 'no metric'}."]
+                      "paired SRCC difference above 0); '**': still after Holm's correction for the number of "
+                      "metrics tested.",
+                  "Beats every baseline across maps: " + _beaters(report, "beats_baselines", "beats_baselines_holm")
+                  + "; within setups: " + _beaters(report, "beats_baselines_within_setup",
+                                                   "beats_baselines_within_setup_holm") + "."]
     fd = report.get("fitted_difficulty")
     if fd:
         lines += ["", f"Fitted difficulty: {fd['model']} ({fd['method']}, {fd['n_items']} maps). Planner "
@@ -491,12 +531,13 @@ def format_table(report: dict) -> str:
                       "predictor and the planner; gain = log-loss of 'planners only' minus the model's (> 0 helps):"]
         for name, r in tl["predictors"].items():
             ci = r.get("log_loss_gain_ci95") or [None, None]
-            mark = " *" if r.get("beats_baselines") else ""
+            mark = _mark(r, "beats_baselines", "beats_baselines_holm")
             lines.append(f"  {name:<26} AUC {_f(r['auc'])}  log-loss {_f(r['log_loss'], '.4f')}  gain "
                          f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.4f')}, {_f(ci[1], '+.4f')}]  "
                          f"({r['n_trials']} trials){mark}")
         lines.append(f"  ('*': lower held-out log-loss than every baseline predictor ({', '.join(tl['baselines'])}),"
-                     " 95% interval over resampled maps)")
+                     " 95% interval over resampled maps; '**': still after Holm's correction for the number of "
+                     "predictors tested)")
     fams = [(n, r) for n, r in report["metrics"].items() if r.get("within_family_srcc") is not None]
     if fams:
         fr = report.get("within_family_reliability") or {}

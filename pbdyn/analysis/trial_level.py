@@ -17,6 +17,9 @@ import warnings
 
 import numpy as np
 
+from pbdyn.analysis.srcc import percentile_ci
+from pbdyn.analysis.validation import grouped_mean_draws, one_sided_p
+
 N_FOLDS = 5
 """Held-out folds (maps grouped)."""
 
@@ -60,15 +63,19 @@ def held_out_scores(x: np.ndarray, y: np.ndarray, groups: np.ndarray) -> dict:
             "_loss": -(y * np.log(p) + (1.0 - y) * np.log(1.0 - p))}
 
 
-def loss_difference_ci(a: np.ndarray, b: np.ndarray, groups: np.ndarray, n_boot: int = 1000,
-                       seed: int = 0) -> list[float]:
-    """95% percentile interval of mean(a - b) over trials when the groups (maps) are resampled with replacement
-    (a, b: per-trial losses [T] of two models on the same trials; numpy.random.default_rng(seed))."""
-    from pbdyn.analysis.validation import grouped_mean_ci
-
+def loss_difference_draws(a: np.ndarray, b: np.ndarray, groups: np.ndarray, n_boot: int = 1000,
+                          seed: int = 0) -> np.ndarray:
+    """Bootstrap draws of mean(a - b) over trials when the groups (maps) are resampled with replacement (a, b:
+    per-trial losses [T] of two models on the same trials; numpy.random.default_rng(seed))."""
     keys, inv = np.unique(groups, return_inverse=True)
     sums = np.bincount(inv, weights=a - b, minlength=keys.size)
-    return grouped_mean_ci(sums, np.bincount(inv, minlength=keys.size).astype(float), n_boot, seed)
+    return grouped_mean_draws(sums, np.bincount(inv, minlength=keys.size).astype(float), n_boot, seed)
+
+
+def loss_difference_ci(a: np.ndarray, b: np.ndarray, groups: np.ndarray, n_boot: int = 1000,
+                       seed: int = 0) -> list[float]:
+    """95% percentile interval of loss_difference_draws."""
+    return list(percentile_ci(loss_difference_draws(a, b, groups, n_boot, seed)))
 
 
 def trial_level(success: np.ndarray, respondent: np.ndarray, map_idx: np.ndarray,
@@ -99,14 +106,15 @@ def trial_level(success: np.ndarray, respondent: np.ndarray, map_idx: np.ndarray
 
 def compare_predictors(scores: dict, a: str, b: str, groups: np.ndarray, n_boot: int = 1000, seed: int = 0) -> dict:
     """Log-loss of b minus log-loss of a on the trials both predict (> 0: a predicts better), with its 95% interval
-    (loss_difference_ci); ``scores`` from trial_level (before public())."""
+    and one-sided bootstrap p-value of "<= 0" (loss_difference_draws); ``scores`` from trial_level (before
+    public())."""
     ok = scores[a]["_ok"] & scores[b]["_ok"]
     la = np.full(ok.shape, np.nan)
     lb = la.copy()
     la[scores[a]["_ok"]] = scores[a]["_loss"]
     lb[scores[b]["_ok"]] = scores[b]["_loss"]
-    return {"diff": float(np.mean(lb[ok] - la[ok])),
-            "ci95": loss_difference_ci(lb[ok], la[ok], np.asarray(groups)[ok], n_boot, seed)}
+    draws = loss_difference_draws(lb[ok], la[ok], np.asarray(groups)[ok], n_boot, seed)
+    return {"diff": float(np.mean(lb[ok] - la[ok])), "ci95": list(percentile_ci(draws)), "p": one_sided_p(draws)}
 
 
 def public(scores: dict) -> dict:
