@@ -4,12 +4,14 @@
     .venv/bin/pbdyn batch scenarios/datasets/heterogeneous_2d.toml --out results/study/heterogeneous_2d.sqlite
     .venv/bin/pbdyn batch scenarios/datasets/structured_3d.toml --out results/study/structured_3d.sqlite
     .venv/bin/python tools/study_structure.py results/study/*.sqlite [--out results/study/summary.md]
+    .venv/bin/python tools/study_structure.py --pool heterogeneous_2d.sqlite imported_2d/*.sqlite --out pooled.md
 
 Evaluates each store on its own (pbdyn evaluate, 1000 bootstrap draws) and writes one markdown summary: per metric
 its SRCC against per-map success and against the fitted (1PL) difficulty with 95% intervals, the within-family SRCC
 (maps of one structure, differing by seed), the paired difference to the flux and setup-only baselines, and the
 trial-level log-loss gain; then the reliability of per-map success and the planners' abilities. The full reports
-are written beside the summary as <store>.report.json.
+are written beside the summary as <store>.report.json. With --pool the stores are evaluated as one heterogeneous
+set (`pbdyn evaluate --pool`: generated maps and imported worlds, no setup label), written as pooled.report.json.
 """
 
 from __future__ import annotations
@@ -118,14 +120,17 @@ def main(argv=None) -> int:
     ap.add_argument("stores", nargs="+")
     ap.add_argument("--out", default=str(ROOT / "results" / "study" / "summary.md"))
     ap.add_argument("--bootstrap", type=int, default=1000)
+    ap.add_argument("--pool", action="store_true", help="evaluate the stores as one pooled, heterogeneous set")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lines = ["# Structure study", ""]
-    for store in args.stores:
-        rep, _, _ = evaluate_stores([store], n_boot=args.bootstrap)
-        name = Path(store).stem
+    groups = [("pooled", args.stores)] if args.pool else [(Path(s).stem, [s]) for s in args.stores]
+    for name, stores in groups:
+        rep, _, _ = evaluate_stores(stores, n_boot=args.bootstrap, pool=args.pool)
         (out.parent / f"{name}.report.json").write_text(json.dumps(rep, sort_keys=True))
+        if args.pool:
+            name = f"pooled: {', '.join(Path(s).stem for s in stores)}"
         lines += summarise(name, rep)
     out.write_text("\n".join(lines))
     print("\n".join(lines))
