@@ -73,3 +73,21 @@ def test_pbdyn_metrics_plot_writes_the_figure(tmp_path, dense):
     assert res.returncode == 0, res.stderr
     assert out.read_bytes().startswith(b"%PDF") and ("_dense" in res.stderr) == dense
     assert "s [higher = easier]" in res.stdout                  # units and direction beside every value
+
+
+def test_imported_worlds_show_their_static_bodies_by_their_real_shapes(tmp_path):
+    """An imported world's still bodies are filled where their real shape cuts the flight plane: a pixel inside a
+    shelf (2 x 12 m box centred at 12, 14) is the static grey, one 1.5 m beside its long side is not."""
+    import imageio.v2 as iio
+
+    out = tmp_path / "warehouse.png"
+    fig = pbdyn.metric_heatmaps(str(pbdyn.resources.find_scenario("worlds/warehouse_2d.toml")), 0, out,
+                                metrics=["survivability"])
+    image = iio.imread(out)[:, :, :3].astype(int)
+    w, h = fig.figure.canvas.get_width_height()
+    ax = fig.panels[0][2]
+    grey = np.array([0x4D, 0x4D, 0x4D])
+    for (x, y), is_static in (((12.0, 14.0), True), ((12.0, 10.0), True), ((14.5, 14.0), False)):
+        px, py = ax.transData.transform((x, y))
+        pixel = image[int(round(h - py)), int(round(px))]
+        assert (np.abs(pixel - grey).max() <= 3) == is_static, (x, y, pixel)

@@ -22,6 +22,8 @@ from pbdyn.metrics.catalog import DENSE, PER_POINT, SPARSE
 FIGURE_FORMATS = (".png", ".pdf", ".svg")
 DPI = 200
 CMAP = "viridis"
+STATIC_COLOUR = "#4d4d4d"
+"""Fill colour of static bodies in the heat maps."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +107,7 @@ def plot_heatmaps(rollout, samples: list[MetricSamples], out: str | Path, *, tit
             ax.add_collection(coll)
             for body in rollout.static:
                 _static_patch(ax, body)
+            _imported_statics(ax, rollout, z)
             r = np.asarray(rollout.radii, dtype=float)
             for i in range(pos.shape[0]):
                 rad = r[i] if z is None else math.sqrt(max(r[i] ** 2 - (pos[i, 2] - z) ** 2, 0.0))
@@ -145,12 +148,40 @@ def _static_patch(ax, body) -> None:
 
     c = np.asarray(body.center, dtype=float)
     if body.kind == "pillar":
-        ax.add_patch(Circle((c[0], c[1]), float(body.radius), fc="#4d4d4d", zorder=2))
+        ax.add_patch(Circle((c[0], c[1]), float(body.radius), fc=STATIC_COLOUR, zorder=2))
         return
     sx, sy = np.asarray(body.size, dtype=float)[:2] / 2.0
     rot = np.array([[math.cos(body.yaw), -math.sin(body.yaw)], [math.sin(body.yaw), math.cos(body.yaw)]])
     corners = np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]]) @ rot.T + c[:2]
-    ax.add_patch(Polygon(corners, closed=True, fc="#4d4d4d", zorder=2))
+    ax.add_patch(Polygon(corners, closed=True, fc=STATIC_COLOUR, zorder=2))
+
+
+IMPORTED_CELL_M = 0.1
+"""Resolution (m) at which an imported world's still bodies are drawn (their cut by the panel's plane)."""
+
+
+def _imported_statics(ax, rollout, z: float | None) -> None:
+    """Fill the cut of an imported world's still bodies by the panel's plane (2D: the flight plane; 3D: layer z),
+    where their real shapes' signed distance is <= 0 on a IMPORTED_CELL_M grid, in the static bodies' grey."""
+    bodies = getattr(rollout, "bodies", None)
+    still = [] if bodies is None else np.flatnonzero(~bodies.moving).tolist()
+    if not still:
+        return
+    from matplotlib.colors import ListedColormap
+
+    size = np.asarray(rollout.arena_size, dtype=float)
+    xs = np.arange(0.5 * IMPORTED_CELL_M, size[0], IMPORTED_CELL_M)
+    ys = np.arange(0.5 * IMPORTED_CELL_M, size[1], IMPORTED_CELL_M)
+    gx, gy = np.meshgrid(xs, ys, indexing="xy")
+    height = float(rollout.meta.get("flight_height", 2.0)) if z is None else float(z)
+    q = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, height)], axis=1)
+    field = bodies.field()
+    inside = np.zeros(gx.size, dtype=bool)
+    for b in still:
+        inside |= field.body_distance(b, q, 0) <= 0.0
+    if inside.any():
+        ax.imshow(np.where(inside.reshape(gx.shape), 1.0, np.nan), origin="lower", extent=(0.0, size[0], 0.0, size[1]),
+                  cmap=ListedColormap([STATIC_COLOUR]), vmin=0.0, vmax=1.0, interpolation="nearest", zorder=2)
 
 
 def heatmap_metrics(requested: list[str] | None, dense: bool) -> list[str]:
