@@ -97,6 +97,20 @@ def _place(rng: np.random.Generator, reach: float, taken: list, gap: float = 1.0
     return None
 
 
+def _statics(rng: np.random.Generator, count: int, draw, make) -> list[str]:
+    """``count`` static bodies, each drawn by ``draw()`` -> (bounding radius, parameters) and placed by _place clear
+    of the candidates and of each other (one that finds no place is left out); ``make(k, xy, parameters)`` writes
+    body k at centre xy."""
+    out, taken = [], []
+    for k in range(count):
+        reach, params = draw()
+        xy = _place(rng, reach, taken)
+        if xy is not None:
+            taken.append((xy, reach))
+            out.append(make(k, xy, params))
+    return out
+
+
 def _heading_velocity(rng: np.random.Generator, speed: float) -> np.ndarray:
     a = rng.uniform(0.0, 2.0 * math.pi)
     return speed * np.array([math.cos(a), math.sin(a)])
@@ -134,13 +148,12 @@ def warehouse(rng: np.random.Generator) -> str:
 
 def plaza(rng: np.random.Generator) -> str:
     """8-25 balls of radius 0.4-1.8 m at 1-6 m/s among 0-4 pillars of radius 0.5-1.5 m."""
-    out, taken = [], []
-    for k in range(int(rng.integers(0, 5))):
+    def pillar():
         r = float(rng.uniform(0.5, 1.5))
-        xy = _place(rng, r, taken)
-        if xy is not None:
-            taken.append((xy, r))
-            out.append(_body(f"pillar_{k}", "pillar.urdf", [r, r, 4.0], position=[*xy, 2.0]))
+        return r, r
+
+    out = _statics(rng, int(rng.integers(0, 5)), pillar,
+                   lambda k, xy, r: _body(f"pillar_{k}", "pillar.urdf", [r, r, 4.0], position=[*xy, 2.0]))
     for k in range(int(rng.integers(8, 26))):
         r = float(rng.uniform(0.4, 1.8))
         xy = rng.uniform(r, SIZE - r, size=2)
@@ -151,16 +164,13 @@ def plaza(rng: np.random.Generator) -> str:
 
 def office(rng: np.random.Generator) -> str:
     """5-15 static desks/cabinets (0.8-6 m, any heading) and 4-10 movers on 2-4 point loops at 1-4 m/s."""
-    out, taken = [], []
-    for k in range(int(rng.integers(5, 16))):
+    def desk():
         w, d = float(rng.uniform(0.8, 6.0)), float(rng.uniform(0.8, 3.0))
-        reach = 0.5 * math.hypot(w, d)
-        xy = _place(rng, reach, taken)
-        if xy is None:
-            continue
-        taken.append((xy, reach))
-        out.append(_body(f"desk_{k}", "box.urdf", [w, d, 2.5], position=[*xy, 1.25],
-                         rpy_deg=[0.0, 0.0, float(rng.uniform(0.0, 180.0))]))
+        return 0.5 * math.hypot(w, d), (w, d)
+
+    out = _statics(rng, int(rng.integers(5, 16)), desk,
+                   lambda k, xy, wd: _body(f"desk_{k}", "box.urdf", [*wd, 2.5], position=[*xy, 1.25],
+                                           rpy_deg=[0.0, 0.0, float(rng.uniform(0.0, 180.0))]))
     for k in range(int(rng.integers(4, 11))):
         n = int(rng.integers(2, 5))
         out.append(_body(f"mover_{k}", "box.urdf", [float(rng.uniform(0.6, 1.6)), float(rng.uniform(0.6, 1.6)), 1.8],
@@ -171,13 +181,12 @@ def office(rng: np.random.Generator) -> str:
 
 def orbits(rng: np.random.Generator) -> str:
     """2-6 static mesh bodies, 4-12 mesh bodies and balls circling centres (radius 2-9 m, 5-20 s per turn)."""
-    out, taken = [], []
-    for k in range(int(rng.integers(2, 7))):
+    def gem():
         s = float(rng.uniform(1.0, 2.5))
-        xy = _place(rng, s, taken)
-        if xy is not None:
-            taken.append((xy, s))
-            out.append(_body(f"gem_static_{k}", "../urdf/gem.urdf", s, position=[*xy, 2.0]))
+        return s, s
+
+    out = _statics(rng, int(rng.integers(2, 7)), gem,
+                   lambda k, xy, s: _body(f"gem_static_{k}", "../urdf/gem.urdf", s, position=[*xy, 2.0]))
     for k in range(int(rng.integers(4, 13))):
         radius = float(rng.uniform(2.0, 9.0))
         centre = rng.uniform(radius + 2.0, SIZE - radius - 2.0, size=2)

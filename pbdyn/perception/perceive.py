@@ -16,6 +16,7 @@ in numpy from the world's obstacle positions (as last set) and its generated sta
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -55,6 +56,22 @@ class PendingScan(NamedTuple):
     origin: np.ndarray
     dirs_t: np.ndarray
     fan: object
+
+
+_SCRATCH: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _scratch(world, key: tuple, make):
+    """The scratch array ``key`` of ``world``, made by ``make()`` on first use: one per world, shared by all of its
+    Perceptions (a world is used by one thread, and a scan never interleaves with another)."""
+    try:
+        pool = _SCRATCH.setdefault(world, {})
+    except TypeError:                  # a world that cannot be weakly referenced keeps private buffers
+        return make()
+    arr = pool.get(key)
+    if arr is None:
+        arr = pool[key] = make()
+    return arr
 
 
 class Perception:
@@ -130,17 +147,25 @@ class Perception:
         self._rot = np.eye(self.dims)
         # Scratch buffers of the free-space marking, reused by every scan: [d, S, R] so the long ray axis is the
         # contiguous one (numpy's inner loops), cell indices as int32 (fast float casts), flat indices as intp.
+        # Shared by every Perception of this world (scans run one at a time; lockstep trials would otherwise each
+        # keep megabytes of their own in 3D and evict one another from the CPU caches).
         shape_dsr = (self.dims, self._t.shape[0], self.n_rays)
+        cell_dtype = np.int32 if grid.cells.size < 2**31 else np.int64
         self._t_full = np.ascontiguousarray(np.broadcast_to(self._t_cells[:, None], shape_dsr[1:]))
-        self._dist = np.empty(shape_dsr[1:])
-        self._samples = np.empty(shape_dsr)
-        self._cells_of = np.empty(shape_dsr, dtype=np.int32 if grid.cells.size < 2**31 else np.int64)
-        self._flat_small = np.empty(shape_dsr[1:], dtype=self._cells_of.dtype)
-        self._flat = np.empty(shape_dsr[1:], dtype=np.intp)
-        self._cell_seen = np.zeros(grid.cells.size, dtype=bool)
+        self._dist = _scratch(world, ("dist", shape_dsr), lambda: np.empty(shape_dsr[1:]))
+        self._samples = _scratch(world, ("samples", shape_dsr), lambda: np.empty(shape_dsr))
+        self._cells_of = _scratch(world, ("cells_of", shape_dsr, cell_dtype),
+                                  lambda: np.empty(shape_dsr, dtype=cell_dtype))
+        self._flat_small = _scratch(world, ("flat_small", shape_dsr, cell_dtype),
+                                    lambda: np.empty(shape_dsr[1:], dtype=cell_dtype))
+        self._flat = _scratch(world, ("flat", shape_dsr), lambda: np.empty(shape_dsr[1:], dtype=np.intp))
+        self._cell_seen = _scratch(world, ("cell_seen", grid.cells.size),           # all False between scans
+                                   lambda: np.zeros(grid.cells.size, dtype=bool))
         self._slab = grid.cells.size // grid.shape[0]                 # cells per index along axis 0
         self._grid_top = np.asarray(grid.shape, dtype=float)
-        self._obstacle_seen = np.zeros(world.obstacle_ids.shape[0] + 1, dtype=bool)
+        n_flags = world.obstacle_ids.shape[0] + 1
+        self._obstacle_seen = _scratch(world, ("obstacle_seen", n_flags),              # all False between scans
+                                       lambda: np.zeros(n_flags, dtype=bool))
 
     @staticmethod
     def _check_marching_world(world) -> None:
