@@ -111,6 +111,14 @@ def _statics(rng: np.random.Generator, count: int, draw, make) -> list[str]:
     return out
 
 
+def _radius(rng: np.random.Generator, lo: float, hi: float):
+    """A draw for _statics: a radius uniform in [lo, hi] m, as the bounding radius and as the body's parameter."""
+    def draw():
+        r = float(rng.uniform(lo, hi))
+        return r, r
+    return draw
+
+
 def _heading_velocity(rng: np.random.Generator, speed: float) -> np.ndarray:
     a = rng.uniform(0.0, 2.0 * math.pi)
     return speed * np.array([math.cos(a), math.sin(a)])
@@ -148,11 +156,7 @@ def warehouse(rng: np.random.Generator) -> str:
 
 def plaza(rng: np.random.Generator) -> str:
     """8-25 balls of radius 0.4-1.8 m at 1-6 m/s among 0-4 pillars of radius 0.5-1.5 m."""
-    def pillar():
-        r = float(rng.uniform(0.5, 1.5))
-        return r, r
-
-    out = _statics(rng, int(rng.integers(0, 5)), pillar,
+    out = _statics(rng, int(rng.integers(0, 5)), _radius(rng, 0.5, 1.5),
                    lambda k, xy, r: _body(f"pillar_{k}", "pillar.urdf", [r, r, 4.0], position=[*xy, 2.0]))
     for k in range(int(rng.integers(8, 26))):
         r = float(rng.uniform(0.4, 1.8))
@@ -181,11 +185,7 @@ def office(rng: np.random.Generator) -> str:
 
 def orbits(rng: np.random.Generator) -> str:
     """2-6 static mesh bodies, 4-12 mesh bodies and balls circling centres (radius 2-9 m, 5-20 s per turn)."""
-    def gem():
-        s = float(rng.uniform(1.0, 2.5))
-        return s, s
-
-    out = _statics(rng, int(rng.integers(2, 7)), gem,
+    out = _statics(rng, int(rng.integers(2, 7)), _radius(rng, 1.0, 2.5),
                    lambda k, xy, s: _body(f"gem_static_{k}", "../urdf/gem.urdf", s, position=[*xy, 2.0]))
     for k in range(int(rng.integers(4, 13))):
         radius = float(rng.uniform(2.0, 9.0))
