@@ -24,6 +24,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pbdyn.analysis.report import beaters, verdict_mark  # noqa: E402
 from pbdyn.experiments.evaluate import evaluate_stores  # noqa: E402
 
 
@@ -42,30 +43,12 @@ def _cmp(row: dict, base: str, key: str = "vs_baselines") -> str:
     return f"{c['diff']:+.3f} {_ci(c['ci95'])}"
 
 
-def _tag(r: dict, raw: str = "beats_baselines", holm: str = "beats_baselines_holm") -> str:
-    """' **' when a row beats every baseline after Holm's correction for the number of rows tested, ' *' when only
-    without it."""
-    if (r.get(holm) or {}).get("beats"):
-        return " **"
-    return " *" if r.get(raw) else ""
-
-
-def _beaters(rows: dict, raw: str = "beats_baselines", holm: str = "beats_baselines_holm", sub=None) -> str:
-    """The rows that beat every baseline, and which of them still do after Holm's correction."""
-    pick = (lambda r: r) if sub is None else (lambda r: r.get(sub) or {})
-    beats = [m for m, r in rows.items() if pick(r).get(raw)]
-    kept = [m for m in beats if (pick(rows[m]).get(holm) or {}).get("beats")]
-    if not beats:
-        return "none"
-    return f"{', '.join(beats)} (after Holm's correction: {', '.join(kept) if kept else 'none'})"
-
-
 def _gain(r: dict | None) -> str:
-    """A trial-level log-loss gain with its interval and verdict mark (_tag)."""
+    """A trial-level log-loss gain with its interval and verdict mark (verdict_mark)."""
     if not r:
         return "-"
     ci = r.get("log_loss_gain_ci95") or [None, None]
-    return f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.3f')}, {_f(ci[1], '+.3f')}]" + _tag(r)
+    return f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.3f')}, {_f(ci[1], '+.3f')}]" + verdict_mark(r)
 
 
 def summarise(name: str, rep: dict) -> list[str]:
@@ -80,7 +63,7 @@ def summarise(name: str, rep: dict) -> list[str]:
     tl = (rep.get("trial_level") or {}).get("predictors", {})
     for m, r in rep["metrics"].items():
         fit = r.get("fitted") or {}
-        tag = " (baseline)" if r.get("kind") == "baseline" else _tag(r)
+        tag = " (baseline)" if r.get("kind") == "baseline" else verdict_mark(r)
         lines.append(f"| {m}{tag} | {_f(r['srcc_mean'])} {_ci(r['srcc_ci95'])} | {_f(fit.get('srcc'))} "
                      f"{_ci(fit.get('ci95'))} | {_f(r.get('within_family_srcc'))} "
                      f"{_ci(r.get('within_family_ci95'))} | " +
@@ -99,12 +82,15 @@ def summarise(name: str, rep: dict) -> list[str]:
               "'*': beats every baseline (95% interval of each paired difference above 0); '**': still after "
               "Holm's correction for the number of metrics (predictors) tested.",
               "Trial level, beats every baseline predictor (held-out log-loss, 95% interval over maps): " +
-              _beaters(tl) + ".",
-              "Beats every baseline across maps: " + _beaters(rep["metrics"]) + "; against the fitted difficulty: " +
-              _beaters(rep["metrics"], sub="fitted") + "; within setups: " +
-              _beaters(rep["metrics"], "beats_baselines_within_setup", "beats_baselines_within_setup_holm") +
+              beaters(tl, none="none") + ".",
+              "Beats every baseline across maps: " + beaters(rep["metrics"], none="none") +
+              "; against the fitted difficulty: " + beaters(rep["metrics"], sub="fitted", none="none") +
+              "; within setups: " +
+              beaters(rep["metrics"], "beats_baselines_within_setup", "beats_baselines_within_setup_holm",
+                      none="none") +
               "; within families: " +
-              _beaters(rep["metrics"], "beats_baselines_within_family", "beats_baselines_within_family_holm") + ".",
+              beaters(rep["metrics"], "beats_baselines_within_family", "beats_baselines_within_family_holm",
+                      none="none") + ".",
               "Abilities (logits): " + ", ".join(f"{k} {v['ability']:+.2f} +- {v['se']:.2f}"
                                                  for k, v in fd["respondents"].items()) + "."]
     t = fd.get("tasks") or {}

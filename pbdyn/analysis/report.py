@@ -463,20 +463,25 @@ def _term(x) -> str:
     return "+ -" if x is None else f"{'-' if x < 0 else '+'} {abs(x):.3f}"
 
 
-def _mark(row: dict, raw: str, holm: str) -> str:
-    """' **' when a row beats every baseline after the multiplicity correction, ' *' when only without it."""
+def verdict_mark(row: dict, raw: str = "beats_baselines", holm: str = "beats_baselines_holm") -> str:
+    """' **' when a row beats every baseline after the multiplicity correction (verdict ``holm``), ' *' when only
+    without it (verdict ``raw``), else ''."""
     if (row.get(holm) or {}).get("beats"):
         return " **"
     return " *" if row.get(raw) else ""
 
 
-def _beaters(report: dict, raw: str, holm: str) -> str:
-    """The metrics that beat every baseline (verdict ``raw``), those that still do after Holm's correction."""
-    rows = report["metrics"]
-    beats = [n for n, r in rows.items() if r.get(raw)]
-    kept = [n for n in beats if (rows[n].get(holm) or {}).get("beats")]
+def beaters(rows: dict, raw: str = "beats_baselines", holm: str = "beats_baselines_holm", *, sub: str | None = None,
+            none: str = "no metric") -> str:
+    """The rows (name -> report row; ``sub``: the verdicts of that sub-dict, e.g. "fitted") that beat every baseline
+    (verdict ``raw``) and those that still do after Holm's correction; ``none`` when no row does."""
+    def pick(r: dict) -> dict:
+        return r if sub is None else (r.get(sub) or {})
+
+    beats = [n for n, r in rows.items() if pick(r).get(raw)]
+    kept = [n for n in beats if (pick(rows[n]).get(holm) or {}).get("beats")]
     if not beats:
-        return "no metric"
+        return none
     return f"{', '.join(beats)} (after Holm's correction: {', '.join(kept) if kept else 'none'})"
 
 
@@ -497,7 +502,7 @@ def format_table(report: dict) -> str:
         ci = r["srcc_ci95"]
         vs = (r.get("vs_baselines") or {}).get(best) if best else None
         if vs is not None:
-            mark = _mark(r, "beats_baselines", "beats_baselines_holm")
+            mark = verdict_mark(r)
             cmp = f"{_term(vs['diff'])} [{_f(vs['ci95'][0]):>6}, {_f(vs['ci95'][1]):>6}]{mark}"
         else:
             cmp = "(baseline)" if r.get("kind") == "baseline" else "-"
@@ -510,9 +515,9 @@ def format_table(report: dict) -> str:
                       "'fitted': SRCC against the fitted difficulty (1PL). '*': beats every baseline (95% CI of the "
                       "paired SRCC difference above 0); '**': still after Holm's correction for the number of "
                       "metrics tested.",
-                  "Beats every baseline across maps: " + _beaters(report, "beats_baselines", "beats_baselines_holm")
-                  + "; within setups: " + _beaters(report, "beats_baselines_within_setup",
-                                                   "beats_baselines_within_setup_holm") + "."]
+                  "Beats every baseline across maps: " + beaters(report["metrics"]) + "; within setups: "
+                  + beaters(report["metrics"], "beats_baselines_within_setup", "beats_baselines_within_setup_holm")
+                  + "."]
     fd = report.get("fitted_difficulty")
     if fd:
         lines += ["", f"Fitted difficulty: {fd['model']} ({fd['method']}, {fd['n_items']} maps). Planner "
@@ -531,7 +536,7 @@ def format_table(report: dict) -> str:
                       "predictor and the planner; gain = log-loss of 'planners only' minus the model's (> 0 helps):"]
         for name, r in tl["predictors"].items():
             ci = r.get("log_loss_gain_ci95") or [None, None]
-            mark = _mark(r, "beats_baselines", "beats_baselines_holm")
+            mark = verdict_mark(r)
             lines.append(f"  {name:<26} AUC {_f(r['auc'])}  log-loss {_f(r['log_loss'], '.4f')}  gain "
                          f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.4f')}, {_f(ci[1], '+.4f')}]  "
                          f"({r['n_trials']} trials){mark}")
