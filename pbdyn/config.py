@@ -240,9 +240,15 @@ BUILTIN_STRUCTURES: dict[str, dict] = {
 class ObstacleConfig:
     """Generated dynamic obstacles. count/radius/speed are grids (tuples); radius/speed entries may be Ranges.
     headings: "uniform" (each obstacle's direction uniformly random) or "even" (the thesis program's: obstacle k of
-    N heads along -(cos 2 pi k / N, sin 2 pi k / N); 3D: the negated Fibonacci lattice of N directions)."""
+    N heads along -(cos 2 pi k / N, sin 2 pi k / N); 3D: the negated Fibonacci lattice of N directions).
+    layout: "pbdyn" (pbdyn.world.maps.spawn_obstacles) or "program" (the thesis program's own maps: its random stream
+    seeded by root_seed + replicate, its draws and rejections; pbdyn.world.maps.spawn_program; 2D, even headings,
+    exact speeds, no structures). wall_turn (CVM): "specular" (closed-form reflection) or "program" (an obstacle
+    whose next centre would cross r from a wall turns away in that step; pbdyn.world.motion.cvm_program_turn)."""
 
     HEADINGS: ClassVar[tuple[str, ...]] = ("uniform", "even")
+    LAYOUTS: ClassVar[tuple[str, ...]] = ("pbdyn", "program")
+    WALL_TURNS: ClassVar[tuple[str, ...]] = ("specular", "program")
 
     count: tuple[int, ...] = (10,)
     radius: tuple[GridValue, ...] = (1.0,)
@@ -256,6 +262,8 @@ class ObstacleConfig:
     headings: str = "uniform"
     structure: tuple[str, ...] = ()
     structures: tuple[StructureConfig, ...] = ()
+    layout: str = "pbdyn"
+    wall_turn: str = "specular"
 
     def structure_of(self, name: str | None) -> StructureConfig | None:
         """The StructureConfig called ``name`` (None for None)."""
@@ -586,7 +594,7 @@ def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: b
 def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
     keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo", "headings",
-            "structure", "structures")
+            "structure", "structures", "layout", "wall_turn")
     _no_unknown(t, keys, "obstacles")
     d = _defaults(ObstacleConfig)
     count = _grid_values(t["count"], "obstacles.count", integer=True, lo=0) if "count" in t else d["count"]
@@ -640,8 +648,19 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
                             "structure": len(structure)})
     else:
         order = tuple(k for k in order if k != "structure")
+    layout = _string(t, "layout", "obstacles", d["layout"], ObstacleConfig.LAYOUTS)
+    wall_turn = _string(t, "wall_turn", "obstacles", d["wall_turn"], ObstacleConfig.WALL_TURNS)
+    if wall_turn == "program" and motion != "cvm":
+        raise ConfigError("obstacles.wall_turn", 'is only used with motion = "cvm"', wall_turn)
+    if layout == "program":
+        why = ('needs headings = "even" (the program\'s)' if headings != "even" else
+               "needs exact speeds (the program gave every obstacle the setup speed)"
+               if any(isinstance(v, Range) for v in speed) else
+               "cannot be combined with structures" if structure else "")
+        if why:
+            raise ConfigError("obstacles.layout", f'"program" {why}', layout)
     return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo, headings, structure,
-                          structures)
+                          structures, layout, wall_turn)
 
 
 def _optional_choice(t: Mapping, key: str, where: str, default: str | None, choices: tuple[str, ...]) -> str | None:
@@ -1032,6 +1051,16 @@ def _check_fit(obstacles: ObstacleConfig, world: WorldConfig) -> None:
                 raise ConfigError("obstacles.radius", "an obstacle must fit in the arena", rmax)
 
 
+def _check_program_layout(obstacles: ObstacleConfig, world: WorldConfig, static: tuple) -> None:
+    """ConfigError unless obstacles.layout = "program" has what the program's maps had: 2D, no static obstacles."""
+    if obstacles.layout != "program":
+        return
+    if world.dims != 2:
+        raise ConfigError("obstacles.layout", '"program" draws 2D maps (world.dims = 2)', obstacles.layout)
+    if static:
+        raise ConfigError("obstacles.layout", '"program" cannot be combined with static_obstacles', obstacles.layout)
+
+
 def _check_nesting(doc: Any) -> None:
     """ConfigError if tables / arrays nest deeper than limits.MAX_NESTING (iterative: never a RecursionError)."""
     stack = [(doc, 0)]
@@ -1162,6 +1191,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
         obstacles = _parse_obstacles(doc)
     _check_fit(obstacles, world)
     static = _parse_static(doc, world)
+    _check_program_layout(obstacles, world, static)
     drone = _parse_drone(doc)
     sensor = _parse_sensor(doc, world)
     _check_resolution(sensor, obstacles, static)

@@ -102,7 +102,7 @@ def test_plan_samples_are_the_polynomial_then_the_held_end_state():
     np.testing.assert_array_equal(tr.p[0], p0)
     np.testing.assert_array_equal(tr.v[0], v0)
     np.testing.assert_array_equal(tr.a[0], a0)
-    g = (goal - p0) / np.linalg.norm(goal - p0)
+    g = (goal - planner.last_target) / np.linalg.norm(goal - planner.last_target)   # from the END POINT to the goal
     end = (planner.last_target, 2.0 * g, np.zeros(2))
     p, v, a = min_jerk_states(0.9, (p0, v0, a0), end, DT * np.arange(10))
     np.testing.assert_allclose(tr.p, p, atol=1e-9)
@@ -112,6 +112,7 @@ def test_plan_samples_are_the_polynomial_then_the_held_end_state():
     planner = LocalPrimitivesMinJerk(ctx, duration=0.75)
     tr = planner.plan(_view(ctx, p0, goal, v=v0, a=a0))
     assert tr.n_samples == 9
+    g = (goal - planner.last_target) / np.linalg.norm(goal - planner.last_target)
     np.testing.assert_allclose(tr.p[-1], planner.last_target + 2.0 * g * 0.05, atol=1e-9)
     np.testing.assert_allclose(tr.v[-1], 2.0 * g, atol=1e-9)
     np.testing.assert_array_equal(tr.a[-1], 0.0)
@@ -135,7 +136,9 @@ def test_end_velocity_points_at_the_goal_not_along_the_candidate():
     t_end = 0.9
     k = int(round(t_end / DT))
     np.testing.assert_allclose(tr.p[k], planner.last_target, atol=1e-9)
-    np.testing.assert_allclose(tr.v[k], [2.0, 0.0], atol=1e-9)   # 0.5 v_max toward the goal
+    to_goal = (goal - planner.last_target) / np.linalg.norm(goal - planner.last_target)
+    np.testing.assert_allclose(tr.v[k], 2.0 * to_goal, atol=1e-9)   # 0.5 v_max from the end point toward the goal
+    assert abs(to_goal[1]) > 0.05                           # which is not the goal direction seen from p0
     np.testing.assert_allclose(tr.a[k], 0.0, atol=1e-9)
     assert not np.any(grid.collides(tr.p[1:], 1.5))
 
@@ -186,13 +189,18 @@ def _reference_choice(planner, view, physical):
     dist = np.linalg.norm(g)
     times = planner.sample_times(view.dt)
     every = times.size - 1
-    cands = [(view.position + 3.0 * planner.directions[i], planner.end_speed * g / dist,
-              every if planner.checked is None else int(planner.checked[i]))
-             for i in planner.ranked_candidates(view)]
+    cands = []
+    for i in planner.ranked_candidates(view):
+        target = view.position + 3.0 * planner.directions[i]
+        reach = np.linalg.norm(view.goal - target)      # the end velocity points from the end point at the goal
+        vel = planner.end_speed * (view.goal - target) / reach if reach > 0 else np.full(d, np.nan)
+        cands.append((target, vel, every if planner.checked is None else int(planner.checked[i])))
     if dist < 3.0 and planner.goal_first:
         cands.insert(0, (view.goal, np.zeros(d), every))
     tau = np.minimum(times, t_end)
     for rank, (target, vel, n_checked) in enumerate(cands):
+        if np.isnan(vel).any():                          # the program's 0 / 0: never taken
+            continue
         p, v, a = min_jerk_states(t_end, (view.position, view.velocity, view.acceleration),
                                   (target, vel, np.zeros(d)), tau)
         past = times > t_end
@@ -374,7 +382,7 @@ def test_3d_candidates_on_a_sphere_and_end_velocity_toward_the_goal():
     tracks = make_tracks([p0 + 2.5 * (goal - p0) / np.linalg.norm(goal - p0)], [[0.0, 0.0, 0.0]], 1.0)
     tr = planner.plan(_view(ctx, p0, goal, tracks=tracks))
     assert tr is not None and planner.last_rank > 0
-    g = (goal - p0) / np.linalg.norm(goal - p0)
+    g = (goal - planner.last_target) / np.linalg.norm(goal - planner.last_target)
     np.testing.assert_allclose(tr.v[9], 2.0 * g, atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(planner.last_target - p0), 3.0)
 
@@ -501,3 +509,22 @@ def test_goal_first_is_pbdyns_addition_and_off_in_the_programs_parameters():
     prog = LocalPrimitivesMinJerk(ctx, **LocalPrimitivesMinJerk.PROGRAM_PARAMS)
     prog.plan(_view(ctx, p0, goal))
     np.testing.assert_allclose(prog.last_target, p0 + [3.0, 0.0], atol=1e-12)
+
+
+def test_end_velocity_points_from_each_end_point_at_the_goal_and_the_goal_itself_is_never_an_end_point():
+    """The program's vf = 0.5 v_max (goal - p1) / |goal - p1|: per candidate, from its own end point; an end point
+    on the goal has no direction (its 0 / 0 made NaN samples that its check rejected), so the MAV swerves."""
+    ctx = _ctx(v_max=4.0)
+    planner = LocalPrimitivesMinJerk(ctx, goal_first=False)
+    p0, goal = np.array([20.0, 25.0]), np.array([23.0, 25.0])          # the goal exactly step_m ahead on a candidate
+    tr = planner.plan(_view(ctx, p0, goal))
+    assert tr is not None and planner.last_rank == 1
+    assert not np.allclose(planner.last_target, goal)
+    np.testing.assert_allclose(np.linalg.norm(planner.last_target - p0), 3.0)
+    np.testing.assert_allclose(abs(np.degrees(np.arctan2(*(planner.last_target - p0)[::-1]))), 5.0)
+    v_end = 2.0 * (goal - planner.last_target) / np.linalg.norm(goal - planner.last_target)
+    _, v, _ = min_jerk_states(planner.duration, (p0, np.zeros(2), np.zeros(2)), (planner.last_target, v_end,
+                                                                                 np.zeros(2)), DT * np.arange(10))
+    np.testing.assert_allclose(tr.v, v, atol=1e-9)
+    # one step further away the straight candidate is fine again
+    assert planner.plan(_view(ctx, p0, goal + [0.1, 0.0])) is not None and planner.last_rank == 0

@@ -32,9 +32,16 @@ SETUPS = list(itertools.product((10, 20, 30), (0.5, 1.0, 1.5), (2.0, 4.0, 6.0)))
 GAUSS_HERMITE = np.polynomial.hermite_e.hermegauss(80)
 
 
+PROGRAM_MAP_KEYS = ("layout", "wall_turn")
+"""The controlled thesis file's obstacle keys that draw the program's own maps (they need the profile's headings)."""
+
+
 def _parsed(doc: dict):
-    """The scenario of a tool document, parsed without its profile key (the parser of this branch lacks it)."""
-    return parse_scenario({k: v for k, v in doc.items() if k != "profile"}, doc["name"])
+    """The scenario of a tool document, parsed without its profile key and the program's map keys, to compare its
+    grid, seeds, sensor and drone with the physical dataset's."""
+    doc = {k: v for k, v in doc.items() if k != "profile"}
+    doc["obstacles"] = {k: v for k, v in doc["obstacles"].items() if k not in PROGRAM_MAP_KEYS}
+    return parse_scenario(doc, doc["name"])
 
 
 def _pairs(sc) -> int:
@@ -361,6 +368,8 @@ def test_thesis_files_copy_the_datasets_with_the_programs_combo_names(s):
     text = (SCENARIOS / "thesis" / f"{s}_2d.toml").read_text()
     header = " ".join(line.lstrip("# ") for line in text.splitlines() if line.startswith("#"))
     assert "The profile supplies the program's sensor" in header and "start clearance, planner parameters" in header
+    program_maps = {k: doc["obstacles"][k] for k in PROGRAM_MAP_KEYS if k in doc["obstacles"]}
+    assert program_maps == ({"layout": "program", "wall_turn": "program"} if s == "controlled" else {})
     mine, theirs = _parsed(doc), parse_scenario(rp.dataset_doc(f"{s}_2d"), s)
     a, b = mine.to_dict(), theirs.to_dict()
     assert {k for k in a if a[k] != b[k]} == {"name", "planners", "world", "task"}   # same grid, seeds, sensor, drone

@@ -4,8 +4,11 @@ Registry name "local_primitives_minjerk". Every step (implementation-facts.md "T
 
 - n_candidates = 72 end points on a circle of radius step_m = 3 m around the MAV at angles 2 pi k / n (eq. A-4;
   3D: on a sphere, pbdyn.planning.local_primitives.sphere_directions);
-- every end state has velocity end_speed_frac (0.5) x v_max pointing at the GOAL (not along the candidate's own
-  direction, as pbdyn's ruckig "local_primitives" does) and acceleration 0;
+- every end state has velocity end_speed_frac (0.5) x v_max pointing from its own end point at the GOAL (the
+  program's vf = 0.5 v_max (goal - p1) / |goal - p1|; not along the candidate's direction, as pbdyn's ruckig
+  "local_primitives" does) and acceleration 0; a candidate whose end point is the goal has no such direction (the
+  program's 0 / 0 gave NaN samples, which its check rejected) and is never taken -- so a MAV flying straight at a
+  goal exactly step_m ahead swerves onto a neighbouring candidate, as the program's did;
 - one duration T = max(1.2 step_m / v_max, 0.5 s) for every candidate;
 - per axis the minimum-jerk polynomial of Mueller, Hehn & D'Andrea (2015, the thesis' [15]) with the start fully
   fixed to the MAV's (p0, v0, a0) and the end fully fixed to (p1, v1, 0): a quintic,
@@ -58,6 +61,7 @@ from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
 
 _REL_TOL = 1e-9             # the plan contract's relative tolerance on every limit and bound
+_COINCIDE_M = 1e-9          # an end point this close to the goal is the goal (the program's 0 / 0 end direction)
 _SHRINK = 1.0 - 1e-12       # squared norms against slightly shrunk bounds: rounding never passes a violation
 _MAX_BATCH_FLOATS = 1 << 20  # candidates x samples x max(1, tracks) per array evaluation (memory bound)
 
@@ -247,13 +251,17 @@ class LocalPrimitivesMinJerk:
         dist = math.sqrt(float(g @ g))
         order = self.ranked_candidates(view)
         targets = p0 + self.step_m * self.directions[order]                     # [n, d], rank order
-        end_vel = np.zeros(self.dims) if dist < 1e-12 else (self.end_speed / dist) * g
-        vels = np.broadcast_to(end_vel, targets.shape)
+        to_goal = view.goal[None] - targets
+        reach = np.sqrt(np.einsum("nd,nd->n", to_goal, to_goal))
+        rank = np.flatnonzero(reach > _COINCIDE_M)     # an end point on the goal has no end direction: never taken
+        order, targets = order[rank], targets[rank]
+        vels = (self.end_speed / reach[rank])[:, None] * to_goal[rank]
         times = self._weights(view.dt)[0]
         checked = None if self.checked is None else np.minimum(self.checked[order], times.shape[0] - 1)
         if self.goal_first and dist < self.step_m:   # the goal itself, reached at rest, is tried first
             targets = np.concatenate([view.goal[None], targets])
             vels = np.concatenate([np.zeros((1, self.dims)), vels])
+            rank = np.concatenate([[0], rank + 1])
             if checked is not None:
                 checked = np.concatenate([[times.shape[0] - 1], checked])
         n = targets.shape[0]
@@ -268,7 +276,7 @@ class LocalPrimitivesMinJerk:
                 continue
             j, (p, v, a) = found
             self.last_candidates_tried += j + 1
-            self.last_rank = lo + j
+            self.last_rank = int(rank[lo + j])
             self.last_target = np.array(targets[lo + j], dtype=float)
             return Trajectory(view.t, view.dt, p, v, a)
         return None

@@ -10,6 +10,7 @@ import hashlib
 import itertools
 import math
 import operator
+import random
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -23,6 +24,17 @@ from pbdyn.world.structure import (cluster_centres, draw_radii_speeds, proposals
 from pbdyn.world.rvo import candidate_directions
 
 MAX_SPAWN_ATTEMPTS = 20000
+
+PROGRAM_PX_PER_M = 10.0
+"""The thesis program's unit: 10 pixels per metre."""
+PROGRAM_WALL_M = 1.0
+"""The program's wall cells: its outermost 1 m, so its pixel frame starts 1 m outside pbdyn's arena (whose origin is
+the walls' inner corner, scenarios/thesis)."""
+PROGRAM_SPAWN_PX = 20.0
+"""The program drew obstacle centres uniformly in [20, W - 20] px (1 m inside its wall cells, whatever the radius)."""
+PROGRAM_METRICS_START = (4.0, 4.0)
+"""Where the program's MAV stood when it computed a map's metrics (its default start, 50 px, 50 px), in pbdyn's frame:
+the obstacles of a metrics map were spawned around it."""
 
 
 def stable_hash64(text: str) -> int:
@@ -195,6 +207,8 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     st = structure_of(scenario, spec.setup)
     if st is not None:
         return _spawn_structured(scenario, spec, st, keep_out)
+    if scenario.obstacles.layout == "program":
+        return spawn_program(scenario, spec, keep_out)
     rng = spec.rng()
     dims = scenario.world.dims
     size = np.asarray(scenario.world.size, dtype=float)
@@ -234,6 +248,73 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
                               f"cannot place {n} obstacles (radius ~{float(np.mean(radii)):.2f} m) without overlap "
                               f"(map {spec.index}, obstacle {i})", n)
     return centres, velocities, radii
+
+
+def program_stream(seed: int) -> np.random.Generator:
+    """A numpy Generator whose random() yields the numbers of the thesis program's ``random.seed(seed)`` stream:
+    an MT19937 bit generator given the state Python's Mersenne Twister derives from ``seed`` (the program seeded
+    Python's ``random`` with its map id and drew its obstacles from it)."""
+    state = random.Random(int(seed)).getstate()[1]
+    bits = np.random.MT19937()
+    bits.state = {"bit_generator": "MT19937",
+                  "state": {"key": np.asarray(state[:624], dtype=np.uint32), "pos": int(state[624])}}
+    return np.random.Generator(bits)
+
+
+def spawn_program(scenario: Scenario, spec: MapSpec,
+                  keep_out: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The thesis program's obstacles (obstacles.layout = "program"; implementation-facts.md "World and obstacles"):
+    centres [N, 2] (m), velocities [N, 2] (m/s) and radii [N] (m), drawn as its environment drew them.
+
+    Its stream is Python's ``random`` seeded with the map id (here root_seed + the replicate number), the same for
+    every setup, so maps of one replicate share their draws across setups. Per attempt, in its pixel frame (10 px per
+    m, the origin 1 m outside pbdyn's, pbdyn.world.maps.PROGRAM_WALL_M), x = 20 + (W - 40) u, y likewise, then the
+    radius r_px - j_px + 2 j_px u (a fixed radius r with radius_jitter j; a range: min + (max - min) u); the attempt
+    is rejected when its centre is within the sum of the radii of an accepted obstacle's centre or within the MAV
+    radius + gap of the start's (``keep_out`` = (start [1, 2], gap m); without one -- a metrics map -- the
+    program's metrics start PROGRAM_METRICS_START with the task's start_clearance). Obstacle k of N heads along
+    -(cos 2 pi k / N, sin 2 pi k / N) at exactly the setup speed. Distances are compared in pixels, as the program
+    did, and the centres converted to metres at the end.
+    """
+    size = np.asarray(scenario.world.size, dtype=float)
+    n = int(spec.setup["count"])
+    radius = spec.setup["radius"]
+    if isinstance(radius, dict):
+        r_lo, r_hi = PROGRAM_PX_PER_M * radius["min"], PROGRAM_PX_PER_M * radius["max"]
+    else:
+        jitter = PROGRAM_PX_PER_M * scenario.obstacles.radius_jitter
+        r_lo, r_hi = PROGRAM_PX_PER_M * radius - jitter, PROGRAM_PX_PER_M * radius + jitter
+    width_px = PROGRAM_PX_PER_M * (size + 2.0 * PROGRAM_WALL_M)
+    lo_px, span_px = PROGRAM_SPAWN_PX, width_px - 2.0 * PROGRAM_SPAWN_PX
+    if keep_out is None:
+        start, gap = np.asarray([PROGRAM_METRICS_START], dtype=float), scenario.task.start_clearance
+    else:
+        start, gap = np.asarray(keep_out[0], dtype=float).reshape(-1, 2), float(keep_out[1])
+    start_px = PROGRAM_PX_PER_M * (start + PROGRAM_WALL_M)
+    keep_px = PROGRAM_PX_PER_M * (scenario.drone.radius + gap)
+    stream = program_stream(spec.root_seed + spec.replicate)
+    centres_px, radii_px = np.zeros((n, 2)), np.zeros(n)
+    placed, attempts = 0, 0
+    while placed < n:
+        draws = stream.random((64, 3))
+        pts = lo_px + span_px[None, :] * draws[:, :2]
+        rads = r_lo + (r_hi - r_lo) * draws[:, 2]
+        for p, r in zip(pts, rads):
+            attempts += 1
+            if attempts > MAX_SPAWN_ATTEMPTS:
+                raise ConfigError("obstacles.count", f"cannot place {n} obstacles as the program did (map "
+                                  f"{spec.index}, obstacle {placed}, {MAX_SPAWN_ATTEMPTS} attempts)", n)
+            if np.any(np.linalg.norm(centres_px[:placed] - p, axis=1) <= radii_px[:placed] + r):
+                continue
+            if np.any(np.linalg.norm(start_px - p, axis=1) <= keep_px):
+                continue
+            centres_px[placed], radii_px[placed] = p, r
+            placed += 1
+            if placed == n:
+                break
+    speed = float(spec.setup["speed"])
+    velocities = -candidate_directions(2, n) * speed
+    return centres_px / PROGRAM_PX_PER_M - PROGRAM_WALL_M, velocities, radii_px / PROGRAM_PX_PER_M
 
 
 def _spawn_structured(scenario: Scenario, spec: MapSpec, st, keep_out) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -32,3 +32,33 @@ def cvm_fold(p0: np.ndarray, v0: np.ndarray, radii: np.ndarray, size: np.ndarray
     pos = lo[None] + np.where(forward, m, period[None] - m)
     vel = np.where(forward, v0[None], -v0[None])
     return pos, vel
+
+
+
+def cvm_program_turn(p0: np.ndarray, v0: np.ndarray, radii: np.ndarray, size: np.ndarray,
+                     times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity motion as the thesis' program stepped it (obstacles.wall_turn = "program";
+    implementation-facts.md "World and obstacles"): each step it computed the next centre p_k + v_k dt, and an axis
+    on which that centre would lie less than r from a wall (below r or above L - r) turned away from that wall
+    before the move (its velocity and preferred velocity were one array, so the turn took effect in the same step):
+    p_k+1 = p_k + v'_k dt. So an obstacle reverses up to |v| dt before the line r from a wall, from where it stands,
+    and never reaches it (not mirrored, as the specular cvm_fold). Stepwise, vectorised over obstacles; times must
+    be uniform, from 0.
+
+    Args and returns as cvm_fold: p0 [N, d] (m), v0 [N, d] (m/s), radii [N] (m), size [d] (m), times [T] (s);
+    positions [T, N, d] (m) and velocities [T, N, d] (m/s; the velocity flown from t_k to t_k+1).
+    """
+    p = np.array(p0, dtype=float)
+    v = np.array(v0, dtype=float)
+    r = np.asarray(radii, dtype=float)[:, None]
+    hi = np.asarray(size, dtype=float)[None, :] - r
+    times = np.asarray(times, dtype=float)
+    dt = float(times[1] - times[0]) if times.size > 1 else 0.0
+    pos = np.empty((times.size,) + p.shape)
+    vel = np.empty((times.size,) + p.shape)
+    for k in range(times.size):
+        ahead = p + v * dt
+        v = np.where(ahead < r, np.abs(v), np.where(ahead > hi, -np.abs(v), v))
+        pos[k], vel[k] = p, v
+        p = p + v * dt
+    return pos, vel

@@ -25,7 +25,7 @@ from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
-from pbdyn.world.motion import cvm_fold
+from pbdyn.world.motion import cvm_fold, cvm_program_turn
 from pbdyn.world.rvo import rvo_rollout
 from pbdyn.world.structure import structure_of
 
@@ -147,6 +147,10 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     }
     if scenario.obstacles.headings != "uniform":   # (keys of "uniform" maps stay as they were before the field)
         payload["obstacles"]["headings"] = scenario.obstacles.headings
+    for field, default in (("layout", "pbdyn"), ("wall_turn", "specular")):    # likewise
+        if getattr(scenario.obstacles, field) != default:
+            payload["obstacles"][field] = getattr(scenario.obstacles, field)
+            payload["spawn"]["start_clearance"] = scenario.task.start_clearance
     st = structure_of(scenario, spec.setup)
     if st is not None:                             # (likewise: only maps with a structure carry one)
         payload["structure"] = asdict(st)
@@ -187,7 +191,8 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     st = structure_of(scenario, spec.setup)
     motion = st.motion if st is not None and st.motion is not None else scenario.obstacles.motion
     if motion == "cvm":
-        pos, vel = cvm_fold(p0, v0, radii, size, times)
+        fold = cvm_program_turn if scenario.obstacles.wall_turn == "program" else cvm_fold
+        pos, vel = fold(p0, v0, radii, size, times)
     elif motion == "rvo":
         pos, vel = rvo_rollout(p0, v0, radii, size, dt, n_t, scenario.obstacles.rvo)
     else:  # pragma: no cover - validation rejects other names
