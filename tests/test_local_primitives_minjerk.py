@@ -400,7 +400,8 @@ def test_parameters_are_validated():
         registry.build_planner(cls, ctx, {"step_m": 0.0}, "planners[0].params")
     with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.jerk_max: unknown parameter"):
         registry.build_planner(cls, ctx, {"jerk_max": 20.0}, "planners[0].params")
-    assert cls.PROGRAM_PARAMS == {"goal_first": False, "samples": "program", "static_check": "program"}
+    assert cls.PROGRAM_PARAMS == {"goal_first": False, "samples": "program", "static_check": "program",
+                                  "tie_order": "program"}
     for bad in ({"goal_first": 1}, {"samples": "some"}):
         with pytest.raises(ValueError):
             LocalPrimitivesMinJerk(ctx, **bad)
@@ -528,3 +529,39 @@ def test_end_velocity_points_from_each_end_point_at_the_goal_and_the_goal_itself
     np.testing.assert_allclose(tr.v, v, atol=1e-9)
     # one step further away the straight candidate is fine again
     assert planner.plan(_view(ctx, p0, goal + [0.1, 0.0])) is not None and planner.last_rank == 0
+
+
+def test_program_rank_is_the_programs_cost_order_with_its_sorts_ties():
+    """The program ranked theta = 5k deg by (wrapped theta - phi)^2 with phi = degrees(atan2) of its pixel goal
+    vector; where costs tie (phi a multiple of 45 deg) its numpy 1.23.4 argsort fixed the order of each tied pair
+    (PROGRAM_TIE_ORDERS, written by tools/program_tie_orders.py)."""
+    from pbdyn.planning.local_primitives_minjerk import PROGRAM_TIE_ORDERS, program_rank
+    theta = np.arange(0, 360, 5)
+
+    def costs(phi):
+        diff = np.abs(theta - phi % 360)
+        return np.where(diff <= 180, diff, 360 - diff) ** 2
+
+    assert set(PROGRAM_TIE_ORDERS) == {0.0, 45.0, 90.0, 135.0, 180.0, -45.0, -90.0, -135.0}
+    for phi, order in PROGRAM_TIE_ORDERS.items():
+        assert sorted(order) == list(range(72))
+        c = costs(phi)[list(order)]
+        assert np.all(np.diff(c) >= 0)                      # a sort of the program's costs ...
+        assert (np.diff(c) == 0).sum() == 35                 # ... with 35 tied pairs ...
+        assert list(order) != list(np.argsort(costs(phi), kind="stable"))   # ... not in index order
+    # the goal straight below on the pixel grid (dx = 0, dy = -2.8 m in the metre frame, off by an ulp)
+    np.testing.assert_array_equal(program_rank(np.array([24.0 - 24.0, 21.2 - 24.0])), PROGRAM_TIE_ORDERS[-90.0])
+    np.testing.assert_array_equal(program_rank(np.array([45.0 - 42.2, 24.0 - 21.2])), PROGRAM_TIE_ORDERS[45.0])
+    # no tie: plain cost order, and the planner uses it under tie_order = "program"
+    g = np.array([3.7, -1.3])
+    phi = np.degrees(np.arctan2(g[1], g[0]))
+    np.testing.assert_array_equal(program_rank(g), np.argsort(costs(phi), kind="stable"))
+    ctx = _ctx()
+    planner = LocalPrimitivesMinJerk(ctx, tie_order="program")
+    np.testing.assert_allclose(planner.directions, np.c_[np.cos(np.radians(theta)), np.sin(np.radians(theta))],
+                               atol=1e-15)
+    view = _view(ctx, [10.0, 25.0], [40.0, 25.0])
+    np.testing.assert_array_equal(planner.ranked_candidates(view), PROGRAM_TIE_ORDERS[0.0])
+    assert list(LocalPrimitivesMinJerk(ctx).ranked_candidates(view))[:3] == [0, 1, 71]
+    with pytest.raises(ValueError, match="tie_order"):
+        LocalPrimitivesMinJerk(ctx, tie_order="random")

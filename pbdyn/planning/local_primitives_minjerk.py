@@ -142,6 +142,51 @@ def min_jerk_states(duration: float, start, end, times: np.ndarray) -> tuple[np.
     return p, v, a
 
 
+PROGRAM_TIE_ORDERS: dict[float, tuple[int, ...]] = {
+    0.0: (0, 71, 1, 2, 70, 3, 69, 4, 68, 5, 67, 66, 6, 65, 7, 64, 8, 63, 9, 62, 10, 61, 11, 60, 12, 59, 13, 58, 14,
+           15, 57, 16, 56, 17, 55, 54, 18, 19, 53, 20, 52, 21, 51, 22, 50, 49, 23, 24, 48, 25, 47, 26, 46, 27, 45,
+           28, 44, 43, 29, 30, 42, 41, 31, 40, 32, 39, 33, 34, 38, 35, 37, 36),
+    45.0: (9, 10, 8, 7, 11, 6, 12, 5, 13, 4, 14, 3, 15, 2, 16, 17, 1, 0, 18, 71, 19, 20, 70, 21, 69, 68, 22, 67, 23,
+           24, 66, 65, 25, 64, 26, 63, 27, 62, 28, 61, 29, 30, 60, 31, 59, 32, 58, 33, 57, 34, 56, 55, 35, 54, 36,
+           53, 37, 38, 52, 51, 39, 50, 40, 49, 41, 48, 42, 43, 47, 46, 44, 45),
+    90.0: (18, 17, 19, 20, 16, 15, 21, 22, 14, 23, 13, 24, 12, 25, 11, 26, 10, 27, 9, 28, 8, 29, 7, 30, 6, 31, 5, 32,
+           4, 33, 3, 2, 34, 35, 1, 36, 0, 37, 71, 38, 70, 39, 69, 40, 68, 41, 67, 66, 42, 43, 65, 64, 44, 63, 45, 62,
+           46, 61, 47, 60, 48, 59, 49, 50, 58, 51, 57, 52, 56, 55, 53, 54),
+    135.0: (27, 26, 28, 29, 25, 30, 24, 31, 23, 32, 22, 33, 21, 34, 20, 19, 35, 18, 36, 17, 37, 38, 16, 15, 39, 14,
+           40, 13, 41, 12, 42, 11, 43, 44, 10, 45, 9, 46, 8, 47, 7, 6, 48, 49, 5, 50, 4, 3, 51, 52, 2, 53, 1, 54, 0,
+           55, 71, 70, 56, 57, 69, 58, 68, 59, 67, 60, 66, 61, 65, 62, 64, 63),
+    180.0: (36, 35, 37, 38, 34, 33, 39, 40, 32, 41, 31, 42, 30, 43, 29, 44, 28, 45, 27, 26, 46, 25, 47, 24, 48, 23,
+           49, 50, 22, 21, 51, 20, 52, 53, 19, 54, 18, 17, 55, 56, 16, 57, 15, 14, 58, 13, 59, 12, 60, 61, 11, 62,
+           10, 9, 63, 64, 8, 65, 7, 66, 6, 67, 5, 68, 4, 69, 3, 2, 70, 71, 1, 0),
+    -45.0: (63, 62, 64, 65, 61, 66, 60, 67, 59, 68, 58, 69, 57, 56, 70, 55, 71, 54, 0, 1, 53, 2, 52, 3, 51, 4, 50, 5,
+           49, 48, 6, 7, 47, 8, 46, 45, 9, 44, 10, 11, 43, 12, 42, 13, 41, 40, 14, 39, 15, 16, 38, 37, 17, 18, 36,
+           19, 35, 20, 34, 33, 21, 32, 22, 31, 23, 30, 24, 29, 25, 28, 26, 27),
+    -90.0: (54, 53, 55, 52, 56, 57, 51, 50, 58, 49, 59, 48, 60, 61, 47, 46, 62, 45, 63, 44, 64, 65, 43, 66, 42, 67,
+           41, 68, 40, 39, 69, 38, 70, 37, 71, 36, 0, 35, 1, 2, 34, 3, 33, 32, 4, 5, 31, 30, 6, 29, 7, 28, 8, 9, 27,
+           26, 10, 25, 11, 24, 12, 13, 23, 22, 14, 15, 21, 20, 16, 17, 19, 18),
+    -135.0: (45, 46, 44, 47, 43, 48, 42, 41, 49, 50, 40, 51, 39, 38, 52, 37, 53, 36, 54, 35, 55, 34, 56, 57, 33, 58,
+           32, 31, 59, 30, 60, 61, 29, 62, 28, 27, 63, 26, 64, 65, 25, 24, 66, 23, 67, 22, 68, 21, 69, 20, 70, 71,
+           19, 18, 0, 1, 17, 2, 16, 15, 3, 14, 4, 13, 5, 12, 6, 7, 11, 10, 8, 9),
+}
+"""The program's candidate order (indices k of theta = 5k deg) at the goal directions phi (deg) where its costs
+tie, as its numpy 1.23.4 argsort left them (tools/program_tie_orders.py writes this table; README "Profiles")."""
+
+
+def program_rank(to_goal: np.ndarray) -> np.ndarray:
+    """The program's order of its 72 candidates for the goal vector ``to_goal`` [2] (m, goal minus MAV): by the
+    squared wrapped difference (deg^2) between theta = 5k deg and phi = degrees(atan2(dy, dx)) computed from the
+    vector in its pixels (snapped to whole pixels within 1e-6 px: its positions lay on them after a step); ties at
+    the eight directions where they occur in PROGRAM_TIE_ORDERS' order, any other tie by index."""
+    d = np.asarray(to_goal, dtype=float) * PROGRAM_PX_PER_M
+    whole = np.round(d)
+    d = np.where(np.abs(d - whole) < 1e-6, whole, d)
+    phi = math.degrees(math.atan2(float(d[1]), float(d[0])))
+    if phi in PROGRAM_TIE_ORDERS:
+        return np.asarray(PROGRAM_TIE_ORDERS[phi])
+    diff = np.abs(np.arange(0, 360, 5) % 360 - phi % 360)
+    return np.argsort(np.where(diff <= 180, diff, 360 - diff) ** 2, kind="stable")
+
+
 class LocalPrimitivesMinJerk:
     """The thesis program's local primitives planner (registry name "local_primitives_minjerk"; module docstring).
 
@@ -158,6 +203,9 @@ class LocalPrimitivesMinJerk:
         goal_first: try the goal itself (at rest) first when it is nearer than step_m (pbdyn; not the program).
         samples: "all" (check samples 1..K-1) or "program" (the program's per-candidate count; 2D with the
             default duration only, else "all"); see the module docstring.
+        tie_order: "index" (candidates of equal goal angle in index order) or "program" (the program's order,
+            program_rank: its squared-degree costs from its pixel goal vector, its sort's order where they tie;
+            2D with 72 candidates only, else "index").
         static_check: "pbdyn" (the MAV ball + margin against OCCUPIED cells, and radius + 0.1 m from the walls;
             pbdyn.planning.checks) or "program" (the program's five probes against its map and the OCCUPIED cells,
             so walls count where they have been seen; checks.program_grid_conflicts).
@@ -168,13 +216,14 @@ class LocalPrimitivesMinJerk:
     tried; None on failure), last_target (its end point [d]).
     """
 
-    PROGRAM_PARAMS: dict = {"goal_first": False, "samples": "program", "static_check": "program"}
+    PROGRAM_PARAMS: dict = {"goal_first": False, "samples": "program", "static_check": "program",
+                            "tie_order": "program"}
     """The thesis_program profile's parameters (the other defaults are the program's)."""
 
     def __init__(self, context: PlannerContext, *, n_candidates: int = 72, sphere_spacing_deg: float = 10.0,
                  step_m: float = 3.0, end_speed_frac: float = 0.5, margin: float = 0.5,
                  duration: float | None = None, goal_first: bool = True, samples: str = "all",
-                 static_check: str = "pbdyn"):
+                 static_check: str = "pbdyn", tie_order: str = "index"):
         n_candidates = params.integer("n_candidates", n_candidates, lo=1, hi=MAX_PLAN_COUNT)
         sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.5, hi=90.0)
         step_m = params.number("step_m", step_m, lo=0.0, lo_open=True, hi=MAX_PLAN_DISTANCE_M)
@@ -188,6 +237,8 @@ class LocalPrimitivesMinJerk:
             raise ValueError(f"samples must be 'all' or 'program', got {samples!r}")
         if static_check not in ("pbdyn", "program"):
             raise ValueError(f"static_check must be 'pbdyn' or 'program', got {static_check!r}")
+        if tie_order not in ("index", "program"):
+            raise ValueError(f"tie_order must be 'index' or 'program', got {tie_order!r}")
         self.static_check = static_check
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
@@ -201,6 +252,7 @@ class LocalPrimitivesMinJerk:
         self.directions = candidate_directions(d, int(n_candidates), self.sphere_spacing_deg)
         self.n_candidates = int(self.directions.shape[0])
         self.goal_first = goal_first
+        self.tie_order = tie_order
         self.checked = None     # [n_candidates] samples checked per candidate (None: all)
         if samples == "program" and d == 2 and duration is None:
             self.checked = program_sample_counts(self.n_candidates, self.step_m, self.limits.v_max, self.dt)
@@ -216,7 +268,10 @@ class LocalPrimitivesMinJerk:
         return True
 
     def ranked_candidates(self, view: View) -> np.ndarray:
-        """Candidate indices sorted by the angle between candidate and goal direction (ascending, ties by index)."""
+        """Candidate indices sorted by the angle between candidate and goal direction (ascending, ties by index;
+        tie_order = "program" with the program's 72 candidates in 2D: program_rank)."""
+        if self.tie_order == "program" and self.dims == 2 and self.n_candidates == 72:
+            return program_rank(view.goal - view.position)
         return rank_by_goal_angle(self.directions, view.goal - view.position)
 
     def sample_times(self, dt: float) -> np.ndarray:
