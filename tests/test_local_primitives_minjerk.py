@@ -401,7 +401,7 @@ def test_parameters_are_validated():
     with pytest.raises(ConfigError, match=r"^planners\[0\]\.params\.jerk_max: unknown parameter"):
         registry.build_planner(cls, ctx, {"jerk_max": 20.0}, "planners[0].params")
     assert cls.PROGRAM_PARAMS == {"goal_first": False, "samples": "program", "static_check": "program",
-                                  "tie_order": "program"}
+                                  "arithmetic": "program"}
     for bad in ({"goal_first": 1}, {"samples": "some"}):
         with pytest.raises(ValueError):
             LocalPrimitivesMinJerk(ctx, **bad)
@@ -475,13 +475,19 @@ def test_physical_profile_trial_never_breaks_the_contract():
     assert res.outcome == "deadlock" and res.planning_failures >= 10 and res.planner == "local_primitives_minjerk"
 
 
-@pytest.mark.parametrize("v_max, counts", [(2.0, {18: 55, 17: 17}), (4.0, {9: 55, 8: 17}), (6.0, {5: 72})])
+@pytest.mark.parametrize("v_max, counts", [(2.0, {18: 42, 17: 30}), (4.0, {9: 42, 8: 30}), (6.0, {5: 65, 6: 7})])
 def test_program_sample_counts_reproduce_the_programs_floating_point_floor(v_max, counts):
-    """The program checked floor(T / dt) samples with T = 1.2 |d| / v_max in its pixels: 1.8 / 0.1 and 0.6 / 0.1
-    floor to 17 and 5, and |d| = 29.999999999999996 px at 17 of the 72 angles (so 0.9 / 0.1 -> 8 there)."""
+    """The program checked floor(T / dt) samples with T = 1.2 |d| / v_max in its pixels and |d| numpy 1.23.4's norm
+    of the 3 m offset, whose last bit decides the floor: 1.8 / 0.1 and 0.9 / 0.1 floor to 17 and 8 at 30 of the 72
+    angles, and at 6 m/s 7 candidates check 6 samples, not 5 (PROGRAM_SAMPLE_COUNTS, tools/program_tables.py)."""
     got = program_sample_counts(72, 3.0, v_max, 0.1)
     assert dict(zip(*np.unique(got, return_counts=True))) == counts
-    assert got[0] == max(counts)            # along +x |d| is exactly 30 px
+    assert got[0] == max(counts) - (v_max == 6.0)     # along +x |d| is exactly 30 px
+    if v_max == 6.0:
+        assert np.flatnonzero(got == 6).tolist() == [3, 15, 21, 33, 39, 57, 69]
+    # outside the program's setting the floor is computed here (this numpy's norm)
+    other = program_sample_counts(72, 3.0, 5.0, 0.1)
+    assert set(other.tolist()) <= {7} and other.shape == (72,)
 
 
 def test_program_samples_leave_the_primitives_end_unchecked_at_6_mps():
@@ -534,7 +540,7 @@ def test_end_velocity_points_from_each_end_point_at_the_goal_and_the_goal_itself
 def test_program_rank_is_the_programs_cost_order_with_its_sorts_ties():
     """The program ranked theta = 5k deg by (wrapped theta - phi)^2 with phi = degrees(atan2) of its pixel goal
     vector; where costs tie (phi a multiple of 45 deg) its numpy 1.23.4 argsort fixed the order of each tied pair
-    (PROGRAM_TIE_ORDERS, written by tools/program_tie_orders.py)."""
+    (PROGRAM_TIE_ORDERS, written by tools/program_tables.py)."""
     from pbdyn.planning.local_primitives_minjerk import PROGRAM_TIE_ORDERS, program_rank
     theta = np.arange(0, 360, 5)
 
@@ -552,16 +558,41 @@ def test_program_rank_is_the_programs_cost_order_with_its_sorts_ties():
     # the goal straight below on the pixel grid (dx = 0, dy = -2.8 m in the metre frame, off by an ulp)
     np.testing.assert_array_equal(program_rank(np.array([24.0 - 24.0, 21.2 - 24.0])), PROGRAM_TIE_ORDERS[-90.0])
     np.testing.assert_array_equal(program_rank(np.array([45.0 - 42.2, 24.0 - 21.2])), PROGRAM_TIE_ORDERS[45.0])
-    # no tie: plain cost order, and the planner uses it under tie_order = "program"
+    # no tie: plain cost order, and the planner uses it under arithmetic = "program"
     g = np.array([3.7, -1.3])
     phi = np.degrees(np.arctan2(g[1], g[0]))
     np.testing.assert_array_equal(program_rank(g), np.argsort(costs(phi), kind="stable"))
     ctx = _ctx()
-    planner = LocalPrimitivesMinJerk(ctx, tie_order="program")
+    planner = LocalPrimitivesMinJerk(ctx, arithmetic="program")
     np.testing.assert_allclose(planner.directions, np.c_[np.cos(np.radians(theta)), np.sin(np.radians(theta))],
                                atol=1e-15)
     view = _view(ctx, [10.0, 25.0], [40.0, 25.0])
     np.testing.assert_array_equal(planner.ranked_candidates(view), PROGRAM_TIE_ORDERS[0.0])
     assert list(LocalPrimitivesMinJerk(ctx).ranked_candidates(view))[:3] == [0, 1, 71]
-    with pytest.raises(ValueError, match="tie_order"):
-        LocalPrimitivesMinJerk(ctx, tie_order="random")
+    with pytest.raises(ValueError, match="arithmetic"):
+        LocalPrimitivesMinJerk(ctx, arithmetic="random")
+
+
+def test_program_end_velocities_keep_the_programs_floating_point_residue():
+    """In the program's pixels a candidate ending on the goal leaves either exactly 0 (NaN: never taken) or a residue
+    of ulps whose direction the end velocity takes: 3 m short of a goal at y = 4 m (40 px) the straight candidate
+    (180 deg, 30 sin(pi) = 3.7e-15 px, more than half an ulp of 40) ends pointing along -y; at y = 25 m (250 px) the
+    residue vanishes and the candidate is rejected; off the goal both arithmetics agree."""
+    from pbdyn.planning.local_primitives_minjerk import program_end_velocities, program_unit_vectors
+    unit = program_unit_vectors()
+    np.testing.assert_array_equal(unit[18], [np.cos(np.pi / 2), 1.0])
+    v = program_end_velocities(np.array([6.0, 3.0]), np.array([3.0, 3.0]), unit[[36, 35]], 3.0, 3.0)
+    np.testing.assert_array_equal(v[0], [0.0, -3.0])
+    p1 = np.array([6.0, 3.0]) + 3.0 * unit[35]
+    np.testing.assert_allclose(v[1], 3.0 * (np.array([3.0, 3.0]) - p1) / np.linalg.norm([3.0, 3.0] - p1), rtol=1e-12)
+    assert np.isnan(program_end_velocities(np.array([6.0, 24.0]), np.array([3.0, 24.0]), unit[[36]], 3.0, 3.0)).all()
+    # the planner under arithmetic = "program" takes that straight candidate, under "pbdyn" it swerves
+    ctx = _ctx(v_max=6.0)
+    view = _view(ctx, [6.0, 3.0], [3.0, 3.0])
+    prog = LocalPrimitivesMinJerk(ctx, **LocalPrimitivesMinJerk.PROGRAM_PARAMS)
+    tr = prog.plan(view)
+    assert prog.last_rank == 0 and tr is not None
+    np.testing.assert_allclose(prog.last_target, [3.0, 3.0], atol=1e-12)
+    own = LocalPrimitivesMinJerk(ctx, goal_first=False)
+    own.plan(view)
+    assert own.last_rank == 1

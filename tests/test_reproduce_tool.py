@@ -448,3 +448,31 @@ def test_reduced_documents_keep_the_files_candidates():
     assert rp.quick_doc("controlled_2d")["task"]["candidates"] == [list(c) for c in rp.QUICK_CANDIDATES]
     physical = rp.compare_docs("controlled_2d")[0][1]
     assert parse_scenario(physical).task.candidates[0] == (4.0, 4.0)
+
+
+def test_the_programs_own_maps_cluster_by_map_id_and_the_difference_shrinks_to_none_on_all_ids():
+    """On the program's own maps the ids are shared by every setup: the interval resamples ids (a shift shared by
+    all setups of an id is noise the stratified map bootstrap misses), and against a reference pooled over M ids that
+    contain pbdyn's m the noise is se sqrt(1 - m / M), none at all for m = M."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for seed in range(4):
+        shift = rng.normal(scale=0.15)              # an id's maps are easier or harder in every setup together
+        for setup in range(9):
+            p = float(np.clip(0.6 + shift + rng.normal(scale=0.02), 0.01, 0.99))
+            out = np.where(rng.random(72) < p, SUCCESS, DYN)
+            rows += [("C", "c", 2.0, o, f"{setup}|{seed}", str(setup), str(seed)) for o in out]
+    df = pd.DataFrame(rows, columns=list(ag.COLUMNS) + ["seed"])
+    ref = {"C": {2.0: {SUCCESS: 0.55}}}
+    shared = ag.agreement(df, ref, ref_trials=20 * 9 * 72, n_boot=2000, ref_seeds=20)["cells"][0]
+    plain = ag.agreement(df.drop(columns="seed"), ref, ref_trials=20 * 9 * 72, n_boot=2000)["cells"][0]
+    assert (shared["method"], shared["n_seeds"], plain["method"]) == ("seeds", 4, "stratified")
+    r, q = shared["rates"][SUCCESS], plain["rates"][SUCCESS]
+    assert r["rate"] == q["rate"] and r["se"] > 2 * q["se"]
+    assert r["se_reference"] == 0 and r["se_used"] == pytest.approx(r["se"] * np.sqrt(1 - 4 / 20))
+    every = ag.agreement(df, ref, ref_trials=4 * 9 * 72, n_boot=500, ref_seeds=4)["cells"][0]["rates"][SUCCESS]
+    assert every["se_used"] == 0 and every["noise_bound"] == pytest.approx(ag.ROUNDING)
+    one = ag.agreement(df[df["seed"] == "0"], ref, ref_trials=1, n_boot=200, ref_seeds=20)["cells"][0]
+    assert one["method"] == "one seed" and "se_reference" in one["rates"][SUCCESS]
+    md = ag.format_markdown(ag.agreement(df, ref, ref_trials=1, n_boot=200, ref_seeds=20), [SUCCESS], title="t")
+    assert "| 2592 (36) s |" in md and "own maps" in md

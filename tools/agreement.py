@@ -23,6 +23,15 @@ with pbdyn's deff of the same cell; where pbdyn's rate is 0 or 1 the deff is und
 combo's other cells is used, else 1. (An unstratified cell's deff also counts the between-setup spread, so it
 overstates the reference's noise as well: conservative.)
 
+The reference's own maps (a column "seed" naming each trial's map id where pbdyn flew the program's own maps,
+obstacles.layout = "program"): the program seeded every setup's map j with the same id j, so its maps of one id
+share their draws across setups and the trials cluster by id, not by map. Such a cell is bootstrapped over its
+m ids (Rao-Wu, m - 1 of m, every map of a drawn id with it; method "seeds"), and since the reference pools the same
+ids 0..M-1 (M = ref_seeds) that include pbdyn's m, the noise of the difference is that of drawing m of the M ids
+without replacement: se_diff = se sqrt(1 - m / M), se_ref = 0 (on all M ids the difference has no sampling noise
+at all, and a disagreement is the implementation's). A cell with a single id cannot estimate the between-id spread;
+it keeps the stratified map bootstrap (which understates it) and is marked "one seed".
+
 Verdict ("within sampling noise"): |p - p_ref| <= Z sqrt(se^2 + se_ref^2) + ROUNDING -- the two-sided 5% test of
 equal rates with both samples' noise, plus half a unit of the reference's third decimal (it is given rounded).
 Rates of 0 or 1 have no binomial variance, so binomial standard errors use p clipped to [0.5 / n, 1 - 0.5 / n]
@@ -92,6 +101,9 @@ def cell_rates(cell: pd.DataFrame, n_boot: int, rng: np.random.Generator) -> dic
     interval); see the module docstring."""
     flown = cell[cell["outcome"].to_numpy() != Outcome.ERROR.value]
     maps, mi = np.unique(flown["map"].to_numpy().astype(str), return_inverse=True)
+    seeds = None
+    if "seed" in flown.columns and len(flown) and (flown["seed"].astype(str) != "").all():
+        seeds = flown["seed"].astype(str).to_numpy()
     oi = pd.Index(RATE_OUTCOMES).get_indexer(flown["outcome"])
     if (oi < 0).any():
         raise ValueError(f"unknown outcome {flown['outcome'].to_numpy()[oi < 0][0]!r}")
@@ -102,7 +114,18 @@ def cell_rates(cell: pd.DataFrame, n_boot: int, rng: np.random.Generator) -> dic
     strata = flown["setup"].to_numpy().astype(str)[first]
     n = float(n_map.sum())
     p = counts.sum(axis=0) / n if n > 0 else np.full(len(RATE_OUTCOMES), np.nan)
-    w, method = replicate_weights(strata, n_boot, rng)
+    n_seeds = 0
+    if seeds is not None:
+        map_seed = seeds[first]
+        ids, seed_of_map = np.unique(map_seed, return_inverse=True)
+        n_seeds = len(ids)
+    if n_seeds >= 2:
+        ws, _ = replicate_weights(np.zeros(n_seeds), n_boot, rng)
+        w, method = ws[:, seed_of_map], "seeds"
+    else:
+        w, method = replicate_weights(strata, n_boot, rng)
+        if n_seeds == 1:
+            method = "one seed"
     if w is not None:
         reps = (w @ counts) / (w @ n_map)[:, None]
         lo, hi = np.quantile(reps, [0.025, 0.975], axis=0)
@@ -112,7 +135,7 @@ def cell_rates(cell: pd.DataFrame, n_boot: int, rng: np.random.Generator) -> dic
     setups, si = np.unique(strata, return_inverse=True)
     per_setup = np.zeros((len(setups), len(RATE_OUTCOMES)))
     np.add.at(per_setup, si, counts)
-    out = {"n_trials": int(n), "n_errors": int(len(cell) - len(flown)), "n_maps": len(maps),
+    out = {"n_trials": int(n), "n_errors": int(len(cell) - len(flown)), "n_maps": len(maps), "n_seeds": n_seeds,
            "n_setups": len(setups), "method": method, "rates": {},
            "per_setup": {str(k): {"n_trials": int(row.sum()), "n_maps": int((si == i).sum()),
                                   **{o: float(x / row.sum()) if row.sum() else math.nan
@@ -126,12 +149,16 @@ def cell_rates(cell: pd.DataFrame, n_boot: int, rng: np.random.Generator) -> dic
     return out
 
 
-def _verdict(r: dict, n: int, ref: float, ref_trials: int, deff: float) -> dict:
-    """The comparison of one pbdyn rate ``r`` (from ``n`` trials) with the reference rate ``ref``."""
+def _verdict(r: dict, n: int, ref: float, ref_trials: int, deff: float, shared: float | None = None) -> dict:
+    """The comparison of one pbdyn rate ``r`` (from ``n`` trials) with the reference rate ``ref``. ``shared``: for
+    a cell flown on the reference's own maps, the share m / M of the reference's map ids it flew (module
+    docstring); None for independent maps."""
     p = r["rate"]
     se_ref = math.sqrt(deff) * _binomial_se(ref, ref_trials)
     se = r["se"] if math.isfinite(r["se"]) else 0.0
     se = max(se, math.sqrt(deff) * _binomial_se(p, n))
+    if shared is not None:
+        se, se_ref = se * math.sqrt(max(0.0, 1.0 - shared)), 0.0
     bound = Z * math.hypot(se, se_ref) + ROUNDING
     lo, hi = r["ci95"]
     in_ci = bool(math.isfinite(lo) and lo - ROUNDING <= ref <= hi + ROUNDING)
@@ -140,10 +167,12 @@ def _verdict(r: dict, n: int, ref: float, ref_trials: int, deff: float) -> dict:
 
 
 def agreement(trials: pd.DataFrame, reference: Mapping[str, Mapping[float, Mapping[str, float]]], *,
-              ref_trials: int, n_boot: int = 1000, seed: int = 0) -> dict:
+              ref_trials: int, n_boot: int = 1000, seed: int = 0, ref_seeds: int | None = None) -> dict:
     """Compare pbdyn's pooled rates with ``reference`` (combo -> MAV speed [m/s] -> outcome name -> rate, each from
     ``ref_trials`` trials). ``trials``: one row per trial with COLUMNS (combo: the reference's name of the
-    planner combination; label: pbdyn's planner_label; map: a map key; setup: its setup key). Returns a JSON-able
+    planner combination; label: pbdyn's planner_label; map: a map key; setup: its setup key) and optionally
+    "seed" (the program's map id where the map is the reference's own; ``ref_seeds``: the reference's number of
+    ids, 0..ref_seeds-1; see the module docstring). Returns a JSON-able
     dict: "cells" (one per combo and speed present in ``trials``, reference combos first in their order) with
     per-outcome pbdyn statistics and, where the reference has the outcome, its comparison; "summary" counts."""
     missing = set(COLUMNS) - set(trials.columns)
@@ -167,7 +196,8 @@ def agreement(trials: pd.DataFrame, reference: Mapping[str, Mapping[float, Mappi
             for o, r in c["rates"].items():
                 if ref is not None and o in ref:
                     deff = fallback if r["deff"] is None else r["deff"]
-                    r.update(_verdict(r, c["n_trials"], float(ref[o]), ref_trials, deff))
+                    shared = (c["n_seeds"] / ref_seeds if c["method"] == "seeds" and ref_seeds else None)
+                    r.update(_verdict(r, c["n_trials"], float(ref[o]), ref_trials, deff, shared))
     compared = [r for c in cells for r in c["rates"].values() if "within_noise" in r]
     summary = {"cells": len(cells), "comparisons": len(compared),
                "within_noise": sum(r["within_noise"] for r in compared),
@@ -233,7 +263,7 @@ def format_markdown(result: dict, compared: Sequence[str], *, title: str, notes:
         row += [_f(c["rates"][o]["rate"]) for o in others]
         row.append(_f(c["rates"][Outcome.SUCCESS.value]["deff"], ".1f"))
         row.append("/".join(verdicts) or "-")
-        row[3] += {"unstratified": " u", "none": " n"}.get(c["method"], "")
+        row[3] += {"unstratified": " u", "none": " n", "seeds": " s", "one seed": " 1"}.get(c["method"], "")
         lines.append("| " + " | ".join(row) + " |")
     s = result["summary"]
     lines += ["", f"{s['within_noise']} of {s['comparisons']} compared rates are within sampling noise "
@@ -244,6 +274,13 @@ def format_markdown(result: dict, compared: Sequence[str], *, title: str, notes:
                      "conservative, wider interval that counts the between-setup spread as noise).")
     if "none" in methods:
         lines.append("\"n\": a single map: no interval; the verdict uses the binomial se alone.")
+    if "seeds" in methods:
+        lines.append("\"s\": flown on the program's own maps: the interval resamples its map ids (every setup's map "
+                     "of one id together), and the noise of the difference is that of m of the reference's ids, "
+                     "se sqrt(1 - m / M) (tools/agreement.py).")
+    if "one seed" in methods:
+        lines.append("\"1\": the program's maps of a single id: the between-id spread cannot be estimated; the "
+                     "interval resamples maps within setups and understates it.")
     if s["reference_cells_without_data"]:
         lines.append("Reference cells without pbdyn trials: " + ", ".join(s["reference_cells_without_data"]) + ".")
     return "\n".join(lines) + "\n"

@@ -130,7 +130,9 @@ COMPARE_MORE_COMBOS = ("Owl+Jerk_Primitive", "Oxford+Primitive")
 # ------------------------------------------------------------------------------------------------ reference
 REFERENCE_SOURCE = ("issue 13: the thesis program's pooled success / dynamic collision / deadlock rates per MAV "
                     "speed, 20 maps x 27 setups x 72 pairs each (the controlled map dataset)")
-REFERENCE_TRIALS = 20 * 27 * 72
+REFERENCE_MAPS_PER_SETUP = 20
+"""The program's maps per setup behind the reference rates: map ids 0..19, the same ids for every setup."""
+REFERENCE_TRIALS = REFERENCE_MAPS_PER_SETUP * 27 * 72
 """Trials behind each reference rate (one combo, one MAV speed)."""
 REFERENCE_OUTCOMES = (Outcome.SUCCESS, Outcome.DYNAMIC_COLLISION, Outcome.DEADLOCK)
 REFERENCE_SPEEDS = (2.0, 4.0, 6.0)
@@ -350,14 +352,21 @@ def trial_table(stores: list[Path], profile: str) -> pd.DataFrame:
         try:
             names, rows = st.trial_rows(["planner_label", "mav_speed", "outcome", "map_key", "obstacle_count",
                                          "obstacle_radius", "obstacle_speed"])
+            obstacles = json.loads(st.get_meta("scenario") or "{}").get("obstacles", {})
         finally:
             st.close()
-        frames.append(pd.DataFrame(rows, columns=names))
+        frame = pd.DataFrame(rows, columns=names)
+        if obstacles.get("layout") == "program":     # the program's own maps: its map id (tools/agreement.py)
+            root = int(obstacles.get("root_seed", 0))
+            frame["seed"] = [str(root + json.loads(k)["replicate"]) for k in frame["map_key"]]
+        else:
+            frame["seed"] = ""
+        frames.append(frame)
     df = pd.concat(frames, ignore_index=True)
     out = pd.DataFrame({"label": df["planner_label"].astype(str), "mav_speed": df["mav_speed"].astype(float),
                         "outcome": df["outcome"].astype(str), "map": df["map_key"].astype(str),
                         "setup": df["obstacle_count"].astype(str) + "|" + df["obstacle_radius"].astype(str) + "|"
-                        + df["obstacle_speed"].astype(str)})
+                        + df["obstacle_speed"].astype(str), "seed": df["seed"].astype(str)})
     combos = {lab: combo_of(lab, profile) or lab for lab in out["label"].unique()}
     out.insert(0, "combo", out["label"].map(combos))
     return out
@@ -378,7 +387,9 @@ def agreement_notes(profile: str, scale: str, stores: list[Path]) -> list[str]:
                      "reference's 72 pairs: the comparison is indicative only.")
     notes.append("pbdyn's 95% CI: Rao-Wu bootstrap over maps stratified by setup (maps cluster trials). Within "
                  "sampling noise: |diff| <= 1.96 sqrt(se^2 + se_ref^2) + 0.0005, with se_ref the reference's binomial "
-                 "se times pbdyn's design effect (deff) of the cell; see tools/agreement.py.")
+                 "se times pbdyn's design effect (deff) of the cell; on the program's own maps (\"s\") the "
+                 "bootstrap resamples map ids and se_ref = 0, se scaled by sqrt(1 - m / 20) for m of the "
+                 "reference's 20 ids; see tools/agreement.py.")
     return notes
 
 
@@ -386,6 +397,7 @@ def write_agreement(out: Path, stores: list[Path], profile: str, scale: str, n_b
     """Compute the agreement of ``stores`` with the reference, write agreement.md and agreement.json into ``out``
     and return the markdown."""
     result = agreement(trial_table(stores, profile), reference_table(), ref_trials=REFERENCE_TRIALS,
+                       ref_seeds=REFERENCE_MAPS_PER_SETUP,
                        n_boot=n_boot, seed=0)
     notes = agreement_notes(profile, scale, stores)
     result.update({"profile": profile, "scale": scale, "stores": [p.name for p in stores],

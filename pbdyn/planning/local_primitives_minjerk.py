@@ -34,9 +34,9 @@ mostly fails and brakes; it exists for the "thesis_program" profile (physical Fa
 Sampling: at k dt for k = 0..ceil(T/dt) (the plan contract's uniform spacing); a sample past T holds the end state
 extrapolated (p1 + v1 (t - T), v1, 0). Sample 0 is the MAV's (p, v, a), copied in. samples = "all" checks samples
 1..K-1; samples = "program" (PROGRAM_PARAMS) checks, as the program did, samples 1..n_c of candidate c with
-n_c = floor(T_c / dt) evaluated in the program's own units and floating point (program_sample_counts): at v_max
-6 m/s T = 0.6 s but 0.6 / 0.1 floors to 5, so the primitive's end is never checked; at 2 and 4 m/s 17 of the 72
-candidates check one sample fewer than the others. All candidates are evaluated in
+n_c = floor(T_c / dt) evaluated in the program's own units and floating point (program_sample_counts, with its
+numpy 1.23.4's last bits): at v_max 6 m/s T = 0.6 s but 0.6 / 0.1 floors to 5 at 65 of the 72 candidates, so their
+end is never checked (6 samples at the other 7); at 2 and 4 m/s 30 of the 72 check one sample fewer than the rest. All candidates are evaluated in
 one array operation: the samples are linear in (dp, dv, da), with weights [K, 3] fixed by T and dt.
 
 Static check: static_check = "pbdyn" tests the MAV ball + margin against OCCUPIED cells and keeps radius + 0.1 m
@@ -59,6 +59,7 @@ from pbdyn.planning.local_primitives import candidate_directions, rank_by_goal_a
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
+from pbdyn.world.maps import PROGRAM_PX_PER_M, PROGRAM_WALL_M
 
 _REL_TOL = 1e-9             # the plan contract's relative tolerance on every limit and bound
 _COINCIDE_M = 1e-9          # an end point this close to the goal is the goal (the program's 0 / 0 end direction)
@@ -79,14 +80,26 @@ def program_duration(step_m: float, v_max: float) -> float:
     return max(1.2 * step_m / v_max, 0.5)
 
 
-PROGRAM_PX_PER_M = 10.0
-"""The thesis program's unit: 10 pixels per metre."""
+PROGRAM_SAMPLE_COUNTS: dict[float, tuple[int, ...]] = {
+    2.0: (18, 17, 18, 18, 17, 17, 17, 18, 18, 18, 18, 18, 17, 17, 17, 18, 18, 18, 18, 18, 18, 18, 18, 18, 17, 18, 18,
+          18, 18, 18, 17, 17, 18, 18, 18, 17, 18, 17, 18, 18, 18, 17, 17, 17, 18, 18, 18, 18, 17, 17, 17, 18, 18, 17,
+          18, 17, 17, 18, 18, 17, 17, 18, 17, 17, 17, 18, 17, 17, 17, 18, 18, 17),
+    4.0: (9, 8, 9, 9, 8, 8, 8, 9, 9, 9, 9, 9, 8, 8, 8, 9, 9, 9, 9, 9, 9, 9, 9, 9, 8, 9, 9, 9, 9, 9, 8, 8, 9, 9, 9, 8,
+          9, 8, 9, 9, 9, 8, 8, 8, 9, 9, 9, 9, 8, 8, 8, 9, 9, 8, 9, 8, 8, 9, 9, 8, 8, 9, 8, 8, 8, 9, 8, 8, 8, 9, 9, 8),
+    6.0: (5, 5, 5, 6, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 6, 5, 5, 5, 5, 5, 6, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 6, 5, 5,
+          5, 5, 5, 6, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 6, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 6, 5, 5),
+}
+"""Per MAV speed (m/s): the samples the program checked per candidate (72, 3 m, dt 0.1 s), as its numpy 1.23.4
+computed them (tools/program_tables.py writes this table)."""
 
 
 def program_sample_counts(n_candidates: int, step_m: float, v_max: float, dt: float) -> np.ndarray:
     """Per 2D candidate k (angle 360 k / n deg): the number of samples after the start the thesis program checked,
-    floor(max(1.2 |d| / v_max, 0.5) / dt), with |d| and v_max in its pixels and |d| computed as it did
-    (numpy's norm of (d cos, d sin) at the angle in degrees), so that its floating-point floor is reproduced."""
+    floor(max(1.2 |d| / v_max, 0.5) / dt), with |d| and v_max in its pixels and |d| = numpy's norm of
+    (d cos, d sin) at the angle in degrees: for the program's own setting (72 candidates, 3 m, dt 0.1 s, v_max 2, 4
+    or 6 m/s) PROGRAM_SAMPLE_COUNTS, whose floors depend on its numpy's last bit; else computed so here."""
+    if (n_candidates, step_m, dt) == (72, 3.0, 0.1) and float(v_max) in PROGRAM_SAMPLE_COUNTS:
+        return np.asarray(PROGRAM_SAMPLE_COUNTS[float(v_max)], dtype=np.int64)
     d_px, v_px = step_m * PROGRAM_PX_PER_M, v_max * PROGRAM_PX_PER_M
     out = np.empty(n_candidates, dtype=np.int64)
     for k in range(n_candidates):
@@ -169,22 +182,55 @@ PROGRAM_TIE_ORDERS: dict[float, tuple[int, ...]] = {
            19, 18, 0, 1, 17, 2, 16, 15, 3, 14, 4, 13, 5, 12, 6, 7, 11, 10, 8, 9),
 }
 """The program's candidate order (indices k of theta = 5k deg) at the goal directions phi (deg) where its costs
-tie, as its numpy 1.23.4 argsort left them (tools/program_tie_orders.py writes this table; README "Profiles")."""
+tie, as its numpy 1.23.4 argsort left them (tools/program_tables.py writes this table; README "Profiles")."""
+
+
+def program_pixels(p: np.ndarray) -> np.ndarray:
+    """Positions p [..., 2] (m, pbdyn's frame) in the program's pixel frame (10 px per m, origin 1 m outside pbdyn's),
+    snapped to whole pixels within 1e-6 px (its positions lay on them after every planned step)."""
+    px = (np.asarray(p, dtype=float) + PROGRAM_WALL_M) * PROGRAM_PX_PER_M
+    whole = np.round(px)
+    return np.where(np.abs(px - whole) < 1e-6, whole, px)
+
+
+PROGRAM_THETA_DEG = np.arange(0, 360, 5)
+"""The program's 72 candidate angles (deg); candidate k of pbdyn's 72 in 2D lies at the same angle."""
+
+
+def program_unit_vectors() -> np.ndarray:
+    """The program's candidate directions [72, 2], each computed as it did (np.cos / np.sin of math.radians of the
+    angle in degrees), to the last bit."""
+    return np.array([[np.cos(math.radians(t)), np.sin(math.radians(t))] for t in PROGRAM_THETA_DEG])
 
 
 def program_rank(to_goal: np.ndarray) -> np.ndarray:
     """The program's order of its 72 candidates for the goal vector ``to_goal`` [2] (m, goal minus MAV): by the
     squared wrapped difference (deg^2) between theta = 5k deg and phi = degrees(atan2(dy, dx)) computed from the
-    vector in its pixels (snapped to whole pixels within 1e-6 px: its positions lay on them after a step); ties at
-    the eight directions where they occur in PROGRAM_TIE_ORDERS' order, any other tie by index."""
+    vector in its pixels (snapped to whole pixels within 1e-6 px); ties at the eight directions where they occur in
+    PROGRAM_TIE_ORDERS' order, any other tie by index."""
     d = np.asarray(to_goal, dtype=float) * PROGRAM_PX_PER_M
     whole = np.round(d)
     d = np.where(np.abs(d - whole) < 1e-6, whole, d)
     phi = math.degrees(math.atan2(float(d[1]), float(d[0])))
     if phi in PROGRAM_TIE_ORDERS:
         return np.asarray(PROGRAM_TIE_ORDERS[phi])
-    diff = np.abs(np.arange(0, 360, 5) % 360 - phi % 360)
+    diff = np.abs(PROGRAM_THETA_DEG % 360 - phi % 360)
     return np.argsort(np.where(diff <= 180, diff, 360 - diff) ** 2, kind="stable")
+
+
+def program_end_velocities(p0: np.ndarray, goal: np.ndarray, unit: np.ndarray, step_m: float,
+                           end_speed: float) -> np.ndarray:
+    """End velocities [n, 2] (m/s) of candidates with the program's directions ``unit`` [n, 2] from p0 [2] (m), as
+    its pixel arithmetic gave them: p1 = p0 + d unit and vf = end_speed (goal - p1) / |goal - p1| in pixels. Where p1
+    falls on the goal the difference is whatever floating point leaves of it: exactly 0 (NaN rows: its check
+    rejected them) or a residue of ulps whose direction vf takes (e.g. the straight candidate 3 m short of a goal at
+    y = 4 m points vf along -y)."""
+    p0_px, goal_px = program_pixels(p0), program_pixels(goal)
+    p1 = p0_px[None] + (step_m * PROGRAM_PX_PER_M) * unit
+    gap = goal_px[None] - p1
+    norm = np.sqrt(np.einsum("nd,nd->n", gap, gap))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return ((end_speed * PROGRAM_PX_PER_M) / norm)[:, None] * gap / PROGRAM_PX_PER_M
 
 
 class LocalPrimitivesMinJerk:
@@ -203,9 +249,9 @@ class LocalPrimitivesMinJerk:
         goal_first: try the goal itself (at rest) first when it is nearer than step_m (pbdyn; not the program).
         samples: "all" (check samples 1..K-1) or "program" (the program's per-candidate count; 2D with the
             default duration only, else "all"); see the module docstring.
-        tie_order: "index" (candidates of equal goal angle in index order) or "program" (the program's order,
-            program_rank: its squared-degree costs from its pixel goal vector, its sort's order where they tie;
-            2D with 72 candidates only, else "index").
+        arithmetic: "pbdyn" (rank by angle, ties by index; end velocities in metres, an end point on the goal
+            never taken) or "program" (2D with 72 candidates: the program's ranking, program_rank, and end
+            velocities, program_end_velocities, in its pixel arithmetic; else "pbdyn").
         static_check: "pbdyn" (the MAV ball + margin against OCCUPIED cells, and radius + 0.1 m from the walls;
             pbdyn.planning.checks) or "program" (the program's five probes against its map and the OCCUPIED cells,
             so walls count where they have been seen; checks.program_grid_conflicts).
@@ -217,13 +263,13 @@ class LocalPrimitivesMinJerk:
     """
 
     PROGRAM_PARAMS: dict = {"goal_first": False, "samples": "program", "static_check": "program",
-                            "tie_order": "program"}
+                            "arithmetic": "program"}
     """The thesis_program profile's parameters (the other defaults are the program's)."""
 
     def __init__(self, context: PlannerContext, *, n_candidates: int = 72, sphere_spacing_deg: float = 10.0,
                  step_m: float = 3.0, end_speed_frac: float = 0.5, margin: float = 0.5,
                  duration: float | None = None, goal_first: bool = True, samples: str = "all",
-                 static_check: str = "pbdyn", tie_order: str = "index"):
+                 static_check: str = "pbdyn", arithmetic: str = "pbdyn"):
         n_candidates = params.integer("n_candidates", n_candidates, lo=1, hi=MAX_PLAN_COUNT)
         sphere_spacing_deg = params.number("sphere_spacing_deg", sphere_spacing_deg, lo=0.5, hi=90.0)
         step_m = params.number("step_m", step_m, lo=0.0, lo_open=True, hi=MAX_PLAN_DISTANCE_M)
@@ -237,8 +283,8 @@ class LocalPrimitivesMinJerk:
             raise ValueError(f"samples must be 'all' or 'program', got {samples!r}")
         if static_check not in ("pbdyn", "program"):
             raise ValueError(f"static_check must be 'pbdyn' or 'program', got {static_check!r}")
-        if tie_order not in ("index", "program"):
-            raise ValueError(f"tie_order must be 'index' or 'program', got {tie_order!r}")
+        if arithmetic not in ("pbdyn", "program"):
+            raise ValueError(f"arithmetic must be 'pbdyn' or 'program', got {arithmetic!r}")
         self.static_check = static_check
         self.dims = d = int(context.dims)
         self.dt = float(context.dt)
@@ -252,7 +298,9 @@ class LocalPrimitivesMinJerk:
         self.directions = candidate_directions(d, int(n_candidates), self.sphere_spacing_deg)
         self.n_candidates = int(self.directions.shape[0])
         self.goal_first = goal_first
-        self.tie_order = tie_order
+        self.arithmetic = arithmetic
+        self._program_unit = (program_unit_vectors() if arithmetic == "program" and d == 2
+                              and self.n_candidates == PROGRAM_THETA_DEG.size else None)
         self.checked = None     # [n_candidates] samples checked per candidate (None: all)
         if samples == "program" and d == 2 and duration is None:
             self.checked = program_sample_counts(self.n_candidates, self.step_m, self.limits.v_max, self.dt)
@@ -269,8 +317,8 @@ class LocalPrimitivesMinJerk:
 
     def ranked_candidates(self, view: View) -> np.ndarray:
         """Candidate indices sorted by the angle between candidate and goal direction (ascending, ties by index;
-        tie_order = "program" with the program's 72 candidates in 2D: program_rank)."""
-        if self.tie_order == "program" and self.dims == 2 and self.n_candidates == 72:
+        arithmetic = "program" with the program's 72 candidates in 2D: program_rank)."""
+        if self._program_unit is not None:
             return program_rank(view.goal - view.position)
         return rank_by_goal_angle(self.directions, view.goal - view.position)
 
@@ -306,11 +354,15 @@ class LocalPrimitivesMinJerk:
         dist = math.sqrt(float(g @ g))
         order = self.ranked_candidates(view)
         targets = p0 + self.step_m * self.directions[order]                     # [n, d], rank order
-        to_goal = view.goal[None] - targets
-        reach = np.sqrt(np.einsum("nd,nd->n", to_goal, to_goal))
-        rank = np.flatnonzero(reach > _COINCIDE_M)     # an end point on the goal has no end direction: never taken
-        order, targets = order[rank], targets[rank]
-        vels = (self.end_speed / reach[rank])[:, None] * to_goal[rank]
+        if self._program_unit is not None:
+            vels = program_end_velocities(p0, view.goal, self._program_unit[order], self.step_m, self.end_speed)
+            rank = np.flatnonzero(np.isfinite(vels).all(axis=1))
+        else:
+            to_goal = view.goal[None] - targets
+            reach = np.sqrt(np.einsum("nd,nd->n", to_goal, to_goal))
+            rank = np.flatnonzero(reach > _COINCIDE_M)   # an end point on the goal has no end direction: never taken
+            vels = (self.end_speed / np.where(reach > _COINCIDE_M, reach, 1.0))[:, None] * to_goal
+        order, targets, vels = order[rank], targets[rank], vels[rank]
         times = self._weights(view.dt)[0]
         checked = None if self.checked is None else np.minimum(self.checked[order], times.shape[0] - 1)
         if self.goal_first and dist < self.step_m:   # the goal itself, reached at rest, is tried first

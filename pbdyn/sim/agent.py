@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbdyn.errors import ConfigError, one_line
-from pbdyn.planning.local_primitives_minjerk import PROGRAM_PX_PER_M
+from pbdyn.world.maps import PROGRAM_PX_PER_M
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.planning.trajectory import Trajectory
