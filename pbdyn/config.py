@@ -46,6 +46,7 @@ PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
         ("tracking", "drop_rule"): "program",
         ("task", "start_yaw_deg"): 90.0,
         ("obstacles", "headings"): "even",
+        ("tracking", "track_radius"): "setup",
     },
 }
 """Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);
@@ -55,7 +56,8 @@ outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc) and l
 (sensor.obstacles_at = "next"), dropped a track whose predicted disc of the setup radius reached a wall and restarted
 it one step later with the setup radius (tracking.drop_rule = "program"), and started the MAV facing +y (its initial
 yaw of -90 deg in its y-down screen frame; task.start_yaw_deg = 90); its obstacle headings were evenly spaced
-(obstacles.headings = "even")."""
+(obstacles.headings = "even"); when it flew the thesis' trials (its code of May 2023) its planners checked every track
+with the setup radius, not the obstacle's own (tracking.track_radius = "setup")."""
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -366,9 +368,12 @@ class TrackingConfig:
     drop_rule (pbdyn.perception.tracker.KalmanTracks): "arena" drops a track whose updated mean leaves the arena;
     "program" (the thesis program) drops a track whose predicted mean comes within the setup radius of a wall,
     before the update, restarts it at the next detection after that step, and gives a restarted track the setup
-    radius instead of the obstacle's own."""
+    radius instead of the obstacle's own. track_radius: the radius a track reports to the planners, "own" (its
+    obstacle's) or "setup" (the setup's radius for every track, as the thesis program's planners used it when it flew
+    the thesis' trials)."""
 
     DROP_RULES: ClassVar[tuple[str, ...]] = ("arena", "program")
+    TRACK_RADII: ClassVar[tuple[str, ...]] = ("own", "setup")
 
     MIN_VARIANCE: ClassVar[float] = 1e-12
     """Smallest positive q, r, p0_pos, p0_vel (0 is allowed for q or r, not both): below it a float64 covariance
@@ -380,6 +385,7 @@ class TrackingConfig:
     p0_vel: float = 0.1
     drop_pos_var: float = 1.5
     drop_rule: str = "arena"
+    track_radius: str = "own"
 
 
 @dataclass(frozen=True)
@@ -950,7 +956,7 @@ def _check_resolution(sensor: SensorConfig, obstacles: ObstacleConfig,
 
 def _parse_tracking(doc: Mapping) -> TrackingConfig:
     t = _table(doc, "tracking")
-    _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var", "drop_rule"), "tracking")
+    _no_unknown(t, ("q", "r", "p0_pos", "p0_vel", "drop_pos_var", "drop_rule", "track_radius"), "tracking")
     d = _defaults(TrackingConfig)
     out = TrackingConfig(
         q=_number(t, "q", "tracking", d["q"], lo=0.0),
@@ -959,6 +965,7 @@ def _parse_tracking(doc: Mapping) -> TrackingConfig:
         p0_vel=_number(t, "p0_vel", "tracking", d["p0_vel"], lo=TrackingConfig.MIN_VARIANCE),
         drop_pos_var=_number(t, "drop_pos_var", "tracking", d["drop_pos_var"], lo=0.0, lo_open=True),
         drop_rule=_string(t, "drop_rule", "tracking", d["drop_rule"], TrackingConfig.DROP_RULES),
+        track_radius=_string(t, "track_radius", "tracking", d["track_radius"], TrackingConfig.TRACK_RADII),
     )
     tiny = TrackingConfig.MIN_VARIANCE
     for key in ("q", "r"):

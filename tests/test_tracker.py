@@ -141,3 +141,17 @@ def test_program_drop_rule_drops_a_predicted_disc_at_the_wall_and_restarts_a_ste
     assert prog.tracks(radii).radius[-1] == 0.8
     with pytest.raises(ValueError):
         KalmanTracks(1, 2, DT, bounds_lo=[LO, LO], bounds_hi=[HI, HI], drop_rule="never")
+
+
+def test_setup_track_radius_reports_the_setup_radius_for_every_track():
+    """track_radius = "setup": the program's planners, when it flew the thesis' trials, checked every track with the
+    setup radius; "own" keeps each obstacle's radius (the setup radius only after a "program" restart)."""
+    from pbdyn.perception.tracker import KalmanTracks
+    kw = dict(bounds_lo=np.zeros(2), bounds_hi=np.full(2, 48.0), nominal_radius=1.0)
+    radii = np.array([0.8, 1.2, 1.15])
+    for rule, want in (("own", radii[[0, 2]]), ("setup", [1.0, 1.0])):
+        tr = KalmanTracks(3, 2, 0.1, track_radius=rule, **kw)
+        tr.update(np.array([0, 2]), np.array([[10.0, 10.0], [20.0, 20.0]]))
+        np.testing.assert_array_equal(tr.tracks(radii).radius, want)
+    with pytest.raises(ValueError, match="track_radius"):
+        KalmanTracks(3, 2, 0.1, track_radius="mean", **kw)

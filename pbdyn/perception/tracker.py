@@ -28,12 +28,14 @@ class KalmanTracks:
     radius: the program's band 1 m + r from the border is r from its 1 m wall cells); that step's detection of it is
     discarded (the program fed it to the reset, inactive filter), the next detection starts a new track, and every
     track started after a drop carries ``nominal_radius`` instead of the obstacle's own radius (the program's reset
-    set the setup radius).
+    set the setup radius). ``track_radius = "setup"``: every track reports ``nominal_radius`` (the program's planners
+    when it flew the thesis' trials knew only the setup radius).
     """
 
     def __init__(self, n_obstacles: int, dims: int, dt: float, *, q: float = 1e-5, r: float = 0.0,
                  p0_pos: float = 0.01, p0_vel: float = 0.1, drop_pos_var: float = 1.5,
-                 bounds_lo, bounds_hi, drop_rule: str = "arena", nominal_radius: float = 0.0):
+                 bounds_lo, bounds_hi, drop_rule: str = "arena", nominal_radius: float = 0.0,
+                 track_radius: str = "own"):
         if dims not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {dims}")
         values = (dt, q, r, p0_pos, p0_vel, drop_pos_var)
@@ -45,7 +47,10 @@ class KalmanTracks:
         if drop_rule not in TrackingConfig.DROP_RULES or not (np.isfinite(nominal_radius) and nominal_radius >= 0):
             raise ValueError(f"drop_rule must be one of {TrackingConfig.DROP_RULES} and nominal_radius finite >= 0, "
                              f"got {drop_rule!r}, {nominal_radius!r}")
+        if track_radius not in TrackingConfig.TRACK_RADII:
+            raise ValueError(f"track_radius must be one of {TrackingConfig.TRACK_RADII}, got {track_radius!r}")
         self.drop_rule = drop_rule
+        self.track_radius = track_radius
         self.nominal_radius = float(nominal_radius)
         self.n = int(n_obstacles)
         self.dims = d = int(dims)
@@ -170,10 +175,13 @@ class KalmanTracks:
         self.tracked_time_s += self.dt * self.n_active
 
     def tracks(self, radii) -> Tracks:
-        """The active tracks ordered by id, with obstacle radii taken from ``radii`` [N] (m)."""
+        """The active tracks ordered by id, with obstacle radii taken from ``radii`` [N] (m) (track_radius = "setup":
+        nominal_radius for every track; drop_rule = "program": for a restarted one)."""
         idx = np.flatnonzero(self.active)
         d = self.dims
         radii = np.asarray(radii, dtype=float).reshape(self.n)
-        if self.restarted.any():
+        if self.track_radius == "setup":
+            radii = np.full(self.n, self.nominal_radius)
+        elif self.restarted.any():
             radii = np.where(self.restarted, self.nominal_radius, radii)
         return Tracks(idx, self.x[idx, :d], self.x[idx, d:], self.P[idx], radii[idx])

@@ -151,7 +151,8 @@ class TrialEnv:
         tr = sc.tracking
         self.tracker = KalmanTracks(self.rollout.n_obstacles, self.dims, self.dt, q=tr.q, r=tr.r, p0_pos=tr.p0_pos,
                                     p0_vel=tr.p0_vel, drop_pos_var=tr.drop_pos_var, bounds_lo=lo, bounds_hi=hi,
-                                    drop_rule=tr.drop_rule, nominal_radius=nominal_radius(self.spec, self.rollout))
+                                    drop_rule=tr.drop_rule, nominal_radius=nominal_radius(self.spec, self.rollout),
+                                    track_radius=tr.track_radius)
         self.position = np.asarray(self.spec.start, dtype=float)
         self.velocity = np.zeros(self.dims)
         self.acceleration = np.zeros(self.dims)
