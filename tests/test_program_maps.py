@@ -150,3 +150,26 @@ def test_program_layout_is_2d_only():
     with pytest.raises(ConfigError) as exc:
         parse_scenario(doc)
     assert exc.value.field == "obstacles.layout"
+
+
+def test_the_new_fields_leave_the_keys_of_trials_that_do_not_use_them_as_they_were():
+    """layout, wall_turn and track_radius at their defaults are not part of a trial's key: the keys below were
+    written by the version before these fields, so existing stores keep resuming."""
+    from pbdyn.config import load_scenario
+    from pbdyn.experiments.tasks import trial_spec
+    from pbdyn.world.maps import enumerate_maps
+
+    def key(name, **obstacles):
+        sc = load_scenario(name)
+        if obstacles:
+            doc = tomllib.loads(Path(name).read_text())
+            doc["obstacles"].update(obstacles)
+            sc = parse_scenario(doc)
+        m = enumerate_maps(sc)[1]
+        return trial_spec(sc, m, sc.planners[0], sc.drone.v_max[0], sc.task.candidates[0],
+                          sc.task.candidates[-1]).config_hash
+
+    assert key("quickstart") == "8aeb3ee2749ce59ef1e97fb966eaafbb04e9ded9ae032e05b365de128a4fca50"
+    plain = str(ROOT / "scenarios" / "datasets" / "controlled_2d.toml")
+    assert key(plain) == "ce03e649987ccf4a74b7a8f879162bed83f2b07a4150a4f7cf9e030c7e69af4a"
+    assert key(plain, wall_turn="program") != key(plain)

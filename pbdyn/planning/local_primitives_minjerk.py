@@ -8,7 +8,9 @@ Registry name "local_primitives_minjerk". Every step (implementation-facts.md "T
   program's vf = 0.5 v_max (goal - p1) / |goal - p1|; not along the candidate's direction, as pbdyn's ruckig
   "local_primitives" does) and acceleration 0; a candidate whose end point is the goal has no such direction (the
   program's 0 / 0 gave NaN samples, which its check rejected) and is never taken -- so a MAV flying straight at a
-  goal exactly step_m ahead swerves onto a neighbouring candidate, as the program's did;
+  goal exactly step_m ahead swerves onto a neighbouring candidate; with arithmetic = "program" (PROGRAM_PARAMS) the
+  end velocities come from the program's pixel arithmetic, where such an end point may also leave a residue of ulps
+  whose direction the end velocity takes (program_end_velocities);
 - one duration T = max(1.2 step_m / v_max, 0.5 s) for every candidate;
 - per axis the minimum-jerk polynomial of Mueller, Hehn & D'Andrea (2015, the thesis' [15]) with the start fully
   fixed to the MAV's (p0, v0, a0) and the end fully fixed to (p1, v1, 0): a quintic,
@@ -36,8 +38,9 @@ extrapolated (p1 + v1 (t - T), v1, 0). Sample 0 is the MAV's (p, v, a), copied i
 1..K-1; samples = "program" (PROGRAM_PARAMS) checks, as the program did, samples 1..n_c of candidate c with
 n_c = floor(T_c / dt) evaluated in the program's own units and floating point (program_sample_counts, with its
 numpy 1.23.4's last bits): at v_max 6 m/s T = 0.6 s but 0.6 / 0.1 floors to 5 at 65 of the 72 candidates, so their
-end is never checked (6 samples at the other 7); at 2 and 4 m/s 30 of the 72 check one sample fewer than the rest. All candidates are evaluated in
-one array operation: the samples are linear in (dp, dv, da), with weights [K, 3] fixed by T and dt.
+end is never checked (6 samples at the other 7); at 2 and 4 m/s 30 of the 72 check one sample fewer than the rest.
+All candidates are evaluated in one array operation: the samples are linear in (dp, dv, da), with weights [K, 3]
+fixed by T and dt.
 
 Static check: static_check = "pbdyn" tests the MAV ball + margin against OCCUPIED cells and keeps radius + 0.1 m
 from the walls whether or not they were seen; "program" (PROGRAM_PARAMS) is the program's is_free: five probes

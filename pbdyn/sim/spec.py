@@ -19,6 +19,11 @@ from pbdyn.world.imported import bodies_fingerprint
 from pbdyn.world.maps import MapSpec, stable_hash64
 
 
+_LATER_FIELDS = {"obstacles": {"layout": "pbdyn", "wall_turn": "specular"}, "tracking": {"track_radius": "own"}}
+"""Fields added after stores were written, left out of a trial's key at their defaults, so that the keys of every
+trial that does not use them stay as they were (stores keep resuming across versions)."""
+
+
 @dataclass(frozen=True)
 class TrialSpec:
     """Everything that defines one trial: scenario, map, planner pair, MAV speed, start and goal (m)."""
@@ -36,13 +41,16 @@ class TrialSpec:
         skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures"}
         if sc["obstacles"]["motion"] != "rvo":
             skip.add("rvo")
-        obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
+        obstacles = {k: v for k, v in sc["obstacles"].items()
+                     if k not in skip and not (k in _LATER_FIELDS["obstacles"] and v == _LATER_FIELDS["obstacles"][k])}
         drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
         task = {k: v for k, v in sc["task"].items() if k != "candidates"}
+        tracking = {k: v for k, v in sc["tracking"].items()
+                    if not (k in _LATER_FIELDS["tracking"] and v == _LATER_FIELDS["tracking"][k])}
         return {
             "world": sc["world"], "obstacles": obstacles, "map": self._map_dict(),
             "static_obstacles": sc["static_obstacles"], "drone": drone, "v_max": float(self.v_max),
-            "sensor": sc["sensor"], "tracking": sc["tracking"], "task": task,
+            "sensor": sc["sensor"], "tracking": tracking, "task": task,
             "candidates": sc["task"]["candidates"],
             "start": [float(x) for x in self.start], "goal": [float(x) for x in self.goal],
             "planner": {"trajectory": self.planner.trajectory, "gaze": self.planner.gaze,
