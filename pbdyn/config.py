@@ -274,6 +274,18 @@ class ObstacleConfig:
         return next(s for s in self.structures if s.name == name)
 
 
+def later_fields(section: str, table: Mapping) -> dict:
+    """The keys of ``table`` (a scenario section as plain data: "obstacles" or "tracking") that were added after
+    stores and rollout caches were written (LATER_FIELDS) and hold their dataclass defaults: left out of trial keys
+    and rollout keys, so that those of every scenario not using them stay as they were."""
+    cls = {"obstacles": ObstacleConfig, "tracking": TrackingConfig}[section]
+    return {k: v for k, v in table.items() if k in LATER_FIELDS[section] and v == getattr(cls, k)}
+
+
+LATER_FIELDS: dict[str, tuple[str, ...]] = {"obstacles": ("layout", "wall_turn"), "tracking": ("track_radius",)}
+"""Per section, the fields later_fields() leaves out of keys at their defaults."""
+
+
 @dataclass(frozen=True)
 class StaticObstacleConfig:
     """A static obstacle: kind pillar|box, center [d] (m), radius (pillar, m), size [d] (box full extents, m), yaw_deg."""

@@ -188,12 +188,16 @@ PROGRAM_TIE_ORDERS: dict[float, tuple[int, ...]] = {
 tie, as its numpy 1.23.4 argsort left them (tools/program_tables.py writes this table; README "Profiles")."""
 
 
-def program_pixels(p: np.ndarray) -> np.ndarray:
-    """Positions p [..., 2] (m, pbdyn's frame) in the program's pixel frame (10 px per m, origin 1 m outside pbdyn's),
-    snapped to whole pixels within 1e-6 px (its positions lay on them after every planned step)."""
-    px = (np.asarray(p, dtype=float) + PROGRAM_WALL_M) * PROGRAM_PX_PER_M
+def _snap_px(px: np.ndarray) -> np.ndarray:
+    """Pixel values snapped to whole pixels within 1e-6 px (the program's positions lay on them after every step)."""
     whole = np.round(px)
     return np.where(np.abs(px - whole) < 1e-6, whole, px)
+
+
+def program_pixels(p: np.ndarray) -> np.ndarray:
+    """Positions p [..., 2] (m, pbdyn's frame) in the program's pixel frame (10 px per m, origin 1 m outside pbdyn's),
+    snapped to whole pixels (_snap_px)."""
+    return _snap_px((np.asarray(p, dtype=float) + PROGRAM_WALL_M) * PROGRAM_PX_PER_M)
 
 
 PROGRAM_THETA_DEG = np.arange(0, 360, 5)
@@ -211,9 +215,7 @@ def program_rank(to_goal: np.ndarray) -> np.ndarray:
     squared wrapped difference (deg^2) between theta = 5k deg and phi = degrees(atan2(dy, dx)) computed from the
     vector in its pixels (snapped to whole pixels within 1e-6 px); ties at the eight directions where they occur in
     PROGRAM_TIE_ORDERS' order, any other tie by index."""
-    d = np.asarray(to_goal, dtype=float) * PROGRAM_PX_PER_M
-    whole = np.round(d)
-    d = np.where(np.abs(d - whole) < 1e-6, whole, d)
+    d = _snap_px(np.asarray(to_goal, dtype=float) * PROGRAM_PX_PER_M)
     phi = math.degrees(math.atan2(float(d[1]), float(d[0])))
     if phi in PROGRAM_TIE_ORDERS:
         return np.asarray(PROGRAM_TIE_ORDERS[phi])

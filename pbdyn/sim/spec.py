@@ -12,16 +12,11 @@ import math
 from dataclasses import dataclass, replace
 from functools import cached_property
 
-from pbdyn.config import PlannerEntry, Scenario, canonical_json
+from pbdyn.config import PlannerEntry, Scenario, canonical_json, later_fields
 from pbdyn.errors import ConfigError
 from pbdyn.planning.registry import resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.world.imported import bodies_fingerprint
 from pbdyn.world.maps import MapSpec, stable_hash64
-
-
-_LATER_FIELDS = {"obstacles": {"layout": "pbdyn", "wall_turn": "specular"}, "tracking": {"track_radius": "own"}}
-"""Fields added after stores were written, left out of a trial's key at their defaults, so that the keys of every
-trial that does not use them stay as they were (stores keep resuming across versions)."""
 
 
 @dataclass(frozen=True)
@@ -41,12 +36,12 @@ class TrialSpec:
         skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures"}
         if sc["obstacles"]["motion"] != "rvo":
             skip.add("rvo")
-        obstacles = {k: v for k, v in sc["obstacles"].items()
-                     if k not in skip and not (k in _LATER_FIELDS["obstacles"] and v == _LATER_FIELDS["obstacles"][k])}
+        skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
+        obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
         drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
         task = {k: v for k, v in sc["task"].items() if k != "candidates"}
-        tracking = {k: v for k, v in sc["tracking"].items()
-                    if not (k in _LATER_FIELDS["tracking"] and v == _LATER_FIELDS["tracking"][k])}
+        later = later_fields("tracking", sc["tracking"])
+        tracking = {k: v for k, v in sc["tracking"].items() if k not in later}
         return {
             "world": sc["world"], "obstacles": obstacles, "map": self._map_dict(),
             "static_obstacles": sc["static_obstacles"], "drone": drone, "v_max": float(self.v_max),

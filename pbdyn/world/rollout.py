@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn import limits
-from pbdyn.config import Scenario, canonical_json, rollout_span_s
+from pbdyn.config import LATER_FIELDS, Scenario, canonical_json, later_fields, rollout_span_s
 from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
@@ -147,10 +147,11 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     }
     if scenario.obstacles.headings != "uniform":   # (keys of "uniform" maps stay as they were before the field)
         payload["obstacles"]["headings"] = scenario.obstacles.headings
-    for field, default in (("layout", "pbdyn"), ("wall_turn", "specular")):    # likewise
-        if getattr(scenario.obstacles, field) != default:
-            payload["obstacles"][field] = getattr(scenario.obstacles, field)
-            payload["spawn"]["start_clearance"] = scenario.task.start_clearance
+    used = {k: getattr(scenario.obstacles, k) for k in LATER_FIELDS["obstacles"]}
+    used = {k: v for k, v in used.items() if k not in later_fields("obstacles", used)}      # likewise
+    if used:
+        payload["obstacles"].update(used)
+        payload["spawn"]["start_clearance"] = scenario.task.start_clearance
     st = structure_of(scenario, spec.setup)
     if st is not None:                             # (likewise: only maps with a structure carry one)
         payload["structure"] = asdict(st)
