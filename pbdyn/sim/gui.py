@@ -93,6 +93,7 @@ class GuiView:
         self.items: dict[str, int] = {}
         self.t0 = None
         self.steps = 0
+        self.slept = 0.0          # s of wall clock spent waiting for real time (the rest of the trial is compute)
 
     def _line(self, client, name: str, a, b, rgba, width: float = 2.0) -> None:
         old = self.items.get(name, -1)
@@ -150,6 +151,7 @@ class GuiView:
             wait = self.t0 + self.steps * self.dt - time.perf_counter()
             if wait > 0:
                 time.sleep(wait)
+                self.slept += wait
 
     def on_end(self, env, agent) -> None:
         pass
