@@ -101,10 +101,7 @@ class KalmanTracks:
         z = np.asarray(z, dtype=float).reshape(ids.size, self.dims)
         if ids.size == 0:
             return
-        if np.any((ids < 0) | (ids >= self.n)):
-            raise IndexError(f"track ids must be in [0, {self.n}), got {ids}")
-        if np.unique(ids).size != ids.size:
-            raise ValueError(f"track ids must be unique within one update, got {ids}")
+        self._check_ids(ids)
         d = self.dims
         seen = self.active[ids]
         new = ids[~seen]
@@ -127,6 +124,12 @@ class KalmanTracks:
         P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ self.R @ K.transpose(0, 2, 1)
         self.x[upd] = x
         self.P[upd] = P
+
+    def _check_ids(self, ids: np.ndarray) -> None:
+        if np.any((ids < 0) | (ids >= self.n)):
+            raise IndexError(f"track ids must be in [0, {self.n}), got {ids}")
+        if np.unique(ids).size != ids.size:
+            raise ValueError(f"track ids must be unique within one update, got {ids}")
 
     def drop(self) -> None:
         """Deactivate tracks whose largest position variance exceeds drop_pos_var or whose mean left the arena."""
@@ -185,3 +188,126 @@ class KalmanTracks:
         elif self.restarted.any():
             radii = np.where(self.restarted, self.nominal_radius, radii)
         return Tracks(idx, self.x[idx, :d], self.x[idx, d:], self.P[idx], radii[idx])
+
+    def model(self) -> tuple:
+        """What the filter's arithmetic depends on besides its state (trackers with equal models can share a
+        TrackerBank)."""
+        return (self.n, self.dims, self.dt, self.drop_pos_var, self.drop_rule, self.nominal_radius,
+                self.bounds_lo.tobytes(), self.bounds_hi.tobytes(), self.A.tobytes(), self.Q.tobytes(),
+                self.R.tobytes(), self.P0.tobytes())
+
+
+class TrackIdError(ValueError):
+    """Detections of a TrackerBank step named ids a tracker does not have (raised before any state changed)."""
+
+
+class TrackerBank:
+    """The state of up to ``capacity`` KalmanTracks of one model in shared arrays, so that the trackers of lockstep
+    trials (pbdyn.sim.lockstep) step together: ``step`` does, for every tracker given, exactly what its own step()
+    does -- the same float operations on every track (element-wise, or per track's matrices) -- in one array
+    evaluation over all their tracks. An attached tracker keeps working on its own (its arrays are views into the
+    bank's)."""
+
+    def __init__(self, template: KalmanTracks, capacity: int):
+        self.key = template.model()
+        self.template = template
+        n, d2 = template.n, 2 * template.dims
+        self.x = np.zeros((capacity, n, d2))
+        self.P = np.zeros((capacity, n, d2, d2))
+        self.active = np.zeros((capacity, n), dtype=bool)
+        self.ever = np.zeros((capacity, n), dtype=bool)
+        self.restarted = np.zeros((capacity, n), dtype=bool)
+        self.rows = 0
+
+    def attach(self, tracker: KalmanTracks) -> int | None:
+        """Move ``tracker``'s state into a free row of the bank (its arrays become views of it); the row, or None
+        when the bank is full or the tracker's model differs."""
+        if self.rows >= self.x.shape[0] or tracker.model() != self.key:
+            return None
+        row = self.rows
+        self.rows += 1
+        for name in ("x", "P", "active", "ever", "restarted"):
+            bank = getattr(self, name)
+            bank[row] = getattr(tracker, name)
+            setattr(tracker, name, bank[row])
+        return row
+
+    def step(self, rows: list[int], trackers: list[KalmanTracks], ids_list: list, z_list: list) -> None:
+        """KalmanTracks.step(ids, z) of every tracker (attached at ``rows``) with its detections, together.
+        Invalid ids (out of range, repeated within a tracker) raise TrackIdError before any state changes."""
+        t = self.template
+        d = t.dims
+        rows_a = np.asarray(rows, dtype=np.intp)
+        counts = [int(np.asarray(i).size) for i in ids_list]
+        tt = np.repeat(rows_a, counts)
+        nn = np.concatenate([np.asarray(i, dtype=np.int64).reshape(-1) for i in ids_list]) if tt.size else \
+            np.zeros(0, np.int64)
+        zz = np.concatenate([np.asarray(z, dtype=float).reshape(-1, d) for z in z_list]) if tt.size else \
+            np.zeros((0, d))
+        if nn.size and (np.any((nn < 0) | (nn >= t.n)) or np.unique(tt * t.n + nn).size != nn.size):
+            raise TrackIdError("invalid track ids among the detections (step the trackers one by one to see whose)")
+        # predict (eq. 2-1, 2-2)
+        ti, ni = np.nonzero(self.active[rows_a])
+        ti = rows_a[ti]
+        if ti.size:
+            x = self.x[ti, ni]
+            x[:, :d] += t.dt * x[:, d:]
+            self.x[ti, ni] = x
+            self.P[ti, ni] = t.A @ self.P[ti, ni] @ t.A.T + t.Q
+        if t.drop_rule == "program":
+            if ti.size:
+                pos_var = np.diagonal(self.P[ti, ni, :d, :d], axis1=1, axis2=2).max(axis=1)
+                pos = self.x[ti, ni, :d]
+                inside = np.all((pos > t.bounds_lo + t.nominal_radius) & (pos < t.bounds_hi - t.nominal_radius),
+                                axis=1)
+                gone = (pos_var >= t.drop_pos_var) | ~inside
+                gt, gn = ti[gone], ni[gone]
+                self.active[gt, gn] = False
+                self.restarted[gt, gn] = True
+                if nn.size and gt.size:
+                    dropped = np.zeros(self.active.shape, dtype=bool)
+                    dropped[gt, gn] = True
+                    keep = ~dropped[tt, nn]
+                    tt, nn, zz = tt[keep], nn[keep], zz[keep]
+            self._update(tt, nn, zz)
+        else:
+            self._update(tt, nn, zz)
+            ti, ni = np.nonzero(self.active[rows_a])
+            ti = rows_a[ti]
+            if ti.size:
+                pos_var = np.diagonal(self.P[ti, ni, :d, :d], axis1=1, axis2=2).max(axis=1)
+                pos = self.x[ti, ni, :d]
+                outside = np.any((pos < t.bounds_lo) | (pos > t.bounds_hi), axis=1)
+                bad = (pos_var > t.drop_pos_var) | outside
+                self.active[ti[bad], ni[bad]] = False
+        n_active = np.count_nonzero(self.active[rows_a], axis=1).tolist()
+        for tr, m in zip(trackers, n_active):
+            tr.tracked_time_s += tr.dt * m
+
+    def _update(self, tt: np.ndarray, nn: np.ndarray, zz: np.ndarray) -> None:
+        """KalmanTracks.update for the detections (bank row tt, obstacle nn, centre zz) of all trackers."""
+        if nn.size == 0:
+            return
+        t = self.template
+        d = t.dims
+        seen = self.active[tt, nn]
+        nt, nw = tt[~seen], nn[~seen]
+        if nw.size:
+            self.x[nt, nw, :d] = zz[~seen]
+            self.x[nt, nw, d:] = 0.0
+            self.P[nt, nw] = t.P0
+            self.active[nt, nw] = True
+            self.ever[nt, nw] = True
+        ut, un = tt[seen], nn[seen]
+        if un.size == 0:
+            return
+        x = self.x[ut, un]
+        P = self.P[ut, un]
+        S = P[:, :d, :d] + t.R
+        K = np.linalg.solve(S, P[:, :d, :]).transpose(0, 2, 1)
+        x = x + np.einsum("mij,mj->mi", K, zz[seen] - x[:, :d])
+        IKH = np.broadcast_to(np.eye(2 * d), P.shape).copy()
+        IKH[:, :, :d] -= K
+        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ t.R @ K.transpose(0, 2, 1)
+        self.x[ut, un] = x
+        self.P[ut, un] = P

@@ -86,6 +86,33 @@ def swept_dynamic(mav_p0, mav_p1, obs_p0, obs_p1, radii, mav_radius: float) -> D
     return DynamicContact(True, float(frac[i]), i, min_clearance)
 
 
+def swept_dynamic_many(mav_p0, mav_p1, obs_p0, obs_p1, radii, mav_radius: float) -> list[DynamicContact]:
+    """swept_dynamic for T MAVs (mav_p0, mav_p1 [T, d]) against the same obstacles in the same step (lockstep
+    trials): the same float operations, evaluated for all MAVs x obstacles at once; the contact details of a MAV
+    that hits are taken from swept_dynamic itself."""
+    p0 = np.asarray(obs_p0, dtype=float)
+    m0 = np.asarray(mav_p0, dtype=float)
+    m1 = np.asarray(mav_p1, dtype=float)
+    if p0.shape[0] == 0:
+        return [_NO_DYNAMIC] * m0.shape[0]
+    p1 = np.asarray(obs_p1, dtype=float)
+    dp0 = m0[:, None, :] - p0                                       # [T, N, d]
+    w = (m1 - m0)[:, None, :] - (p1 - p0)
+    reach = np.asarray(radii, dtype=float) + float(mav_radius)
+    a = np.einsum("tij,tij->ti", w, w)
+    b = np.einsum("tij,tij->ti", dp0, w)
+    moving = a > 0.0
+    s_star = np.zeros_like(a)
+    np.divide(-b, a, out=s_star, where=moving)
+    np.clip(s_star, 0.0, 1.0, out=s_star)
+    closest = dp0 + s_star[:, :, None] * w
+    clearance = np.sqrt(np.einsum("tij,tij->ti", closest, closest)) - reach
+    lowest = clearance.min(axis=1).tolist()
+    hits = (clearance < 0.0).any(axis=1).tolist()
+    return [swept_dynamic(m0[i], m1[i], p0, p1, radii, mav_radius) if hit else DynamicContact(False, 1.0, -1, low)
+            for i, (hit, low) in enumerate(zip(hits, lowest))]
+
+
 SHAPE_STEP_M = 0.05
 """Largest relative displacement (m) between two real-shape samples of one step (shape_dynamic)."""
 

@@ -20,7 +20,8 @@ from pbdyn.perception.grid import OccupancyGrid
 from pbdyn.perception.perceive import Perception
 from pbdyn.perception.tracker import KalmanTracks
 from pbdyn.planning.view import MAVLimits, View
-from pbdyn.sim.collision import sampled_dynamic, sampled_static, shape_dynamic, swept_dynamic, swept_static
+from pbdyn.sim.collision import (DynamicContact, sampled_dynamic, sampled_static, shape_dynamic, swept_dynamic,
+                                 swept_dynamic_many, swept_static)
 from pbdyn.sim.outcome import Outcome
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.sim.start import trial_start
@@ -230,7 +231,7 @@ class TrialEnv:
                     self.goal_radius, self.limits, self.bounds[0], self.bounds[1], self.grid, self.tracks,
                     trajectory, self.fov_deg, sc.sensor.range, sc.sensor.vfov_deg)
 
-    def step(self, action: Action, *, sense: bool = True) -> None:
+    def step(self, action: Action, *, sense: bool = True, dynamic: DynamicContact | None = None) -> None:
         """Steps (6)-(7): move the MAV to the action's state at t_k+1 and turn it by the clipped yaw rate, then
         check static collision, dynamic collision, goal, time limit and deadlock, in that order; the first that
         holds ends the trial. If it goes on, sense at t_k+1 (unless ``sense=False``, as in reset)."""
@@ -241,7 +242,7 @@ class TrialEnv:
         rate = min(max(float(action.yaw_rate), -lim), lim)
         p1, v1, a1 = action.position, action.velocity, action.acceleration
         yaw1 = wrap_angle(self.yaw + rate * self.dt)
-        hit, clearance = self.check(self.k, self.position, p1)         # (7)
+        hit, clearance = self.check(self.k, self.position, p1, dynamic)  # (7)
         self.collision_wall_s = time.perf_counter() - c5
         self.min_clearance = min(self.min_clearance, clearance)
         dv = v1 - self.velocity
@@ -260,18 +261,30 @@ class TrialEnv:
         elif sense:
             self._sense()
 
+    def dynamic_batch_key(self):
+        """A key shared by the trials whose next move is checked against the same obstacles in the same step (the
+        same rollout, rollout step and MAV radius), so that their swept checks run together (check_dynamic_many);
+        None when this trial's check cannot be shared (sampled checks, an imported world's moving bodies)."""
+        if not self.swept or self.shape_bodies is not None:
+            return None
+        return (id(self.rollout), self.k0 + self.k, self.spec.scenario.drone.radius)
+
     def end(self, outcome: Outcome, reason: str | None = None) -> None:
         """End the trial now with ``outcome`` (reason: a specific explanation, default the outcome's own)."""
         self.outcome = outcome
         self.reason = outcome.reason if reason is None else reason
 
-    def check(self, k: int, p0: np.ndarray, p1: np.ndarray) -> tuple[Outcome | None, float]:
+    def check(self, k: int, p0: np.ndarray, p1: np.ndarray,
+              dynamic: DynamicContact | None = None) -> tuple[Outcome | None, float]:
         """Step (7) collision part for the move p0 (t_k) -> p1 (t_k+1) of trial step k: (static/dynamic outcome or
-        None, clearance m)."""
+        None, clearance m). ``dynamic``: the obstacles' contact of this move when already known (lockstep trials
+        check theirs together: dynamic_batch_key, swept_dynamic_many)."""
         r = self.spec.scenario.drone.radius
         k0, k1 = self.k0 + k, self.k0 + k + 1
         st = swept_static(self.world, p0, p1) if self.swept else sampled_static(self.world, p1)
-        if self.shape_bodies is not None:      # an imported world's moving bodies: their real shapes
+        if dynamic is not None:
+            dy = dynamic
+        elif self.shape_bodies is not None:      # an imported world's moving bodies: their real shapes
             b = self.rollout.bodies
             dy = shape_dynamic(b.field(), self.shape_bodies, b.position[k0, self.shape_bodies],
                                b.position[k1, self.shape_bodies], p0, p1, k1, r, self.world.to_world3, self.swept)
@@ -290,3 +303,12 @@ class TrialEnv:
         """Disconnect the PyBullet client (unless the world was lent by the caller)."""
         if self.owns_world:
             self.world.close()
+
+
+def check_dynamic_many(envs: list, targets: list) -> list[DynamicContact]:
+    """The swept obstacle contacts of the moves env.position -> target of trials with one dynamic_batch_key, all at
+    once (the same floats as each env's own check)."""
+    env = envs[0]
+    k0 = env.k0 + env.k
+    return swept_dynamic_many(np.array([e.position for e in envs]), np.array(targets), env.rollout.at(k0)[0],
+                              env.rollout.at(k0 + 1)[0], env.radii, env.spec.scenario.drone.radius)

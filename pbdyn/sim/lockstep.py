@@ -3,10 +3,12 @@
 Obstacles never react to the MAV, so every trial on a map sees the same obstacle poses at the same rollout step.
 A trial starts at the tick of its start step k0 (the start rule), so at tick T every running trial senses rollout
 step T (T + 1 with sensor.obstacles_at = "next"): the obstacles are posed once per tick and rollout (the thesis
-program's start-dependent layouts are rollouts of their own), and every running MAV's rays go to Bullet in one
-batch. Then, trial by trial, the agent decides and the environment steps exactly as in run_trial (planners keep
-their per-trial interface), so each row is bit-identical to run_trial's (tests/test_lockstep.py); only the wall
-times differ (the shared posing and ray batch are shared out equally among the trials they served).
+program's start-dependent layouts are rollouts of their own), every running MAV's rays go to Bullet in one batch,
+and the trials' Kalman trackers step together (pbdyn.perception.tracker.TrackerBank). Then every agent decides
+(planners keep their per-trial interface), the moves of all trials are checked against the obstacles in one
+evaluation per (rollout, step) (collision.swept_dynamic_many), and each environment steps as in run_trial. Every row
+is bit-identical to run_trial's (tests/test_lockstep.py, tests/test_lockstep_batching.py); only the wall times
+differ (shared work is shared out equally among the trials it served).
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pbdyn.perception.perceive import Detections
+from pbdyn.perception.tracker import TrackerBank, TrackIdError
 from pbdyn.sim.agent import Agent
-from pbdyn.sim.env import TrialEnv
+from pbdyn.sim.env import TrialEnv, check_dynamic_many
 from pbdyn.sim.observers import SPLITS
 from pbdyn.sim.outcome import Outcome
 from pbdyn.sim.result import TrialResult
@@ -65,19 +68,33 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
         trials.append(tr)
     waiting.sort(key=lambda t: (t.env.k0, t.index))
     running: list[_Trial] = []
+    banks = _Banks(len(trials))
     tick = waiting[0].env.k0 if waiting else 0
     while waiting or running:
         while waiting and waiting[0].env.k0 <= tick:
             tr = waiting.pop(0)
             tr.env.reset(sense=False)
+            banks.attach(tr)
             running.append(tr)
-        failed = _sense_all(running, world, out)
+        failed = _sense_all(running, world, out, banks)
         if failed:
             running = [tr for tr in running if tr not in failed]
-        still = []
-        for tr in running:
+        acting = []
+        for tr in running:                   # (4)-(6): every trial decides
             try:
-                done = _act_and_step(tr)
+                decision = _act(tr)
+            except Exception as exc:
+                out[tr.index] = exc
+                continue
+            if decision is None:
+                out[tr.index] = _finish(tr, rollout)
+            else:
+                acting.append((tr, decision))
+        contacts = _dynamic_contacts(acting)
+        still = []
+        for tr, decision in acting:          # (7): each trial steps, with its share of the batched obstacle check
+            try:
+                done = _step(tr, decision, contacts.get(tr.index))
             except Exception as exc:
                 out[tr.index] = exc
                 continue
@@ -93,6 +110,70 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
     return list(out.items)
 
 
+class _Banks:
+    """The TrackerBanks of a lockstep run, one per tracker model (trials of one scenario share one)."""
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self.banks: list[TrackerBank] = []
+        self.where: dict[int, tuple[TrackerBank, int]] = {}      # trial index -> (bank, row)
+
+    def attach(self, tr: _Trial) -> None:
+        tracker = tr.env.tracker
+        for bank in self.banks:
+            row = bank.attach(tracker)
+            if row is not None:
+                self.where[tr.index] = (bank, row)
+                return
+        bank = TrackerBank(tracker, self.capacity)
+        self.banks.append(bank)
+        self.where[tr.index] = (bank, bank.attach(tracker))
+
+    def step(self, members: list[_Trial]) -> dict:
+        """Step (3) of the trials in ``members`` (detections set): their trackers step together per bank, then
+        each trial's tracks are read. Returns per trial index its tracking time (s: its share of the bank's step
+        plus its own read-out) or the exception that ended it."""
+        out: dict = {}
+        groups: dict = {}
+        for tr in members:
+            bank, row = self.where[tr.index]
+            groups.setdefault(id(bank), (bank, []))[1].append((row, tr))
+        for bank, rows in groups.values():
+            t0 = time.perf_counter()
+            try:
+                bank.step([r for r, _ in rows], [tr.env.tracker for _, tr in rows],
+                          [tr.env.detections.ids for _, tr in rows], [tr.env.detections.centers for _, tr in rows])
+            except TrackIdError:                 # nothing stepped: each trial on its own (the culprits fail so)
+                for _, tr in rows:
+                    out[tr.index] = _track_one(tr)
+                continue
+            except Exception as exc:             # (a filter that cannot be stepped ends every trial it holds)
+                for _, tr in rows:
+                    out[tr.index] = exc
+                continue
+            share = (time.perf_counter() - t0) / len(rows)
+            for _, tr in rows:
+                t1 = time.perf_counter()
+                try:
+                    env = tr.env
+                    env.tracks = env.tracker.tracks(env.radii)
+                except Exception as exc:
+                    out[tr.index] = exc
+                    continue
+                out[tr.index] = share + time.perf_counter() - t1
+        return out
+
+
+def _track_one(tr: _Trial):
+    """Step (3) of one trial on its own: its tracking time (s) or the exception that ended it."""
+    t0 = time.perf_counter()
+    try:
+        tr.env.track()
+    except Exception as exc:
+        return exc
+    return time.perf_counter() - t0
+
+
 class _Results:
     """The per-trial results of a lockstep run; setting one also reports it to ``on_result``."""
 
@@ -106,10 +187,12 @@ class _Results:
             self.on_result(i, value)
 
 
-def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list) -> list[_Trial]:
+def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _Banks) -> list[_Trial]:
     """Steps (1)-(3) for every running trial: obstacles posed once per (rollout, step), the rays of all scans
-    cast in one batch, then each trial's detections and tracks. Returns the trials that raised (recorded in out)."""
+    cast in one batch, then each trial's detections, and the tracks of all (their trackers step together, see
+    _Banks). Returns the trials that raised (recorded in out)."""
     failed: dict[int, _Trial] = {}
+    by_index = {tr.index: tr for tr in running}
     groups: dict = {}
     for tr in running:
         groups.setdefault((id(tr.env.rollout), tr.env.sense_index()), []).append(tr)
@@ -142,29 +225,55 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list) -> list[_
                 out[tr.index] = failed[tr.index] = exc
                 continue
             rays[tr.index] = share + time.perf_counter() - t0
-        for tr in members:
-            if tr.index in failed:
+        tracked = banks.step([tr for tr in members if tr.index not in failed])
+        for index, got in tracked.items():
+            tr = by_index[index]
+            if isinstance(got, Exception):
+                out[index] = failed[index] = got
                 continue
-            t0 = time.perf_counter()
-            try:
-                tr.env.track()
-            except Exception as exc:
-                out[tr.index] = failed[tr.index] = exc
-                continue
-            tr.env.sense_timings = (pose_share, rays[tr.index], time.perf_counter() - t0)
+            tr.env.sense_timings = (pose_share, rays[index], got)
     return [tr for tr in running if tr.index in failed]
 
 
-def _act_and_step(tr: _Trial) -> bool:
-    """Steps (4)-(7) of one trial, as run_trial's loop body; True once the trial has ended."""
+def _act(tr: _Trial):
+    """Steps (4)-(6) of one trial (as run_trial's loop body): its Decision, or None when the plan broke the plan
+    contract and the trial has ended (INVALID_PLAN)."""
     env, agent = tr.env, tr.agent
-    sensed = env.sense_timings
     decision = agent.act(env.view(agent.trajectory))
     if decision.violation is not None:
         env.end(Outcome.INVALID_PLAN, decision.violation.reason)
-        return True
-    env.step(decision.action, sense=False)
-    splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, env.collision_wall_s)
+        return None
+    return decision
+
+
+def _dynamic_contacts(acting: list) -> dict:
+    """Per trial index: (its swept obstacle contact of this step, its share of the check's time in s), for the
+    trials whose checks can be batched (TrialEnv.dynamic_batch_key); each group is checked in one evaluation."""
+    groups: dict = {}
+    for tr, decision in acting:
+        key = tr.env.dynamic_batch_key()
+        if key is not None:
+            groups.setdefault(key, []).append((tr, decision))
+    out: dict = {}
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        c0 = time.perf_counter()
+        found = check_dynamic_many([tr.env for tr, _ in members], [d.action.position for _, d in members])
+        share = (time.perf_counter() - c0) / len(members)
+        for (tr, _), contact in zip(members, found):
+            out[tr.index] = (contact, share)
+    return out
+
+
+def _step(tr: _Trial, decision, contact) -> bool:
+    """Step (7) of one trial (as run_trial's loop body), given its batched obstacle contact (or None: its own
+    check); True once the trial has ended."""
+    env = tr.env
+    sensed = env.sense_timings
+    dynamic, share = contact if contact is not None else (None, 0.0)
+    env.step(decision.action, sense=False, dynamic=dynamic)
+    splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, env.collision_wall_s + share)
     for name, value in zip(SPLITS, splits):
         tr.timings[name] += value
     tr.step_walls.append(sum(splits))
