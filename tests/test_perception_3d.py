@@ -267,3 +267,39 @@ def test_grid_cell_level_marking():
     flat = g.cells.reshape(-1)
     assert flat[[1, 9]].tolist() == [FREE, FREE] and flat[[3, 7]].tolist() == [OCCUPIED, OCCUPIED]
     assert g.discovered() == 4
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_fans_culled_together_cast_as_every_ray(dims):
+    """Lockstep trials cull their fans together (fan_rays_many): every fan's hits equal casting all its rays, walls,
+    static boxes and grazed obstacles included, and the kept rays equal fan_candidates' one fan at a time."""
+    rng = np.random.default_rng(10 + dims)
+    size = np.array([24.0, 16.0] if dims == 2 else [24.0, 16.0, 10.0])
+    statics = [StaticBody("pillar", (6.0, 8.0), radius=0.7),
+               StaticBody("box", (16.0, 5.0, 5.0)[:dims], size=(2.0, 1.0, 3.0)[:dims], yaw=0.5),
+               StaticBody("box", (12.0, 14.5, 5.0)[:dims], size=(8.0, 0.3, 3.0)[:dims])]
+    same = total = 0
+    with PyBulletWorld(dims=dims, arena_size=size, mav_radius=0.3, obstacle_radii=np.ones(12),
+                       static_bodies=statics) as w:
+        for scene in range(12):
+            yaws = rng.uniform(-math.pi, math.pi, 6)
+            fans = [ray_directions(y, 90.0, 1.0 if dims == 2 else 3.0, dims, 60.0, 3.0) for y in yaws]
+            o0, centres = _grazing_scene(rng, dims, size, fans[0], 12)
+            origins = np.array([o0] + [rng.uniform(-0.5, size + 0.5) for _ in range(5)])
+            origins[1] = [9.0, 15.1, 5.0][:dims]                     # beside the slab
+            w.set_obstacle_positions(centres)
+            made = w.fan_rays_many(origins, np.array([f.T for f in fans]), 8.0)
+            for (ids, frac), o, fan, rays in zip(w.cast_fans(made), origins, fans, made):
+                starts = np.tile(w.to_world3(o), (fan.shape[0], 1))
+                ends = starts.copy()
+                ends[:, :dims] += 8.0 * fan
+                ref_ids, ref_frac, _ = w.ray_test(starts, ends)
+                assert np.array_equal(ids, ref_ids) and np.array_equal(frac, ref_frac)
+                single = w.fan_rays(o, fan, 8.0)
+                kept = np.arange(fan.shape[0]) if rays.selected is None else rays.selected
+                one = np.arange(fan.shape[0]) if single.selected is None else single.selected
+                same += int(np.array_equal(kept, one))
+                total += 1
+                assert np.array_equal(rays.starts, single.starts) or not np.array_equal(kept, one)
+                assert np.array_equal(rays.ends, single.ends) or not np.array_equal(kept, one)
+    assert same == total

@@ -255,11 +255,21 @@ class Perception:
         """The first half of sense(): the scan's rays (a PendingScan, to cast with world.cast_fans, possibly with
         other MAVs' fans in one call, then complete()), or the finished Detections (model "marching", which casts
         no Bullet rays)."""
+        frame = self.begin_frame(position, yaw)
+        if isinstance(frame, Detections):
+            return frame
+        o, dirs_t = frame
+        return PendingScan(o, dirs_t, self.world.fan_rays(o, dirs_t.T, self.range_m))
+
+    def begin_frame(self, position, yaw: float):
+        """begin() up to the rays: the sensor origin [d] and the ray directions [d, R], to make a PendingScan of
+        with world.fan_rays (or world.fan_rays_many, several MAVs' fans culled together); or the finished
+        Detections (model "marching")."""
         o = np.asarray(position, dtype=float).reshape(self.dims)
         dirs_t = self._rotated(yaw)                                       # [d, R]
         if self.model == "marching":
             return self._sense_marching(o, dirs_t)
-        return PendingScan(o, dirs_t, self.world.fan_rays(o, dirs_t.T, self.range_m))
+        return o, dirs_t
 
     def complete(self, scan: "PendingScan", hits: np.ndarray, frac: np.ndarray) -> Detections:
         """The second half of sense(): the detections of ``scan`` from its fan's per-ray results (body ids [R],

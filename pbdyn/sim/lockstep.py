@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pbdyn.perception.perceive import Detections
+from pbdyn.perception.perceive import Detections, PendingScan
 from pbdyn.perception.tracker import TrackerBank, TrackIdError
 from pbdyn.sim.agent import Agent
 from pbdyn.sim.env import TrialEnv, check_dynamic_many
@@ -202,18 +202,35 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _B
         pose_share = (time.perf_counter() - c0) / len(members)
         pending = []
         rays = dict.fromkeys((tr.index for tr in members), 0.0)
+        fans: dict = {}
         for tr in members:
             env = tr.env
             try:
                 env.world.set_mav_pose(env.position, env.yaw)
-                scan = env.perception.begin(env.position, env.yaw)
+                frame = env.perception.begin_frame(env.position, env.yaw)
             except Exception as exc:
                 out[tr.index] = failed[tr.index] = exc
                 continue
-            if isinstance(scan, Detections):
-                env.detections = scan
+            if isinstance(frame, Detections):
+                env.detections = frame
             else:
-                pending.append((tr, scan))
+                fans.setdefault((env.perception.range_m, frame[1].shape), []).append((tr, frame))
+        for (range_m, _), group in fans.items():     # the fans of one shape culled together
+            try:
+                made = world.fan_rays_many(np.array([o for _, (o, _) in group]),
+                                           np.array([d for _, (_, d) in group]), range_m)
+            except Exception:                         # each trial on its own, to end only the ones that fail
+                made = []
+                for tr, (o, dirs_t) in group:
+                    try:
+                        made.append(world.fan_rays(o, dirs_t.T, range_m))
+                    except Exception as exc:
+                        out[tr.index] = failed[tr.index] = exc
+                        made.append(None)
+            pending += [(tr, PendingScan(o, dirs_t, fan)) for (tr, (o, dirs_t)), fan in zip(group, made)
+                        if fan is not None]
+        order = {tr.index: k for k, tr in enumerate(members)}
+        pending.sort(key=lambda item: order[item[0].index])
         c1 = time.perf_counter()
         hits = world.cast_fans([scan.fan for _, scan in pending])
         share = (time.perf_counter() - c1) / max(len(pending), 1)

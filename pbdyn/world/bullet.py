@@ -396,6 +396,9 @@ class PyBulletWorld:
         self._cull_bound2 = bound * bound
         self._cull_reach = (math.nan, bound)         # (range_m, (range_m + bound)^2) of the last fan
         self._cull_inner = (np.full(self.dims, CULL_PAD), self.arena_size - CULL_PAD)
+        # nearest_static's broad phase before Bullet's: the AABBs of every static body and wall (fixed bodies)
+        solid = [self._body_aabb(int(b)) for b in (*self.static_ids.tolist(), *self.wall_ids.tolist())]
+        self._solid_boxes = [(tuple(a.tolist()), tuple(b.tolist())) for a, b in solid]
 
     def _body_aabb(self, body: int) -> tuple[np.ndarray, np.ndarray]:
         """World AABB (lo [3], hi [3]) of every link of ``body`` (Bullet's broadphase boxes, margins included)."""
@@ -535,6 +538,70 @@ class PyBulletWorld:
             keep = hit if keep is None else keep | hit
         return np.zeros(dirs_t.shape[1], dtype=bool) if keep is None else keep
 
+    def fan_candidates_many(self, origins: np.ndarray, dirs_t: np.ndarray, range_m: float) -> np.ndarray:
+        """fan_candidates for T fans at once: origins [T, d], unit directions [T, d, R] (every fan R rays); bool
+        [T, R]. The same bounds and tests, evaluated for all fans together; it too returns False only for rays
+        that provably meet nothing (a ray within rounding of a bound may be kept by one and not the other, and
+        Bullet reports no hit for it either way: the bounds are CULL_PAD beyond every body)."""
+        o = np.asarray(origins, dtype=float)
+        dirs_t = np.asarray(dirs_t, dtype=float)
+        n_fans, n_rays = o.shape[0], dirs_t.shape[2]
+        reach = float(range_m)
+        if self._cull_reach[0] != reach:
+            self._cull_reach = (reach, (reach + self._cull_bound) ** 2)
+        inner_lo, inner_hi = self._cull_inner
+        keep = np.zeros((n_fans, n_rays), dtype=bool)
+        walls = np.any(o - reach <= inner_lo, axis=1) | np.any(o + reach >= inner_hi, axis=1)      # (3)
+        if walls.any():
+            end = o[walls][:, :, None] + reach * dirs_t[walls]                                     # [W, d, R]
+            keep[walls] = ((end <= inner_lo[:, None]) | (end >= inner_hi[:, None])).any(axis=1)
+        n_dyn = self.obstacle_ids.shape[0]
+        cen = self._cull_centres
+        cen[:n_dyn] = self.obstacle_positions
+        if cen.shape[0]:
+            rel = cen[None] - o[:, None, :]                                                       # [T, M, d]
+            dist2 = np.einsum("tmd,tmd->tm", rel, rel)
+            near = dist2 <= self._cull_reach[1]
+            if near.any():
+                gap = dist2 - self._cull_bound2
+                along_min = np.where(gap > 0.0, np.sqrt(np.maximum(gap, 0.0)), -np.inf)
+                along_min[~near] = np.inf                                                          # never kept
+                ok = np.einsum("tmd,tdr->tmr", rel, dirs_t) >= along_min[:, :, None]               # (1)
+                if cen.shape[0] > n_dyn:                                                           # (2)
+                    end = o[:, :, None] + reach * dirs_t
+                    seg_lo, seg_hi = np.minimum(end, o[:, :, None]), np.maximum(end, o[:, :, None])
+                    lo, hi = self._cull_lo[None, :, :, None], self._cull_hi[None, :, :, None]
+                    ok[:, n_dyn:] &= ((seg_lo[:, None] <= hi) & (seg_hi[:, None] >= lo)).all(axis=2)
+                keep |= ok.any(axis=1)
+        outside = np.any(o <= inner_lo, axis=1) | np.any(o >= inner_hi, axis=1)
+        keep[outside] = True
+        return keep
+
+    def fan_rays_many(self, origins: np.ndarray, dirs_t: np.ndarray, range_m: float) -> list["FanRays"]:
+        """fan_rays (culled) for T fans at once: origins [T, d], unit directions [T, d, R]; the FanRays per fan, with
+        the same start and end points as fan_rays computes (culling may differ only as fan_candidates_many says)."""
+        o = np.asarray(origins, dtype=float)
+        n_rays = dirs_t.shape[2]
+        if self._num_bodies() != self._known_bodies:
+            return [self.fan_rays(o[i], dirs_t[i].T, range_m, cull=False) for i in range(o.shape[0])]
+        keep = self.fan_candidates_many(o, dirs_t, range_m)
+        o3 = self.to_world3(o)
+        reach = float(range_m)
+        out = []
+        for i, row in enumerate(keep):
+            sel = np.flatnonzero(row)
+            k = sel.shape[0]
+            starts = np.empty((k, 3))
+            starts[:] = o3[i]
+            ends = starts.copy()
+            if k == n_rays:
+                sel = None
+                ends[:, : self.dims] += reach * dirs_t[i].T
+            elif k:
+                ends[:, : self.dims] += reach * dirs_t[i].T[sel]
+            out.append(FanRays(n_rays, sel, starts, ends))
+        return out
+
     def cast_fan(self, origin, directions, range_m: float, *, cull: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays from ``origin`` [d] along unit ``directions`` [R, d] to range_m (m): (body_ids [R], fractions [R]).
 
@@ -622,7 +689,14 @@ class PyBulletWorld:
         p3 = self.to_world3(p)
         md = float(max_dist)
         reach = self.mav_radius + max(md, 0.0) + 1e-6
-        found = self._overlapping((p3 - reach).tolist(), (p3 + reach).tolist())
+        q_lo, q_hi = (p3 - reach).tolist(), (p3 + reach).tolist()
+        # A body nearer than max_dist to the probe lies in the query box: with no static AABB meeting it, nothing
+        # can be (the answer Bullet would give, without asking it), unless bodies were added behind this world.
+        if not any(lo[0] <= q_hi[0] and hi[0] >= q_lo[0] and lo[1] <= q_hi[1] and hi[1] >= q_lo[1]
+                   and lo[2] <= q_hi[2] and hi[2] >= q_lo[2] for lo, hi in self._solid_boxes) \
+                and self._num_bodies() == self._known_bodies:
+            return md, -1
+        found = self._overlapping(q_lo, q_hi)
         best, best_id = md, -1
         if not found:
             return best, best_id
