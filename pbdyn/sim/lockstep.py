@@ -203,10 +203,14 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _B
         pending = []
         rays = dict.fromkeys((tr.index for tr in members), 0.0)
         fans: dict = {}
+        # Nothing reads the MAV body's pose while the scans are made (Bullet's rays exclude it; cast_rays parks it
+        # and puts it back): it is placed once per group, at the last member's pose, as trial by trial would leave it.
+        last = members[-1].env
         for tr in members:
             env = tr.env
             try:
-                env.world.set_mav_pose(env.position, env.yaw)
+                if env is last:
+                    env.world.set_mav_pose(env.position, env.yaw)
                 frame = env.perception.begin_frame(env.position, env.yaw)
             except Exception as exc:
                 out[tr.index] = failed[tr.index] = exc
