@@ -512,15 +512,17 @@ def test_local_primitives_chunked_plan_equals_one_by_one_bit_for_bit(dims):
 
 
 def test_local_primitives_proof_of_no_candidate():
-    """An obstacle predicted on top of the MAV's next position: no primitive can be clear, proven without building
-    one; the same obstacle 2 m further away proves nothing (and a candidate is found)."""
+    """An obstacle predicted on top of the MAV's next position: no primitive can be clear, proven once the best
+    candidate has failed, without building another; the same obstacle 2 m further away proves nothing (and a
+    candidate is found)."""
     ctx = _context()
     planner = LocalPrimitives(ctx)
     v = np.array([3.0, 0.0])
     near = make_tracks(np.array([[26.0, 25.0]]), np.zeros((1, 2)), 1.0)
     view = _view(ctx, [25.0, 25.0], [45.0, 25.0], v, tracks=near)
     assert planner.none_can_be_clear(view)
-    assert planner.plan(view) is None and planner.last_candidates_built == 0
+    assert planner.plan(view) is None and planner.last_candidates_tried == 1
+    assert planner.last_candidates_built <= 1 + 3                         # the best one (and its rebuilds) only
     assert planner.plan_one_by_one(view) is None and planner.last_candidates_built > 0
     far = make_tracks(np.array([[25.0, 30.0]]), np.zeros((1, 2)), 1.0)
     view = _view(ctx, [25.0, 25.0], [45.0, 25.0], v, tracks=far)

@@ -168,12 +168,12 @@ class LocalPrimitives:
         unbuilt (the primitive ends inside the blocked region: stricter than the sampled check only when the end
         time falls between samples), and the others are built in rank-ordered chunks (CHUNKS) whose clearance is
         checked in one array evaluation (checks.first_clear_candidate): the same choice as trying them one by one
-        (plan_one_by_one, the reference), at a fraction of the cost when many candidates fail. Before any of
-        that, none_can_be_clear may prove that no candidate can pass, and the plan fails without building one.
+        (plan_one_by_one, the reference), at a fraction of the cost when many candidates fail. Before that, once
+        the best candidate has failed, none_can_be_clear may prove that no candidate can pass, and the plan fails
+        without building another (tried first, the proof cost more over the steps whose best candidate passes
+        than it saved on the others).
         """
         self._reset_diagnostics()
-        if self.none_can_be_clear(view):
-            return None
         p0 = view.position
         g = view.goal - p0
         g_dist = math.sqrt(float(g @ g))
@@ -191,7 +191,7 @@ class LocalPrimitives:
         i = order[0]
         self.last_candidates_tried += 1
         found = self._try_one(view, targets[i], end_vel[i], self._bases[i], offset)
-        if found is not None or self.n_candidates == 1:
+        if found is not None or self.n_candidates == 1 or self.none_can_be_clear(view):
             return found
         static_ok = static_clear(view, targets, self.margin)
         rest = np.flatnonzero(static_ok[order[1:]]) + 1        # ranks still worth building, ascending
