@@ -3,8 +3,9 @@
 Obstacles never react to the MAV, so every trial on a map sees the same obstacle poses at the same rollout step.
 A trial starts at the tick of its start step k0 (the start rule), so at tick T every running trial senses rollout
 step T (T + 1 with sensor.obstacles_at = "next"): the obstacles are posed once per tick and rollout (the thesis
-program's start-dependent layouts are rollouts of their own), every running MAV's rays go to Bullet in one batch,
-and the trials' Kalman trackers step together (pbdyn.perception.tracker.TrackerBank). Then every agent decides
+program's start-dependent layouts are rollouts of their own), the running MAVs' ray fans are culled together
+(PyBulletWorld.fan_rays_many) and their rays go to Bullet in one batch, and the trials' Kalman trackers step
+together (pbdyn.perception.tracker.TrackerBank). Then every agent decides
 (planners keep their per-trial interface), the moves of all trials are checked against the obstacles in one
 evaluation per (rollout, step) (collision.swept_dynamic_many), and each environment steps as in run_trial. Every row
 is bit-identical to run_trial's (tests/test_lockstep.py, tests/test_lockstep_batching.py); only the wall times
