@@ -83,13 +83,8 @@ class KalmanTracks:
     def predict(self) -> None:
         """Predict every active track one step ahead (eq. 2-1, 2-2; no control input)."""
         idx = np.flatnonzero(self.active)
-        if idx.size == 0:
-            return
-        d = self.dims
-        x = self.x[idx]
-        x[:, :d] += self.dt * x[:, d:]
-        self.x[idx] = x
-        self.P[idx] = self.A @ self.P[idx] @ self.A.T + self.Q
+        if idx.size:
+            self._predict_at(self.x, self.P, (idx,))
 
     def update(self, ids, z) -> None:
         """Update seen active tracks with measured centres z [m, d] (m) of obstacles ``ids`` [m, unique] (eq. 2-3..2-5).
@@ -102,28 +97,7 @@ class KalmanTracks:
         if ids.size == 0:
             return
         self._check_ids(ids)
-        d = self.dims
-        seen = self.active[ids]
-        new = ids[~seen]
-        if new.size:
-            self.x[new, :d] = z[~seen]
-            self.x[new, d:] = 0.0
-            self.P[new] = self.P0
-            self.active[new] = True
-            self.ever[new] = True
-        upd = ids[seen]
-        if upd.size == 0:
-            return
-        x = self.x[upd]
-        P = self.P[upd]
-        S = P[:, :d, :d] + self.R                                  # H P H^T + R
-        K = np.linalg.solve(S, P[:, :d, :]).transpose(0, 2, 1)     # P H^T S^-1 (S, P symmetric)   [m, 2d, d]
-        x = x + np.einsum("mij,mj->mi", K, z[seen] - x[:, :d])
-        IKH = np.broadcast_to(np.eye(2 * d), P.shape).copy()
-        IKH[:, :, :d] -= K
-        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ self.R @ K.transpose(0, 2, 1)
-        self.x[upd] = x
-        self.P[upd] = P
+        self._update_at(self.x, self.P, self.active, self.ever, (ids,), z)
 
     def _check_ids(self, ids: np.ndarray) -> None:
         if np.any((ids < 0) | (ids >= self.n)):
@@ -134,13 +108,8 @@ class KalmanTracks:
     def drop(self) -> None:
         """Deactivate tracks whose largest position variance exceeds drop_pos_var or whose mean left the arena."""
         idx = np.flatnonzero(self.active)
-        if idx.size == 0:
-            return
-        d = self.dims
-        pos_var = np.diagonal(self.P[idx, :d, :d], axis1=1, axis2=2).max(axis=1)
-        pos = self.x[idx, :d]
-        outside = np.any((pos < self.bounds_lo) | (pos > self.bounds_hi), axis=1)
-        self.active[idx[(pos_var > self.drop_pos_var) | outside]] = False
+        if idx.size:
+            self.active[idx[self._gone_at(self.x, self.P, (idx,), predicted=False)]] = False
 
     def drop_predicted(self) -> np.ndarray:
         """"program" rule: deactivate the tracks whose predicted position variance reaches drop_pos_var or whose
@@ -148,15 +117,56 @@ class KalmanTracks:
         idx = np.flatnonzero(self.active)
         if idx.size == 0:
             return idx
-        d = self.dims
-        pos_var = np.diagonal(self.P[idx, :d, :d], axis1=1, axis2=2).max(axis=1)
-        pos = self.x[idx, :d]
-        inside = np.all((pos > self.bounds_lo + self.nominal_radius) & (pos < self.bounds_hi - self.nominal_radius),
-                        axis=1)
-        gone = idx[(pos_var >= self.drop_pos_var) | ~inside]
+        gone = idx[self._gone_at(self.x, self.P, (idx,), predicted=True)]
         self.active[gone] = False
         self.restarted[gone] = True
         return gone
+
+    # The filter's arithmetic on the tracks ``sel`` (a tuple of index arrays) of state arrays x [..., 2d] and
+    # P [..., 2d, 2d]: this tracker's own (sel = (ids,)) or a TrackerBank's (sel = (rows, ids)).
+    def _predict_at(self, x: np.ndarray, P: np.ndarray, sel: tuple) -> None:
+        d = self.dims
+        xs = x[sel]
+        xs[:, :d] += self.dt * xs[:, d:]
+        x[sel] = xs
+        P[sel] = self.A @ P[sel] @ self.A.T + self.Q
+
+    def _update_at(self, x: np.ndarray, P: np.ndarray, active: np.ndarray, ever: np.ndarray, sel: tuple,
+                   z: np.ndarray) -> None:
+        d = self.dims
+        seen = active[sel]
+        new = tuple(a[~seen] for a in sel)
+        if new[0].size:
+            x[new + (slice(None, d),)] = z[~seen]
+            x[new + (slice(d, None),)] = 0.0
+            P[new] = self.P0
+            active[new] = True
+            ever[new] = True
+        upd = tuple(a[seen] for a in sel)
+        if upd[0].size == 0:
+            return
+        xs = x[upd]
+        Ps = P[upd]
+        S = Ps[:, :d, :d] + self.R                                  # H P H^T + R
+        K = np.linalg.solve(S, Ps[:, :d, :]).transpose(0, 2, 1)     # P H^T S^-1 (S, P symmetric)   [m, 2d, d]
+        xs = xs + np.einsum("mij,mj->mi", K, z[seen] - xs[:, :d])
+        IKH = np.broadcast_to(np.eye(2 * d), Ps.shape).copy()
+        IKH[:, :, :d] -= K
+        Ps = IKH @ Ps @ IKH.transpose(0, 2, 1) + K @ self.R @ K.transpose(0, 2, 1)
+        x[upd] = xs
+        P[upd] = Ps
+
+    def _gone_at(self, x: np.ndarray, P: np.ndarray, sel: tuple, *, predicted: bool) -> np.ndarray:
+        """Per selected track: True if it is dropped (drop(), or drop_predicted() when ``predicted``)."""
+        d = self.dims
+        pos_var = np.diagonal(P[sel + (slice(None, d), slice(None, d))], axis1=1, axis2=2).max(axis=1)
+        pos = x[sel + (slice(None, d),)]
+        if predicted:
+            inside = np.all((pos > self.bounds_lo + self.nominal_radius)
+                            & (pos < self.bounds_hi - self.nominal_radius), axis=1)
+            return (pos_var >= self.drop_pos_var) | ~inside
+        outside = np.any((pos < self.bounds_lo) | (pos > self.bounds_hi), axis=1)
+        return (pos_var > self.drop_pos_var) | outside
 
     def step(self, ids, z) -> None:
         """One world step (DESIGN.md step 3): predict, update with detections (ids [m], z [m, d]), drop ("program"
@@ -246,68 +256,31 @@ class TrackerBank:
             np.zeros((0, d))
         if nn.size and (np.any((nn < 0) | (nn >= t.n)) or np.unique(tt * t.n + nn).size != nn.size):
             raise TrackIdError("invalid track ids among the detections (step the trackers one by one to see whose)")
-        # predict (eq. 2-1, 2-2)
         ti, ni = np.nonzero(self.active[rows_a])
         ti = rows_a[ti]
-        if ti.size:
-            x = self.x[ti, ni]
-            x[:, :d] += t.dt * x[:, d:]
-            self.x[ti, ni] = x
-            self.P[ti, ni] = t.A @ self.P[ti, ni] @ t.A.T + t.Q
+        if ti.size:                                                             # predict (eq. 2-1, 2-2)
+            t._predict_at(self.x, self.P, (ti, ni))
         if t.drop_rule == "program":
             if ti.size:
-                pos_var = np.diagonal(self.P[ti, ni, :d, :d], axis1=1, axis2=2).max(axis=1)
-                pos = self.x[ti, ni, :d]
-                inside = np.all((pos > t.bounds_lo + t.nominal_radius) & (pos < t.bounds_hi - t.nominal_radius),
-                                axis=1)
-                gone = (pos_var >= t.drop_pos_var) | ~inside
+                gone = t._gone_at(self.x, self.P, (ti, ni), predicted=True)
                 gt, gn = ti[gone], ni[gone]
                 self.active[gt, gn] = False
                 self.restarted[gt, gn] = True
-                if nn.size and gt.size:
+                if nn.size and gt.size:                 # that step's detections of dropped tracks are discarded
                     dropped = np.zeros(self.active.shape, dtype=bool)
                     dropped[gt, gn] = True
                     keep = ~dropped[tt, nn]
                     tt, nn, zz = tt[keep], nn[keep], zz[keep]
-            self._update(tt, nn, zz)
+            if nn.size:
+                t._update_at(self.x, self.P, self.active, self.ever, (tt, nn), zz)
         else:
-            self._update(tt, nn, zz)
+            if nn.size:
+                t._update_at(self.x, self.P, self.active, self.ever, (tt, nn), zz)
             ti, ni = np.nonzero(self.active[rows_a])
             ti = rows_a[ti]
             if ti.size:
-                pos_var = np.diagonal(self.P[ti, ni, :d, :d], axis1=1, axis2=2).max(axis=1)
-                pos = self.x[ti, ni, :d]
-                outside = np.any((pos < t.bounds_lo) | (pos > t.bounds_hi), axis=1)
-                bad = (pos_var > t.drop_pos_var) | outside
+                bad = t._gone_at(self.x, self.P, (ti, ni), predicted=False)
                 self.active[ti[bad], ni[bad]] = False
         n_active = np.count_nonzero(self.active[rows_a], axis=1).tolist()
         for tr, m in zip(trackers, n_active):
             tr.tracked_time_s += tr.dt * m
-
-    def _update(self, tt: np.ndarray, nn: np.ndarray, zz: np.ndarray) -> None:
-        """KalmanTracks.update for the detections (bank row tt, obstacle nn, centre zz) of all trackers."""
-        if nn.size == 0:
-            return
-        t = self.template
-        d = t.dims
-        seen = self.active[tt, nn]
-        nt, nw = tt[~seen], nn[~seen]
-        if nw.size:
-            self.x[nt, nw, :d] = zz[~seen]
-            self.x[nt, nw, d:] = 0.0
-            self.P[nt, nw] = t.P0
-            self.active[nt, nw] = True
-            self.ever[nt, nw] = True
-        ut, un = tt[seen], nn[seen]
-        if un.size == 0:
-            return
-        x = self.x[ut, un]
-        P = self.P[ut, un]
-        S = P[:, :d, :d] + t.R
-        K = np.linalg.solve(S, P[:, :d, :]).transpose(0, 2, 1)
-        x = x + np.einsum("mij,mj->mi", K, zz[seen] - x[:, :d])
-        IKH = np.broadcast_to(np.eye(2 * d), P.shape).copy()
-        IKH[:, :, :d] -= K
-        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ t.R @ K.transpose(0, 2, 1)
-        self.x[ut, un] = x
-        self.P[ut, un] = P

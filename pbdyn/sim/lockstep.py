@@ -201,7 +201,7 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _B
         c0 = time.perf_counter()
         members[0].env.pose_obstacles()
         pose_share = (time.perf_counter() - c0) / len(members)
-        pending = []
+        scans: dict = {}
         rays = dict.fromkeys((tr.index for tr in members), 0.0)
         fans: dict = {}
         # Nothing reads the MAV body's pose while the scans are made (Bullet's rays exclude it; cast_rays parks it
@@ -232,10 +232,9 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _B
                     except Exception as exc:
                         out[tr.index] = failed[tr.index] = exc
                         made.append(None)
-            pending += [(tr, PendingScan(o, dirs_t, fan)) for (tr, (o, dirs_t)), fan in zip(group, made)
-                        if fan is not None]
-        order = {tr.index: k for k, tr in enumerate(members)}
-        pending.sort(key=lambda item: order[item[0].index])
+            scans.update({tr.index: PendingScan(o, dirs_t, fan) for (tr, (o, dirs_t)), fan in zip(group, made)
+                          if fan is not None})
+        pending = [(tr, scans[tr.index]) for tr in members if tr.index in scans]
         c1 = time.perf_counter()
         hits = world.cast_fans([scan.fan for _, scan in pending])
         share = (time.perf_counter() - c1) / max(len(pending), 1)

@@ -586,20 +586,10 @@ class PyBulletWorld:
             return [self.fan_rays(o[i], dirs_t[i].T, range_m, cull=False) for i in range(o.shape[0])]
         keep = self.fan_candidates_many(o, dirs_t, range_m)
         o3 = self.to_world3(o)
-        reach = float(range_m)
         out = []
         for i, row in enumerate(keep):
             sel = np.flatnonzero(row)
-            k = sel.shape[0]
-            starts = np.empty((k, 3))
-            starts[:] = o3[i]
-            ends = starts.copy()
-            if k == n_rays:
-                sel = None
-                ends[:, : self.dims] += reach * dirs_t[i].T
-            elif k:
-                ends[:, : self.dims] += reach * dirs_t[i].T[sel]
-            out.append(FanRays(n_rays, sel, starts, ends))
+            out.append(self._fan_of(o3[i], dirs_t[i].T, None if sel.shape[0] == n_rays else sel, range_m))
         return out
 
     def cast_fan(self, origin, directions, range_m: float, *, cull: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -632,13 +622,17 @@ class PyBulletWorld:
                 sel = None
         else:
             sel = None
-        k = n if sel is None else sel.shape[0]
+        return self._fan_of(o3, dirs, sel, range_m)
+
+    def _fan_of(self, o3: np.ndarray, dirs: np.ndarray, sel: np.ndarray | None, range_m: float) -> "FanRays":
+        """The FanRays of the rays ``sel`` (None: all) along unit ``dirs`` [R, d] from o3 [3] to range_m (m)."""
+        k = dirs.shape[0] if sel is None else sel.shape[0]
         starts = np.empty((k, 3))
         starts[:] = o3
         ends = starts.copy()
         if k:
             ends[:, : self.dims] += float(range_m) * (dirs if sel is None else dirs[sel])
-        return FanRays(n, sel, starts, ends)
+        return FanRays(dirs.shape[0], sel, starts, ends)
 
     @staticmethod
     def fan_results(fan: "FanRays", hit_ids: np.ndarray, hit_frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
