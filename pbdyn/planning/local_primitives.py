@@ -27,6 +27,7 @@ from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.checks import WALL_MARGIN_CAP, first_clear_candidate, static_clear, trajectory_clear
 from pbdyn.planning.protocols import PlannerContext
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles, step_bounds
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
 
@@ -347,18 +348,19 @@ class LocalPrimitives:
             for c in open_:
                 if stage[c] == last:
                     lims[c] = [v_max / math.sqrt(d), a_max / math.sqrt(d)]
-                samples = self._calculate_with(inputs[c], dt, lims[c][0], lims[c][1])
-                if samples is None:
+                got = self._calculate_with(inputs[c], dt, lims[c][0], lims[c][1])
+                if got is None:
                     if stage[c] < last:
                         stage[c] = last          # nothing to scale from: go to the conservative limits
                         keep.append(c)
                     continue
-                built.append((c, samples))
+                built.append((c, got))
             if built:
-                v_peaks, a_peaks = self._peaks([s for _, s in built])
-                for (c, samples), v_peak, a_peak in zip(built, v_peaks, a_peaks):
+                samples, counts = self._sample([g for _, g in built], dt)
+                v_peaks, a_peaks = self._peaks(samples, counts)
+                for i, ((c, _), v_peak, a_peak) in enumerate(zip(built, v_peaks, a_peaks)):
                     if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                        accepted[c] = samples
+                        accepted[c] = samples[i, :counts[i]]
                         continue
                     if stage[c] >= last:
                         continue
@@ -398,42 +400,30 @@ class LocalPrimitives:
             pool.append(inp)
         return pool
 
-    def _peaks(self, samples: list) -> tuple[list, list]:
-        """Per samples array [K_c, 3, d]: the peak speed over samples 1.. (m/s) and the peak acceleration (m/s^2: the
-        larger of the samples' |a| and the step bound), for all arrays at once (shorter ones padded with zeros, which
-        change no maximum). The step bound is the least acceleration under which consecutive samples are reachable,
-        as the plan contract checks it (pbdyn.sim.contract): max over steps of |dv| / dt and
-        4 |p_k+1 - p_k - (v_k + v_k+1) dt/2| / dt^2; between samples a per-axis-limited profile can exceed the norm
-        limit even when every sample is within it."""
-        n = len(samples)
-        pad = None
-        if n == 1:                               # one candidate (the best one, every step): nothing to pad
-            arr = samples[0][None]
-        else:
-            lengths = [s.shape[0] for s in samples]
-            arr = np.zeros((n, max(lengths)) + samples[0].shape[1:])
-            pad = np.zeros((n, arr.shape[1] - 1), dtype=bool)
-            for c, s in enumerate(samples):
-                arr[c, :lengths[c]] = s
-                pad[c, lengths[c] - 1:] = True
-        sq = np.einsum("nkij,nkij->nki", arr[:, 1:, 1:], arr[:, 1:, 1:]).max(axis=1)    # [n, 2]
-        dt = self.dt
-        p, v = arr[:, :, 0], arr[:, :, 1]
-        dv = v[:, 1:] - v[:, :-1]
-        gap = p[:, 1:] - p[:, :-1] - 0.5 * (v[:, :-1] + v[:, 1:]) * dt
-        dv2 = np.add.reduce(dv * dv, axis=2)
-        gap2 = np.add.reduce(gap * gap, axis=2)
-        if pad is not None:
-            dv2[pad] = 0.0
-            gap2[pad] = 0.0
-        step = np.maximum(np.sqrt(dv2.max(axis=1)) / dt, 4.0 * np.sqrt(gap2.max(axis=1)) / (dt * dt))
+    def _sample(self, built: list, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Frame samples [C, K, 3, d] (zero padded) and sample counts [C] of built trajectories, each given as
+        (duration (s), sample count, profile_row), in one compiled evaluation (ruckig_sampling.sample_profiles)."""
+        prof = np.array([g[2] for g in built]).reshape(len(built), self.dims, PROFILE_WIDTH)
+        duration = np.array([g[0] for g in built])
+        counts = np.array([g[1] for g in built], dtype=np.int64)
+        return sample_profiles(prof, duration, counts, dt), counts
+
+    def _peaks(self, samples: np.ndarray, counts: np.ndarray) -> tuple[list, list]:
+        """Per trajectory of samples [C, K, 3, d] (counts[c] valid, zeros after): the peak speed over samples 1..
+        (m/s) and the peak acceleration (m/s^2: the larger of the samples' |a| and the step bound; zero padding
+        changes no maximum). The step bound (ruckig_sampling.step_bounds) is the least acceleration under which
+        consecutive samples are reachable, as the plan contract checks it (pbdyn.sim.contract); between samples a
+        per-axis-limited profile can exceed the norm limit even when every sample is within it."""
+        sq = np.einsum("nkij,nkij->nki", samples[:, 1:, 1:], samples[:, 1:, 1:]).max(axis=1)    # [n, 2]
+        step = step_bounds(samples, counts, self.dt)
         return np.sqrt(sq[:, 0]).tolist(), np.maximum(np.sqrt(sq[:, 1]), step).tolist()
 
     def _calculate_with(self, inp, dt: float, v_lim: float, a_lim: float):
         """One ruckig build from the InputParameter ``inp`` (its boundary conditions set) with per-axis limits v_lim,
-        a_lim; samples [K, 3 (p, v, a), d] at 0, dt, ... (past the duration the end velocity is held: the end
-        acceleration is 0), or None when ruckig rejects the input (e.g. a target velocity above the per-axis limit,
-        or an error code the binding cannot name) or the duration exceeds MAX_PLAN_HORIZON_S."""
+        a_lim: (duration (s), the count K of samples at 0, dt, ... that covers it, its profile_row); past the
+        duration the end velocity is held (the end acceleration is 0). None when ruckig rejects the input (e.g. a
+        target velocity above the per-axis limit, or an error code the binding cannot name) or the duration exceeds
+        MAX_PLAN_HORIZON_S."""
         d = self.dims
         inp.max_velocity = [v_lim] * d
         inp.max_acceleration = [a_lim] * d
@@ -447,12 +437,4 @@ class LocalPrimitives:
             return None
         if not traj.duration <= MAX_PLAN_HORIZON_S:
             return None
-        n = max(2, math.ceil(traj.duration / dt - 1e-9) + 1)
-        at = traj.at_time
-        flat: list[float] = []
-        for k in range(n):
-            p, v, a = at(k * dt)
-            flat += p
-            flat += v
-            flat += a
-        return np.array(flat).reshape(n, 3, d)
+        return traj.duration, max(2, math.ceil(traj.duration / dt - 1e-9) + 1), profile_row(traj)
