@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import ruckig
 
-from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles, step_bounds
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles
 
 DT = 0.1
 
@@ -57,17 +57,3 @@ def test_samples_equal_ruckig_at_time_bit_for_bit(d):
         want = np.array([traj.at_time(i * DT) for i in range(k)])               # [k, 3, d]
         assert np.array_equal(got[c, :k], want), c
         assert not got[c, k:].any()                                              # zero padding
-
-
-def test_step_bounds_are_the_contracts_bounds():
-    d = 3
-    trajs = _random_trajectories(d, 50, seed=7)
-    prof = np.array([profile_row(t) for t, _ in trajs]).reshape(len(trajs), d, PROFILE_WIDTH)
-    counts = np.array([k for _, k in trajs], dtype=np.int64)
-    samples = sample_profiles(prof, np.array([t.duration for t, _ in trajs]), counts, DT)
-    got = step_bounds(samples, counts, DT)
-    for c, k in enumerate(counts):
-        p, v = samples[c, :k, 0], samples[c, :k, 1]
-        dv = np.linalg.norm(np.diff(v, axis=0), axis=1) / DT
-        gap = np.linalg.norm(p[1:] - p[:-1] - 0.5 * (v[:-1] + v[1:]) * DT, axis=1) * 4.0 / DT**2
-        assert got[c] == pytest.approx(max(dv.max(), gap.max()), rel=1e-12)

@@ -19,15 +19,17 @@ a candidate that still violates, or that ruckig rejects, is skipped.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import ruckig
 
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
-from pbdyn.planning.checks import WALL_MARGIN_CAP, first_clear_candidate, static_clear, trajectory_clear
+from pbdyn.planning.candidate_kernels import numpy_orders, peaks, world_and_screen
+from pbdyn.planning.checks import WALL_MARGIN_CAP, static_clear
 from pbdyn.planning.protocols import PlannerContext
-from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles, step_bounds
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
 
@@ -86,6 +88,28 @@ def frame_basis(u: np.ndarray) -> np.ndarray:
     w = np.cross(u, e)
     w /= np.linalg.norm(w)
     return np.stack([u, w, np.cross(u, w)])
+
+
+class _Built(NamedTuple):
+    """Candidates built by LocalPrimitives._build_many: rows (their indices among those asked for, ascending),
+    samples p, v, a [m, K, d] (world; counts[i] valid), counts [m], bad [m] (a sample meets a wall or a track)."""
+
+    rows: list
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    counts: np.ndarray
+    bad: np.ndarray
+
+    @staticmethod
+    def nothing(d: int) -> "_Built":
+        empty = np.zeros((0, 0, d))
+        return _Built([], empty, empty, empty, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+
+    def samples(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(p, v, a) [K, d] of the i-th built candidate."""
+        k = int(self.counts[i])
+        return self.p[i, :k], self.v[i, :k], self.a[i, :k]
 
 
 class LocalPrimitives:
@@ -168,7 +192,7 @@ class LocalPrimitives:
         candidate has failed, fan candidates whose end point is blocked by a wall or an occupied cell are skipped
         unbuilt (the primitive ends inside the blocked region: stricter than the sampled check only when the end
         time falls between samples), and the others are built in rank-ordered chunks (CHUNKS) whose clearance is
-        checked in one array evaluation (checks.first_clear_candidate): the same choice as trying them one by one
+        checked in one compiled evaluation (_first_clear): the same choice as trying them one by one
         (plan_one_by_one, the reference), at a fraction of the cost when many candidates fail. Before that, once
         the best candidate has failed, none_can_be_clear may prove that no candidate can pass, and the plan fails
         without building another (tried first, the proof cost more over the steps whose best candidate passes
@@ -201,16 +225,12 @@ class LocalPrimitives:
             ranks = rest[lo:lo + size]
             lo += size
             idx = order[ranks]
-            built = [(int(r), s) for r, s in zip(ranks.tolist(), self._build_many(view, targets[idx], end_vel[idx],
-                                                                                    self._bases[idx]))
-                     if s is not None]
-            if not built:
-                continue
-            j = first_clear_candidate(view, [s[0] for _, s in built], self.margin)
+            built = self._build_many(view, targets[idx], end_vel[idx], self._bases[idx])
+            j = self._first_clear(view, built)
             if j >= 0:
-                r, (p, v, a) = built[j]
+                r = int(ranks[built.rows[j]])
                 self.last_candidates_tried += int(np.searchsorted(rest, r)) + 1
-                return self._chosen(view, targets[order[r]], r + offset, p, v, a)
+                return self._chosen(view, targets[order[r]], r + offset, *built.samples(j))
         self.last_candidates_tried += int(rest.shape[0])
         return None
 
@@ -262,14 +282,35 @@ class LocalPrimitives:
 
     def _try_one(self, view: View, target, vel, basis, rank: int) -> Trajectory | None:
         """Build and check one candidate; its Trajectory (recorded as the choice at ``rank``) or None."""
-        samples = self._build(view, target, vel, basis)
-        if samples is None:
+        built = self._build_many(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
+                                 basis[None])
+        if self._first_clear(view, built) < 0:
             return None
-        p, v, a = samples
-        times = view.t + view.dt * np.arange(p.shape[0])
-        if not trajectory_clear(view, p[1:], times[1:], self.margin):
-            return None
-        return self._chosen(view, target, rank, p, v, a)
+        return self._chosen(view, target, rank, *built.samples(0))
+
+    def _first_clear(self, view: View, built: "_Built") -> int:
+        """Index (into built.rows) of the first built candidate whose samples 1.. are clear (checks.py: walls and
+        tracks from _build_many's screen, then the grid in one query for the candidates that passed them); -1 if
+        none. The same answer as checks.trajectory_clear on each in turn."""
+        left = np.flatnonzero(~built.bad)
+        if left.shape[0] == 0:
+            return -1
+        counts = built.counts
+        p = built.p
+        if left.shape[0] == 1:
+            pts = p[left[0], 1:counts[left[0]]]
+        else:
+            pts = np.concatenate([p[i, 1:counts[i]] for i in left.tolist()])
+        hit = view.grid.collides(pts, view.limits.radius + self.margin)
+        if not hit.any():
+            return int(left[0])
+        lo = 0
+        for i in left.tolist():
+            hi = lo + int(counts[i]) - 1
+            if not hit[lo:hi].any():
+                return i
+            lo = hi
+        return -1
 
     def _chosen(self, view: View, target, rank: int, p, v, a) -> Trajectory:
         self.last_rank = rank
@@ -308,24 +349,21 @@ class LocalPrimitives:
                 return found
         return None
 
-    def _build(self, view: View, target: np.ndarray, vel: np.ndarray, basis: np.ndarray):
-        """Samples (p, v, a) [K, d] of the primitive to (target, vel, 0) within the norm limits (samples 1..K-1;
-        sample 0 is the given state), else None. basis: [d, d] rows of the planning frame (world -> frame).
+    def _build_many(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray) -> "_Built":
+        """The primitives to (targets, vels [n, d], end acceleration 0) within the norm limits (samples 1..K-1;
+        sample 0 is the given state), in the world frame, with the wall and track screen of checks.py (a), (c).
+        bases: [n, d, d] rows of the planning frames (world -> frame).
 
         Norm limits from ruckig's per-axis limits (module doc): build with (v_max, a_max); while a sample's |v| or
-        |a|, or the step bound between samples (_peaks), exceeds its norm limit, rebuild with the per-axis limit
-        scaled by 0.95 * limit / peak (at most _N_SCALED_REBUILDS times), then once with v_max / sqrt(d),
-        a_max / sqrt(d); a build that still violates, or that ruckig rejects, gives None."""
-        return self._build_many(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
-                                basis[None])[0]
-
-    def _build_many(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray) -> list:
-        """_build for n candidates at once (targets, vels [n, d], bases [n, d, d]): a list of (p, v, a) or None.
-        Each rebuild stage runs ruckig once per candidate still open and takes every candidate's peaks in one array
-        evaluation; the frame changes are stacked matrix products (the same products as candidate by candidate)."""
+        |a|, or the step bound between samples (candidate_kernels.peaks), exceeds its norm limit, rebuild with the
+        per-axis limit scaled by 0.95 * limit / peak (at most _N_SCALED_REBUILDS times), then once with
+        v_max / sqrt(d), a_max / sqrt(d); a build that still violates, or that ruckig rejects, is left out. Each
+        rebuild stage runs ruckig once per candidate still open and samples and checks them all in one compiled
+        evaluation; the frame changes are the same products as numpy's (candidate_kernels)."""
         d = self.dims
         n = targets.shape[0]
         v_max, a_max = self.limits.v_max, self.limits.a_max
+        mm_mode, sq_order = numpy_orders(d)
         inputs = self._inputs(n)
         cur_v = (bases @ view.velocity).tolist()
         cur_a = (bases @ view.acceleration).tolist()
@@ -357,8 +395,8 @@ class LocalPrimitives:
                 built.append((c, got))
             if built:
                 samples, counts = self._sample([g for _, g in built], dt)
-                v_peaks, a_peaks = self._peaks(samples, counts)
-                for i, ((c, _), v_peak, a_peak) in enumerate(zip(built, v_peaks, a_peaks)):
+                v_peaks, a_peaks = peaks(samples, counts, dt, sq_order)
+                for i, ((c, _), v_peak, a_peak) in enumerate(zip(built, v_peaks.tolist(), a_peaks.tolist())):
                     if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
                         accepted[c] = samples[i, :counts[i]]
                         continue
@@ -371,21 +409,21 @@ class LocalPrimitives:
                     stage[c] += 1
                     keep.append(c)
             open_ = sorted(keep)
-        out: list = [None] * n
-        if not accepted:
-            return out
         rows = sorted(accepted)
-        lengths = [accepted[c].shape[0] for c in rows]
-        frame = np.zeros((len(rows), max(lengths), 3, d))
+        if not rows:
+            return _Built.nothing(d)
+        counts = np.array([accepted[c].shape[0] for c in rows], dtype=np.int64)
+        frame = np.zeros((len(rows), int(counts.max()), 3, d))
         for i, c in enumerate(rows):
-            frame[i, :lengths[i]] = accepted[c]
-        world = frame @ bases[rows][:, None]                  # [m, K, 3, d]: frame -> world (rows of basis)
-        world[:, :, 0] += view.position
-        world[:, 0] = view.position, view.velocity, view.acceleration
-        for i, c in enumerate(rows):
-            w = world[i, :lengths[i]]
-            out[c] = (w[:, 0], w[:, 1], w[:, 2])
-        return out
+            frame[i, :counts[i]] = accepted[c]
+        tracks = view.tracks
+        wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)
+        reach = tracks.radius + (self.limits.radius + self.margin)
+        p, v, a, bad = world_and_screen(frame, counts, np.ascontiguousarray(bases[rows]),
+                                        np.stack([view.position, view.velocity, view.acceleration]),
+                                        view.bounds_lo + wall_r, view.bounds_hi - wall_r, tracks.position,
+                                        tracks.velocity, reach * reach, view.t, dt, mm_mode, sq_order)
+        return _Built(rows, p, v, a, counts, bad)
 
     def _inputs(self, n: int) -> list:
         """n ruckig InputParameters with the planner's fixed fields (a pool reused by every plan)."""
@@ -407,16 +445,6 @@ class LocalPrimitives:
         duration = np.array([g[0] for g in built])
         counts = np.array([g[1] for g in built], dtype=np.int64)
         return sample_profiles(prof, duration, counts, dt), counts
-
-    def _peaks(self, samples: np.ndarray, counts: np.ndarray) -> tuple[list, list]:
-        """Per trajectory of samples [C, K, 3, d] (counts[c] valid, zeros after): the peak speed over samples 1..
-        (m/s) and the peak acceleration (m/s^2: the larger of the samples' |a| and the step bound; zero padding
-        changes no maximum). The step bound (ruckig_sampling.step_bounds) is the least acceleration under which
-        consecutive samples are reachable, as the plan contract checks it (pbdyn.sim.contract); between samples a
-        per-axis-limited profile can exceed the norm limit even when every sample is within it."""
-        sq = np.einsum("nkij,nkij->nki", samples[:, 1:, 1:], samples[:, 1:, 1:]).max(axis=1)    # [n, 2]
-        step = step_bounds(samples, counts, self.dt)
-        return np.sqrt(sq[:, 0]).tolist(), np.maximum(np.sqrt(sq[:, 1]), step).tolist()
 
     def _calculate_with(self, inp, dt: float, v_lim: float, a_lim: float):
         """One ruckig build from the InputParameter ``inp`` (its boundary conditions set) with per-axis limits v_lim,

@@ -22,22 +22,29 @@ _T, _J, _P, _V, _A = 0, 7, 14, 22, 30
 _BDUR, _BT, _BJ, _BP, _BV, _BA = 38, 39, 41, 43, 45, 47
 
 
+_NO_BRAKE = [0.0] * 11
+
+
 def profile_row(traj) -> list:
-    """The profiles of a one-section ruckig Trajectory as a flat list [d * PROFILE_WIDTH] (module doc layout)."""
+    """The profiles of a one-section ruckig Trajectory as a flat list [d * PROFILE_WIDTH] (module doc layout; an
+    axis without a brake pre-phase gets zeros there, which sample_profiles never reads)."""
     flat: list = []
     for pr in traj.profiles[0]:
-        b = pr.brake
         flat += pr.t
         flat += pr.j
         flat += pr.p
         flat += pr.v
         flat += pr.a
-        flat.append(b.duration)
-        flat += b.t
-        flat += b.j
-        flat += b.p
-        flat += b.v
-        flat += b.a
+        b = pr.brake
+        if b.duration > 0.0:
+            flat.append(b.duration)
+            flat += b.t
+            flat += b.j
+            flat += b.p
+            flat += b.v
+            flat += b.a
+        else:
+            flat += _NO_BRAKE
     return flat
 
 
@@ -100,31 +107,4 @@ def sample_profiles(prof: np.ndarray, duration: np.ndarray, n_samples: np.ndarra
                 out[c, k, 0, dof] = p0 + td * (v0 + td * (a0 / 2 + td * jerk / 6))
                 out[c, k, 1, dof] = v0 + td * (a0 + td * jerk / 2)
                 out[c, k, 2, dof] = a0 + td * jerk
-    return out
-
-
-@njit(cache=True, nogil=True)
-def step_bounds(samples: np.ndarray, n_samples: np.ndarray, dt: float) -> np.ndarray:
-    """Per trajectory of samples [C, K, 3, d] (n_samples[c] valid): the least acceleration (m/s^2) under which its
-    consecutive samples are reachable, max over steps of |v_k+1 - v_k| / dt and
-    4 |p_k+1 - p_k - (v_k + v_k+1) dt / 2| / dt^2 (the plan contract's step bounds, pbdyn.sim.contract); [C].
-    The squared norms are summed axis by axis in order, as numpy's add.reduce sums so few terms."""
-    n_traj, d = samples.shape[0], samples.shape[3]
-    out = np.empty(n_traj)
-    for c in range(n_traj):
-        dv_max = 0.0
-        gap_max = 0.0
-        for k in range(n_samples[c] - 1):
-            dv2 = 0.0
-            gap2 = 0.0
-            for i in range(d):
-                v0 = samples[c, k, 1, i]
-                v1 = samples[c, k + 1, 1, i]
-                dv = v1 - v0
-                gap = samples[c, k + 1, 0, i] - samples[c, k, 0, i] - 0.5 * (v0 + v1) * dt
-                dv2 += dv * dv
-                gap2 += gap * gap
-            dv_max = max(dv_max, dv2)
-            gap_max = max(gap_max, gap2)
-        out[c] = max(np.sqrt(dv_max) / dt, 4.0 * np.sqrt(gap_max) / (dt * dt))
     return out
