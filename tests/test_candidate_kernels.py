@@ -83,8 +83,7 @@ def test_world_and_screen_equal_numpy(d, n_tracks):
         bases = np.linalg.qr(rng.normal(size=(12, d, d)))[0]
         wall_r = view.limits.radius + min(margin, WALL_MARGIN_CAP)
         reach = view.tracks.radius + (view.limits.radius + margin)
-        p, v, a, bad = world_and_screen(frame, counts, bases, np.stack([view.position, view.velocity,
-                                                                        view.acceleration]),
+        p, v, a, bad = world_and_screen(frame, counts, bases, view.position, view.velocity, view.acceleration,
                                         view.bounds_lo + wall_r, view.bounds_hi - wall_r, view.tracks.position,
                                         view.tracks.velocity, reach * reach, view.t, DT, mm_mode, sq_order)
         world = frame @ bases[:, None]                                   # the planner's numpy evaluation

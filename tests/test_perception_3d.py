@@ -240,6 +240,8 @@ def test_vectorised_free_marking_equals_a_per_ray_reference(dims, res):
             o = rng.uniform(0.6, size - 0.6) if k % 2 else rng.uniform(3.0, size - 3.0)
             if k == 4:
                 o[0] = -1.5                 # outside the walls: samples leave the grid and are clipped into it
+            if k == 5:
+                o[1] = size[1] + 1.5        # beyond the far wall: clipped at the grid's top cells
             yaw = rng.uniform(-math.pi, math.pi)
             w.set_mav_pose(o, yaw)
             det = perc.sense(o, yaw)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from pbdyn.config import SensorConfig
 from pbdyn.errors import ConfigError
@@ -233,8 +234,15 @@ class Perception:
         return cells
 
     def _mark_free(self, o: np.ndarray, dirs_t: np.ndarray, reach: np.ndarray) -> None:
-        """Mark FREE (unless OCCUPIED) the cells of the free-space samples of a scan (see free_cells)."""
-        self.grid.mark_free_cells(self.free_cells(o, dirs_t, reach))
+        """Mark FREE (unless OCCUPIED) the cells of the free-space samples of a scan: the cells free_cells lists,
+        marked in compiled code sample by sample (_mark_free_samples)."""
+        grid = self.grid
+        if not grid.cells.flags.c_contiguous:          # the compiled marking writes through a flat view
+            grid.mark_free_cells(self.free_cells(o, dirs_t, reach))
+            return
+        inv = 1.0 / grid.res
+        _mark_free_samples(grid.cells.reshape(-1), np.asarray(grid.shape, dtype=np.int64), (o - grid.origin) * inv,
+                           dirs_t, reach * inv - 1e-9, self._t_cells)
 
     def directions(self, yaw: float) -> np.ndarray:
         """Unit ray directions [R, d] for ``yaw`` (rad)."""
@@ -322,3 +330,22 @@ class Perception:
         if self.noise_std > 0 and m.seen.shape[0]:
             centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
         return Detections(m.seen, centers, int(hits.shape[0]), hits, ranges)
+
+
+@njit(cache=True, nogil=True)
+def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
+    """Perception._mark_free in compiled code: for ray r (direction dirs_t[:, r]) and sample distance t (cell units,
+    t_cells), the sample oc + dirs_t[:, r] * min(t, lim[r]) (cell units from cell 0's corner) lies in the cell
+    floor() of it, clipped into the grid; each such cell of ``cells`` (flat, C order, of ``shape``) becomes FREE
+    unless it is OCCUPIED (free_cells' float operations, in its order)."""
+    d, n_rays = dirs_t.shape
+    for r in range(n_rays):
+        for t in t_cells:
+            dist = min(t, lim[r])
+            flat = 0
+            for k in range(d):
+                i = np.int64(np.floor(dirs_t[k, r] * dist + oc[k]))
+                i = min(max(i, 0), shape[k] - 1)
+                flat = flat * shape[k] + i
+            if cells[flat] < 0:
+                cells[flat] = 0

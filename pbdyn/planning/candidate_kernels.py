@@ -102,7 +102,7 @@ def peaks(samples: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
 
 
 @njit(cache=True, nogil=True)
-def world_and_screen(frame, counts, bases, state, wall_lo, wall_hi, track_pos, track_vel, reach2, t, dt,
+def world_and_screen(frame, counts, bases, p0, v0, a0, wall_lo, wall_hi, track_pos, track_vel, reach2, t, dt,
                      mm_mode, sq_order):
     """Candidates' samples in the world frame, and which of them meet a wall or a track's prediction.
 
@@ -110,7 +110,7 @@ def world_and_screen(frame, counts, bases, state, wall_lo, wall_hi, track_pos, t
         frame: samples [C, K, 3 (p, v, a), d] in each candidate's frame (origin at the MAV), counts[c] valid.
         counts: sample counts [C].
         bases: the candidates' frames [C, d, d] (rows; world -> frame), so world = frame @ basis.
-        state: the MAV's position, velocity, acceleration [3, d] (sample 0 of every candidate).
+        p0, v0, a0: the MAV's position, velocity, acceleration [d] (sample 0 of every candidate).
         wall_lo, wall_hi: [d] a sample below wall_lo or above wall_hi on an axis meets a wall (m).
         track_pos, track_vel: the tracks' means at time t [M, d] (m, m/s); reach2: [M] squared distance (m^2)
             below which a sample meets a track's constant-velocity prediction.
@@ -126,16 +126,17 @@ def world_and_screen(frame, counts, bases, state, wall_lo, wall_hi, track_pos, t
     n_tracks = track_pos.shape[0]
     for c in range(n_c):
         b = bases[c]
-        for r in range(3):
-            for j in range(d):
-                out[r, c, 0, j] = state[r, j]
+        for j in range(d):
+            out[0, c, 0, j] = p0[j]
+            out[1, c, 0, j] = v0[j]
+            out[2, c, 0, j] = a0[j]
         for k in range(1, counts[c]):
             for r in range(3):
                 x = frame[c, k, r]
                 for j in range(d):
                     w = _dot(x, b, j, d, mm_mode)
                     if r == 0:
-                        w = w + state[0, j]
+                        w = w + p0[j]
                     out[r, c, k, j] = w
         hit = False
         for k in range(1, counts[c]):

@@ -419,9 +419,8 @@ class LocalPrimitives:
         tracks = view.tracks
         wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)
         reach = tracks.radius + (self.limits.radius + self.margin)
-        p, v, a, bad = world_and_screen(frame, counts, np.ascontiguousarray(bases[rows]),
-                                        np.stack([view.position, view.velocity, view.acceleration]),
-                                        view.bounds_lo + wall_r, view.bounds_hi - wall_r, tracks.position,
+        p, v, a, bad = world_and_screen(frame, counts, np.ascontiguousarray(bases[rows]), view.position,
+                                        view.velocity, view.acceleration, view.bounds_lo + wall_r, view.bounds_hi - wall_r, tracks.position,
                                         tracks.velocity, reach * reach, view.t, dt, mm_mode, sq_order)
         return _Built(rows, p, v, a, counts, bad)
 
@@ -441,7 +440,10 @@ class LocalPrimitives:
     def _sample(self, built: list, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Frame samples [C, K, 3, d] (zero padded) and sample counts [C] of built trajectories, each given as
         (duration (s), sample count, profile_row), in one compiled evaluation (ruckig_sampling.sample_profiles)."""
-        prof = np.array([g[2] for g in built]).reshape(len(built), self.dims, PROFILE_WIDTH)
+        flat: list = []
+        for g in built:
+            flat += g[2]
+        prof = np.array(flat).reshape(len(built), self.dims, PROFILE_WIDTH)
         duration = np.array([g[0] for g in built])
         counts = np.array([g[1] for g in built], dtype=np.int64)
         return sample_profiles(prof, duration, counts, dt), counts
