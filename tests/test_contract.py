@@ -7,7 +7,7 @@ import pytest
 
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.sim.checker import check_planner
-from pbdyn.sim.contract import CHECKS, plan_violations
+from pbdyn.sim.contract import CHECKS, check_plan, plan_violations
 from tests import cheating_planners as cheats
 from tests.helpers import first_map, handmade_rollout, open_scenario
 
@@ -56,6 +56,47 @@ def test_each_check_fires_alone():
     assert _violations(line_p[:1], line_v[:1], line_a[:1]) == ["shape"]
     assert set(CHECKS) >= {"type", "shape", "finite", "t0", "dt", "start_position", "start_velocity", "speed",
                            "acceleration", "velocity_step", "position_step"}
+
+
+@pytest.mark.parametrize("physical", [True, False])
+def test_check_plan_decides_as_plan_violations_at_the_bounds(physical):
+    """check_plan's fast screen passes no plan that plan_violations refuses: plans on and just around every bound
+    (speed, acceleration, velocity step, position gap, start state), in 2D and 3D, including NaN and inf."""
+    rng = np.random.default_rng(8)
+    factors = (0.5, 1.0 - 1e-12, 1.0, 1.0 + 1e-12, 1.0 + 5e-10, 1.0 + 2e-9, 1.5)
+    refused = passed = 0
+    for it in range(1500):
+        d = 2 + it % 2
+        k = int(rng.integers(2, 9))
+        u = rng.normal(size=d)
+        u /= np.linalg.norm(u)
+        speed = VMAX * rng.choice(factors)
+        v = np.tile(u * speed, (k, 1))
+        a = np.tile(rng.normal(size=d), (k, 1))
+        a *= AMAX * rng.choice(factors) / np.linalg.norm(a[0])
+        p = np.cumsum(np.vstack([np.zeros(d), np.tile(u * speed * DT, (k - 1, 1))]), axis=0)
+        j = int(rng.integers(1, k))
+        kind = it % 5
+        if kind == 1:                      # a velocity step at the bound a_max dt
+            w = rng.normal(size=d)
+            v[j:] += w / np.linalg.norm(w) * AMAX * DT * rng.choice(factors)
+            p[j:] += 0.5 * (v[j] - v[j - 1]) * DT
+        elif kind == 2:                    # a position gap at the bound a_max dt^2 / 4
+            w = rng.normal(size=d)
+            p[j:] += w / np.linalg.norm(w) * AMAX * DT * DT / 4.0 * rng.choice(factors)
+        elif kind == 3:                    # the start state off by the tolerance
+            p += rng.choice([0.0, 1e-6, 1e-6 * (1 + 1e-9)]) * np.eye(d)[0]
+        elif kind == 4 and it % 3 == 0:
+            p[j, 0] = rng.choice([np.nan, np.inf])
+        traj = Trajectory(0.0, DT, p, v, a)
+        kw = dict(t=0.0, dt=DT, position=p[0] * 0.0 if kind == 3 else p[0], velocity=v[0], v_max=VMAX,
+                  a_max=AMAX, physical=physical)
+        want = plan_violations(traj, first_only=True, **kw)
+        got = check_plan(traj, **kw)
+        assert got == (want[0] if want else None), it
+        refused += got is not None
+        passed += got is None
+    assert refused > (100 if physical else 30) and passed > 100
 
 
 def _fly_cheat(cls, dims=2, **kw):

@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 START_TOL = 1e-6   # m and m/s: sample 0 against the MAV's current state
 REL_TOL = 1e-9     # relative tolerance on every limit and bound
@@ -134,22 +135,59 @@ def _clearly_valid(traj, t, dt, position, velocity, v_max, a_max, physical) -> b
         return False
     if not (abs(traj.t0 - t) <= TIME_TOL * max(1.0, abs(t)) and abs(traj.dt - dt) <= TIME_TOL * max(1.0, dt)):
         return False
-    dp, dv = p[0] - position, v[0] - velocity
     shrink = 1.0 - 1e-12
-    if not (dp @ dp <= START_TOL * START_TOL * shrink and dv @ dv <= START_TOL * START_TOL * shrink):
-        return False
+    start2 = START_TOL * START_TOL * shrink
     if not physical:
-        return bool(np.isfinite(p.sum() + v.sum() + a.sum()))
+        return _within(p, v, a, position, velocity, start2, -1.0, 0.0, 0.0, 0.0, 0.0)
     step = traj.dt
-    vs = v[1:] - v[:-1]
-    gap = p[1:] - p[:-1] - 0.5 * (v[:-1] + v[1:]) * step
     vmax2 = (v_max * (1.0 + REL_TOL)) ** 2 * shrink
     amax2 = (a_max * (1.0 + REL_TOL)) ** 2 * shrink
     dvmax2 = (a_max * step * (1.0 + REL_TOL)) ** 2 * shrink
     gapmax2 = (a_max * step * step / 4.0 * (1.0 + REL_TOL)) ** 2 * shrink
-    return bool(np.einsum("ij,ij->i", v, v).max() <= vmax2 and np.einsum("ij,ij->i", a, a).max() <= amax2
-                and np.einsum("ij,ij->i", vs, vs).max() <= dvmax2
-                and np.einsum("ij,ij->i", gap, gap).max() <= gapmax2)
+    return _within(p, v, a, position, velocity, start2, step, vmax2, amax2, dvmax2, gapmax2)
+
+
+@njit(cache=True, nogil=True)
+def _within(p, v, a, position, velocity, start2, step, vmax2, amax2, dvmax2, gapmax2) -> bool:
+    """_clearly_valid's bounds on samples p, v, a [K, d]: squared distances of sample 0 from ``position`` and
+    ``velocity`` <= start2, and, when step > 0 (physical), every sample's squared speed and acceleration and every
+    step's squared velocity change and position gap (pbdyn.sim.contract) within vmax2, amax2, dvmax2, gapmax2;
+    when step < 0, only that every value is finite. NaN passes no bound."""
+    n, d = p.shape
+    dp2 = 0.0
+    dv2 = 0.0
+    for j in range(d):
+        e = p[0, j] - position[j]
+        f = v[0, j] - velocity[j]
+        dp2 += e * e
+        dv2 += f * f
+    if not (dp2 <= start2 and dv2 <= start2):
+        return False
+    if step < 0.0:
+        for k in range(n):
+            for j in range(d):
+                if not (np.isfinite(p[k, j]) and np.isfinite(v[k, j]) and np.isfinite(a[k, j])):
+                    return False
+        return True
+    for k in range(n):
+        sv = 0.0
+        sa = 0.0
+        for j in range(d):
+            sv += v[k, j] * v[k, j]
+            sa += a[k, j] * a[k, j]
+        if not (sv <= vmax2 and sa <= amax2):
+            return False
+    for k in range(n - 1):
+        sdv = 0.0
+        sgap = 0.0
+        for j in range(d):
+            dv = v[k + 1, j] - v[k, j]
+            gap = p[k + 1, j] - p[k, j] - 0.5 * (v[k, j] + v[k + 1, j]) * step
+            sdv += dv * dv
+            sgap += gap * gap
+        if not (sdv <= dvmax2 and sgap <= gapmax2):
+            return False
+    return True
 
 
 def check_plan(traj, *, t: float, dt: float, position: np.ndarray, velocity: np.ndarray, v_max: float,
