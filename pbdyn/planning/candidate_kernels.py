@@ -68,6 +68,8 @@ def peaks(samples: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
     4 |p_k+1 - p_k - (v_k + v_k+1) dt / 2| / dt^2 (the plan contract's step bounds, pbdyn.sim.contract); its
     squared norms are summed axis by axis in order, as numpy's add.reduce sums so few terms."""
     n_traj, d = samples.shape[0], samples.shape[3]
+    if counts.shape[0] != n_traj or counts.max() > samples.shape[1]:
+        raise ValueError("peaks: mismatched shapes")
     v_peak = np.empty(n_traj)
     a_peak = np.empty(n_traj)
     for c in range(n_traj):
@@ -121,6 +123,9 @@ def world_and_screen(frame, counts, bases, p0, v0, a0, wall_lo, wall_hi, track_p
         1..counts[c]-1 meets a wall or a track (checks.py (c), (a)).
     """
     n_c, n_k, _, d = frame.shape
+    if (counts.shape[0] != n_c or bases.shape[0] != n_c or counts.max() > n_k or counts.min() < 1
+            or track_vel.shape[0] != track_pos.shape[0] or reach2.shape[0] != track_pos.shape[0]):
+        raise ValueError("world_and_screen: mismatched shapes")
     out = np.zeros((3, n_c, n_k, d))
     bad = np.zeros(n_c, dtype=np.bool_)
     n_tracks = track_pos.shape[0]

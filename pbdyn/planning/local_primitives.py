@@ -161,6 +161,9 @@ class LocalPrimitives:
         self._otg = ruckig.Ruckig(d)
         self._traj = ruckig.Trajectory(d)
         self._input_pool: list = []    # ruckig InputParameters with the fixed fields set (_inputs)
+        self._orders = numpy_orders(d)
+        self._screen_view: View | None = None
+        self._screen_args: tuple = ()
         self.last_candidates_built = 0
         self.last_candidates_tried = 0
         self.last_rank: int | None = None
@@ -363,7 +366,7 @@ class LocalPrimitives:
         d = self.dims
         n = targets.shape[0]
         v_max, a_max = self.limits.v_max, self.limits.a_max
-        mm_mode, sq_order = numpy_orders(d)
+        mm_mode, sq_order = self._orders
         inputs = self._inputs(n)
         cur_v = (bases @ view.velocity).tolist()
         cur_a = (bases @ view.acceleration).tolist()
@@ -375,54 +378,86 @@ class LocalPrimitives:
             inp.current_acceleration = cur_a[c]
             inp.target_position = tgt_p[c]
             inp.target_velocity = tgt_v[c]
-        lims = [[v_max, a_max] for _ in range(n)]
+        lim_v = [v_max] * n
+        lim_a = [a_max] * n
         stage = [0] * n
-        accepted: dict = {}
+        accepted: list = [None] * n              # (samples array, row in it) of each accepted candidate
         open_ = list(range(n))
         last = _N_SCALED_REBUILDS + 1
         dt = view.dt
+        calculate, traj = self._otg.calculate, self._traj
+        working, finished = ruckig.Result.Working, ruckig.Result.Finished
         while open_:
-            built, keep = [], []
+            built, keep, flat, durations, counts = [], [], [], [], []
             for c in open_:
                 if stage[c] == last:
-                    lims[c] = [v_max / math.sqrt(d), a_max / math.sqrt(d)]
-                got = self._calculate_with(inputs[c], dt, lims[c][0], lims[c][1])
-                if got is None:
-                    if stage[c] < last:
-                        stage[c] = last          # nothing to scale from: go to the conservative limits
-                        keep.append(c)
-                    continue
-                built.append((c, got))
+                    lim_v[c], lim_a[c] = v_max / math.sqrt(d), a_max / math.sqrt(d)
+                inp = inputs[c]
+                inp.max_velocity = [lim_v[c]] * d
+                inp.max_acceleration = [lim_a[c]] * d
+                self.last_candidates_built += 1
+                try:
+                    result = calculate(inp, traj)
+                except (ruckig.RuckigError, ValueError):   # e.g. an error code the binding cannot name
+                    result = None
+                # rejected: e.g. a target velocity above the per-axis limit, or longer than MAX_PLAN_HORIZON_S
+                if (result == working or result == finished) and traj.duration <= MAX_PLAN_HORIZON_S:
+                    duration = traj.duration
+                    built.append(c)
+                    durations.append(duration)
+                    counts.append(max(2, math.ceil(duration / dt - 1e-9) + 1))
+                    flat += profile_row(traj)
+                elif stage[c] < last:
+                    stage[c] = last                  # nothing to scale from: go to the conservative limits
+                    keep.append(c)
             if built:
-                samples, counts = self._sample([g for _, g in built], dt)
-                v_peaks, a_peaks = peaks(samples, counts, dt, sq_order)
-                for i, ((c, _), v_peak, a_peak) in enumerate(zip(built, v_peaks.tolist(), a_peaks.tolist())):
+                samples = sample_profiles(np.array(flat).reshape(len(built), d, PROFILE_WIDTH),
+                                          np.array(durations), np.array(counts, dtype=np.int64), dt)
+                v_peaks, a_peaks = peaks(samples, np.array(counts, dtype=np.int64), dt, sq_order)
+                for i, (c, v_peak, a_peak) in enumerate(zip(built, v_peaks.tolist(), a_peaks.tolist())):
                     if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                        accepted[c] = samples[i, :counts[i]]
+                        accepted[c] = (samples, i, counts[i])
                         continue
                     if stage[c] >= last:
                         continue
                     if v_peak > v_max:
-                        lims[c][0] *= _SCALE_SAFETY * v_max / v_peak
+                        lim_v[c] *= _SCALE_SAFETY * v_max / v_peak
                     if a_peak > a_max:
-                        lims[c][1] *= _SCALE_SAFETY * a_max / a_peak
+                        lim_a[c] *= _SCALE_SAFETY * a_max / a_peak
                     stage[c] += 1
                     keep.append(c)
             open_ = sorted(keep)
-        rows = sorted(accepted)
+        rows = [c for c in range(n) if accepted[c] is not None]
         if not rows:
             return _Built.nothing(d)
-        counts = np.array([accepted[c].shape[0] for c in rows], dtype=np.int64)
-        frame = np.zeros((len(rows), int(counts.max()), 3, d))
-        for i, c in enumerate(rows):
-            frame[i, :counts[i]] = accepted[c]
-        tracks = view.tracks
-        wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)
-        reach = tracks.radius + (self.limits.radius + self.margin)
-        p, v, a, bad = world_and_screen(frame, counts, np.ascontiguousarray(bases[rows]), view.position,
-                                        view.velocity, view.acceleration, view.bounds_lo + wall_r, view.bounds_hi - wall_r, tracks.position,
-                                        tracks.velocity, reach * reach, view.t, dt, mm_mode, sq_order)
+        counts = np.array([accepted[c][2] for c in rows], dtype=np.int64)
+        first = accepted[rows[0]][0]
+        if first.shape[0] == len(rows) and all(accepted[c][0] is first and accepted[c][1] == i
+                                               for i, c in enumerate(rows)):
+            frame = first                            # one stage accepted them all, in order: its samples as they are
+        else:
+            frame = np.zeros((len(rows), int(counts.max()), 3, d))
+            for i, c in enumerate(rows):
+                src, j, k = accepted[c]
+                frame[i, :k] = src[j, :k]
+        wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
+        p, v, a, bad = world_and_screen(frame, counts, bases if len(rows) == n else bases[rows], view.position,
+                                        view.velocity, view.acceleration, wall_lo, wall_hi, track_pos, track_vel,
+                                        reach2, view.t, dt, mm_mode, sq_order)
         return _Built(rows, p, v, a, counts, bad)
+
+    def _screen(self, view: View) -> tuple:
+        """The wall and track bounds of world_and_screen for ``view`` (kept for the view last asked about): the
+        lowest and highest admissible sample coordinate [d] (m; checks.py (c)), the tracks' means [M, d] and the
+        squared distances [M] (m^2) below which a sample meets one (a)."""
+        if self._screen_view is not view:
+            tracks = view.tracks
+            wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)
+            reach = tracks.radius + (self.limits.radius + self.margin)
+            self._screen_args = (view.bounds_lo + wall_r, view.bounds_hi - wall_r, tracks.position, tracks.velocity,
+                                 reach * reach)
+            self._screen_view = view
+        return self._screen_args
 
     def _inputs(self, n: int) -> list:
         """n ruckig InputParameters with the planner's fixed fields (a pool reused by every plan)."""
@@ -436,35 +471,3 @@ class LocalPrimitives:
             inp.minimum_duration = self.min_duration
             pool.append(inp)
         return pool
-
-    def _sample(self, built: list, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Frame samples [C, K, 3, d] (zero padded) and sample counts [C] of built trajectories, each given as
-        (duration (s), sample count, profile_row), in one compiled evaluation (ruckig_sampling.sample_profiles)."""
-        flat: list = []
-        for g in built:
-            flat += g[2]
-        prof = np.array(flat).reshape(len(built), self.dims, PROFILE_WIDTH)
-        duration = np.array([g[0] for g in built])
-        counts = np.array([g[1] for g in built], dtype=np.int64)
-        return sample_profiles(prof, duration, counts, dt), counts
-
-    def _calculate_with(self, inp, dt: float, v_lim: float, a_lim: float):
-        """One ruckig build from the InputParameter ``inp`` (its boundary conditions set) with per-axis limits v_lim,
-        a_lim: (duration (s), the count K of samples at 0, dt, ... that covers it, its profile_row); past the
-        duration the end velocity is held (the end acceleration is 0). None when ruckig rejects the input (e.g. a
-        target velocity above the per-axis limit, or an error code the binding cannot name) or the duration exceeds
-        MAX_PLAN_HORIZON_S."""
-        d = self.dims
-        inp.max_velocity = [v_lim] * d
-        inp.max_acceleration = [a_lim] * d
-        self.last_candidates_built += 1
-        traj = self._traj
-        try:
-            result = self._otg.calculate(inp, traj)
-        except (ruckig.RuckigError, ValueError):
-            return None
-        if result != ruckig.Result.Working and result != ruckig.Result.Finished:
-            return None
-        if not traj.duration <= MAX_PLAN_HORIZON_S:
-            return None
-        return traj.duration, max(2, math.ceil(traj.duration / dt - 1e-9) + 1), profile_row(traj)

@@ -62,6 +62,8 @@ def sample_profiles(prof: np.ndarray, duration: np.ndarray, n_samples: np.ndarra
         trajectory's last sample.
     """
     n_traj, d = prof.shape[0], prof.shape[1]
+    if duration.shape[0] != n_traj or n_samples.shape[0] != n_traj or prof.shape[2] != PROFILE_WIDTH:
+        raise ValueError("sample_profiles: mismatched shapes")
     out = np.zeros((n_traj, n_samples.max(), 3, d))
     t_sum = np.empty(7)
     for c in range(n_traj):
@@ -99,7 +101,7 @@ def sample_profiles(prof: np.ndarray, duration: np.ndarray, n_samples: np.ndarra
                         p0, v0, a0, jerk = r[_P + 7], r[_V + 7], r[_A + 7], 0.0
                     else:
                         i = 0
-                        while t_sum[i] <= td:            # upper bound: the first phase ending after td
+                        while i < 6 and t_sum[i] <= td:    # upper bound: the first phase ending after td
                             i += 1
                         if i > 0:
                             td -= t_sum[i - 1]
