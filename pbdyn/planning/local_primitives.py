@@ -70,12 +70,20 @@ def rank_by_goal_angle(directions: np.ndarray, to_goal: np.ndarray) -> np.ndarra
     """Indices of unit ``directions`` [n, d] sorted by their angle to the vector ``to_goal`` [d] (m; goal minus
     MAV position), ascending; ties (angles equal to 1e-12 rad) by index; index order when the MAV is at the goal
     (thesis Algorithm 3, line 7, with the angle as the heuristic cost)."""
+    angle = goal_angles(directions, to_goal)
+    if angle is None:
+        return np.arange(directions.shape[0])
+    return np.argsort(angle, kind="stable")
+
+
+def goal_angles(directions: np.ndarray, to_goal: np.ndarray) -> np.ndarray | None:
+    """The angles (rad, rounded to 1e-12) between unit ``directions`` [n, d] and ``to_goal`` [d] that
+    rank_by_goal_angle sorts; None when the MAV is at the goal (|to_goal| < 1e-12 m)."""
     g = np.asarray(to_goal, dtype=float)
     dist = math.sqrt(float(g @ g))
     if dist < 1e-12:
-        return np.arange(directions.shape[0])
-    angle = np.arccos(np.clip(directions @ (g / dist), -1.0, 1.0))
-    return np.argsort(np.round(angle, 12), kind="stable")
+        return None
+    return np.round(np.arccos(np.clip(directions @ (g / dist), -1.0, 1.0)), 12)
 
 
 def frame_basis(u: np.ndarray) -> np.ndarray:
@@ -158,6 +166,8 @@ class LocalPrimitives:
         self.min_duration = float(min_duration)
         self.directions = self._candidate_directions(d)
         self._bases = np.stack([frame_basis(u) for u in self.directions])  # [n, d, d], rows: u first
+        self._step_dirs = self.step_m * self.directions        # [n, d]: end points relative to the MAV
+        self._end_vel = self.end_speed * self.directions        # [n, d]: end velocities
         self._otg = ruckig.Ruckig(d)
         self._traj = ruckig.Trajectory(d)
         self._input_pool: list = []    # ruckig InputParameters with the fixed fields set (_inputs)
@@ -213,14 +223,20 @@ class LocalPrimitives:
             found = self._try_one(view, view.goal, np.zeros(self.dims), basis, 0)
             if found is not None:
                 return found
-        order = self.ranked_candidates(view)
-        targets = p0 + self.step_m * self.directions          # [n, d]
-        end_vel = self.end_speed * self.directions             # [n, d]
-        i = order[0]
+        angles = goal_angles(self.directions, g)
+        order = None
+        i = 0 if angles is None else int(np.argmin(angles))     # the first of rank_by_goal_angle's order ...
+        if angles is not None and math.isnan(angles[i]):          # ... unless an angle is NaN (argsort puts it last)
+            order = np.argsort(angles, kind="stable")
+            i = int(order[0])
+        end_vel = self._end_vel
         self.last_candidates_tried += 1
-        found = self._try_one(view, targets[i], end_vel[i], self._bases[i], offset)
+        found = self._try_one(view, p0 + self._step_dirs[i], end_vel[i], self._bases[i], offset)
         if found is not None or self.n_candidates == 1 or self.none_can_be_clear(view):
             return found
+        if order is None:
+            order = np.arange(self.n_candidates) if angles is None else np.argsort(angles, kind="stable")
+        targets = p0 + self._step_dirs                          # [n, d]
         static_ok = static_clear(view, targets, self.margin)
         rest = np.flatnonzero(static_ok[order[1:]]) + 1        # ranks still worth building, ascending
         lo = 0
@@ -295,11 +311,15 @@ class LocalPrimitives:
         """Index (into built.rows) of the first built candidate whose samples 1.. are clear (checks.py: walls and
         tracks from _build_many's screen, then the grid in one query for the candidates that passed them); -1 if
         none. The same answer as checks.trajectory_clear on each in turn."""
+        counts = built.counts
+        p = built.p
+        if counts.shape[0] == 1:
+            if built.bad[0]:
+                return -1
+            return -1 if view.grid.collides(p[0, 1:counts[0]], view.limits.radius + self.margin).any() else 0
         left = np.flatnonzero(~built.bad)
         if left.shape[0] == 0:
             return -1
-        counts = built.counts
-        p = built.p
         if left.shape[0] == 1:
             pts = p[left[0], 1:counts[left[0]]]
         else:
