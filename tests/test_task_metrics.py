@@ -81,3 +81,30 @@ def test_trial_rows_carry_the_task_metrics_of_their_own_task_and_start():
     assert 0.0 < res.task_survivability_s <= 12.0 and res.task_flux_per_s >= 0.0
     other = run_trial("quickstart", map=4, start=(4.0, 4.0), goal=(46.0, 46.0))
     assert other.task_survivability_s != res.task_survivability_s
+
+
+def test_trials_of_one_task_share_its_metrics_once_computed(monkeypatch):
+    """task_metrics is computed once per (rollout, task, start time): a second speed of the same task reads the
+    memo (the same values as computing afresh), another task or another rollout computes its own."""
+    import pbdyn.metrics.task as task_mod
+    from pbdyn.config import load_scenario
+    from pbdyn.sim import trial
+    from pbdyn.world.maps import get_map
+    from pbdyn.world.rollout import get_rollout
+
+    sc = load_scenario("quickstart")
+    ro = get_rollout(sc, get_map(sc, 4))
+    calls = []
+    real = task_mod.corridor_survivability
+    monkeypatch.setattr(task_mod, "corridor_survivability", lambda *a, **k: calls.append(a[1:3]) or real(*a, **k))
+    specs = [trial.make_trial_spec(sc, get_map(sc, 4), v_max=v, start=(4.0, 46.0), goal=(46.0, 4.0))
+             for v in (2.0, 3.0)]
+    first = trial.task_metrics(specs[0], ro, 1.5)
+    assert trial.task_metrics(specs[1], ro, 1.5) == first and len(calls) == 1
+    trial._TASK_MEMOS.clear()
+    assert trial.task_metrics(specs[1], ro, 1.5) == first and len(calls) == 2          # afresh: the same
+    trial.task_metrics(specs[1], ro, 2.5)
+    other = trial.make_trial_spec(sc, get_map(sc, 4), start=(4.0, 4.0), goal=(46.0, 46.0))
+    trial.task_metrics(other, ro, 1.5)
+    trial.task_metrics(specs[0], get_rollout(sc, get_map(sc, 5)), 1.5)
+    assert len(calls) == 5

@@ -18,6 +18,7 @@ a candidate that still violates, or that ruckig rejects, is skipped.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -98,6 +99,17 @@ def frame_basis(u: np.ndarray) -> np.ndarray:
     return np.stack([u, w, np.cross(u, w)])
 
 
+@functools.lru_cache(maxsize=16)
+def _fan(dims: int, n_candidates: int, spacing_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates' unit directions [n, d] (candidate_directions) and their planning frames [n, d, d]
+    (frame_basis of each), read-only and shared by the planners that ask for the same fan (3D: 412 frames)."""
+    dirs = candidate_directions(dims, n_candidates, spacing_deg)
+    bases = np.stack([frame_basis(u) for u in dirs])
+    dirs.setflags(write=False)
+    bases.setflags(write=False)
+    return dirs, bases
+
+
 class _Built(NamedTuple):
     """Candidates built by LocalPrimitives._build_many: rows (their indices among those asked for, ascending),
     samples p, v, a [m, K, d] (world; counts[i] valid), counts [m], bad [m] (a sample meets a wall or a track)."""
@@ -164,8 +176,8 @@ class LocalPrimitives:
         if min_duration is None:
             min_duration = max(1.2 * self.step_m / self.limits.v_max, 0.5)
         self.min_duration = float(min_duration)
-        self.directions = self._candidate_directions(d)
-        self._bases = np.stack([frame_basis(u) for u in self.directions])  # [n, d, d], rows: u first
+        self.directions, self._bases = _fan(d, self.n_candidates, self.sphere_spacing_deg)  # bases [n, d, d]
+        self.n_candidates = self.directions.shape[0]
         self._step_dirs = self.step_m * self.directions        # [n, d]: end points relative to the MAV
         self._end_vel = self.end_speed * self.directions        # [n, d]: end velocities
         self._otg = ruckig.Ruckig(d)
@@ -178,16 +190,6 @@ class LocalPrimitives:
         self.last_candidates_tried = 0
         self.last_rank: int | None = None
         self.last_target: np.ndarray | None = None
-
-    def _candidate_directions(self, dims: int) -> np.ndarray:
-        """Unit directions [n, d] of the candidate end points (thesis eq. A-4; sets self.n_candidates in 3D).
-
-        2D: angles 2 pi k / n, k = 0..n-1. 3D: rings of constant elevation every sphere_spacing_deg (see the class
-        docstring), horizontal ring first, azimuths starting at 0.
-        """
-        dirs = candidate_directions(dims, self.n_candidates, self.sphere_spacing_deg)
-        self.n_candidates = dirs.shape[0]
-        return dirs
 
     def replan_check(self, view: View) -> bool:
         """Always True: the thesis program replans every step and executes one sample."""

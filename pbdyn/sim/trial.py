@@ -7,6 +7,7 @@ the GUI. ``run_trial`` wires them together and turns the ended trial into its Tr
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -132,11 +133,37 @@ def task_metrics(spec: TrialSpec, rollout: Rollout, start_time: float) -> dict:
     if t_max <= 0:
         return {"task_survivability_s": None, "task_flux_per_s": None}
     r = sc.drone.radius
-    surv, _ = corridor_survivability(rollout, spec.start, spec.goal, start_time=start_time, mav_radius=r,
-                                     t_max=t_max, backend=resolve_backend(sc, "auto"))
-    flux, _ = corridor_flux(rollout, spec.start, spec.goal, start_time=start_time, mav_radius=r, horizon=t_max)
-    return {"task_survivability_s": None if not np.isfinite(surv) else round(surv, 10),
-            "task_flux_per_s": None if not np.isfinite(flux) else round(flux, 12)}
+    backend = resolve_backend(sc, "auto")
+    key = (tuple(spec.start), tuple(spec.goal), float(start_time), float(r), float(t_max), backend)
+    memo = _task_memo(rollout)
+    if key not in memo:
+        surv, _ = corridor_survivability(rollout, spec.start, spec.goal, start_time=start_time, mav_radius=r,
+                                         t_max=t_max, backend=backend)
+        flux, _ = corridor_flux(rollout, spec.start, spec.goal, start_time=start_time, mav_radius=r, horizon=t_max)
+        memo[key] = {"task_survivability_s": None if not np.isfinite(surv) else round(surv, 10),
+                     "task_flux_per_s": None if not np.isfinite(flux) else round(flux, 12)}
+    return dict(memo[key])
+
+
+_TASK_MEMOS: list = []
+"""(rollout, {task key: task metrics}) of the last few rollouts: the trials of one map that share a task (other
+MAV speeds and planner pairs) share its metrics, which are a function of the rollout and the key alone."""
+
+
+_TASK_MEMOS_LOCK = threading.Lock()
+
+
+def _task_memo(rollout: Rollout) -> dict:
+    """The task-metrics memo of ``rollout`` (by identity; the 4 most recent rollouts keep theirs)."""
+    with _TASK_MEMOS_LOCK:
+        for i, (ro, memo) in enumerate(_TASK_MEMOS):
+            if ro is rollout:
+                if i:
+                    _TASK_MEMOS.insert(0, _TASK_MEMOS.pop(i))
+                return memo
+        _TASK_MEMOS.insert(0, (rollout, {}))
+        del _TASK_MEMOS[4:]
+        return _TASK_MEMOS[0][1]
 
 
 LIMIT_TOL = 1e-6
