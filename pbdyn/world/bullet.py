@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from pbdyn import resources
 from pbdyn.errors import ConfigError, check_positive
@@ -540,42 +541,21 @@ class PyBulletWorld:
 
     def fan_candidates_many(self, origins: np.ndarray, dirs_t: np.ndarray, range_m: float) -> np.ndarray:
         """fan_candidates for T fans at once: origins [T, d], unit directions [T, d, R] (every fan R rays); bool
-        [T, R]. The same bounds and tests, evaluated for all fans together; it too returns False only for rays
-        that provably meet nothing (a ray within rounding of a bound may be kept by one and not the other, and
-        Bullet reports no hit for it either way: the bounds are CULL_PAD beyond every body)."""
-        o = np.asarray(origins, dtype=float)
-        dirs_t = np.asarray(dirs_t, dtype=float)
-        n_fans, n_rays = o.shape[0], dirs_t.shape[2]
+        [T, R]. The same bounds and tests, evaluated in compiled code (_cull_fans) for all fans together; it too
+        returns False only for rays that provably meet nothing (a ray within rounding of a bound may be kept by one
+        and not the other, and Bullet reports no hit for it either way: the bounds are CULL_PAD beyond every
+        body)."""
+        o = np.ascontiguousarray(origins, dtype=float)
+        dirs_t = np.ascontiguousarray(dirs_t, dtype=float)
         reach = float(range_m)
         if self._cull_reach[0] != reach:
             self._cull_reach = (reach, (reach + self._cull_bound) ** 2)
         inner_lo, inner_hi = self._cull_inner
-        keep = np.zeros((n_fans, n_rays), dtype=bool)
-        walls = np.any(o - reach <= inner_lo, axis=1) | np.any(o + reach >= inner_hi, axis=1)      # (3)
-        if walls.any():
-            end = o[walls][:, :, None] + reach * dirs_t[walls]                                     # [W, d, R]
-            keep[walls] = ((end <= inner_lo[:, None]) | (end >= inner_hi[:, None])).any(axis=1)
         n_dyn = self.obstacle_ids.shape[0]
         cen = self._cull_centres
         cen[:n_dyn] = self.obstacle_positions
-        if cen.shape[0]:
-            rel = cen[None] - o[:, None, :]                                                       # [T, M, d]
-            dist2 = np.einsum("tmd,tmd->tm", rel, rel)
-            near = dist2 <= self._cull_reach[1]
-            if near.any():
-                gap = dist2 - self._cull_bound2
-                along_min = np.where(gap > 0.0, np.sqrt(np.maximum(gap, 0.0)), -np.inf)
-                along_min[~near] = np.inf                                                          # never kept
-                ok = np.einsum("tmd,tdr->tmr", rel, dirs_t) >= along_min[:, :, None]               # (1)
-                if cen.shape[0] > n_dyn:                                                           # (2)
-                    end = o[:, :, None] + reach * dirs_t
-                    seg_lo, seg_hi = np.minimum(end, o[:, :, None]), np.maximum(end, o[:, :, None])
-                    lo, hi = self._cull_lo[None, :, :, None], self._cull_hi[None, :, :, None]
-                    ok[:, n_dyn:] &= ((seg_lo[:, None] <= hi) & (seg_hi[:, None] >= lo)).all(axis=2)
-                keep |= ok.any(axis=1)
-        outside = np.any(o <= inner_lo, axis=1) | np.any(o >= inner_hi, axis=1)
-        keep[outside] = True
-        return keep
+        return _cull_fans(o, dirs_t, reach, inner_lo, inner_hi, cen, n_dyn, self._cull_reach[1], self._cull_bound2,
+                          self._cull_lo, self._cull_hi)
 
     def fan_rays_many(self, origins: np.ndarray, dirs_t: np.ndarray, range_m: float) -> list["FanRays"]:
         """fan_rays (culled) for T fans at once: origins [T, d], unit directions [T, d, R]; the FanRays per fan, with
@@ -738,3 +718,69 @@ def what_if_pose(world: PyBulletWorld, position, yaw: float) -> Iterator[PyBulle
         yield world
     finally:
         world.set_mav_pose(old_p, old_yaw)
+
+
+@njit(cache=True, nogil=True)
+def _cull_fans(o, dirs_t, reach, inner_lo, inner_hi, cen, n_dyn, near2, bound2, box_lo, box_hi):
+    """PyBulletWorld.fan_candidates_many's keep mask [T, R] for fans from o [T, d] along dirs_t [T, d, R] to
+    ``reach`` (m): a ray is kept if (3) the fan starts outside the arena shrunk by CULL_PAD (inner_lo, inner_hi)
+    or the ray's end leaves it, or (1) for a body m (centre cen[m], bounding sphere bound2[m] squared, within
+    near2[m] squared of the origin) u . (c - o) >= sqrt(|c - o|^2 - b^2) (from inside the sphere always), (2) for
+    a static body (m >= n_dyn) also the ray's segment box overlapping its AABB (box_lo, box_hi [S, d])."""
+    n_fans, d, n_rays = dirs_t.shape
+    n_bodies = cen.shape[0]
+    keep = np.zeros((n_fans, n_rays), dtype=np.bool_)
+    near = np.empty(n_bodies, dtype=np.int64)
+    along_min = np.empty(n_bodies)
+    rel = np.empty((n_bodies, d))
+    for t in range(n_fans):
+        outside = False
+        walls = False
+        for j in range(d):
+            if o[t, j] <= inner_lo[j] or o[t, j] >= inner_hi[j]:
+                outside = True
+            if o[t, j] - reach <= inner_lo[j] or o[t, j] + reach >= inner_hi[j]:
+                walls = True
+        if outside:
+            keep[t, :] = True
+            continue
+        n_near = 0
+        for m in range(n_bodies):
+            dist2 = 0.0
+            for j in range(d):
+                rel[m, j] = cen[m, j] - o[t, j]
+                dist2 += rel[m, j] * rel[m, j]
+            if dist2 <= near2[m]:
+                gap = dist2 - bound2[m]
+                along_min[m] = np.sqrt(gap) if gap > 0.0 else -np.inf
+                near[n_near] = m
+                n_near += 1
+        for r in range(n_rays):
+            hit = False
+            if walls:
+                for j in range(d):
+                    end = o[t, j] + reach * dirs_t[t, j, r]
+                    if end <= inner_lo[j] or end >= inner_hi[j]:
+                        hit = True
+            i = 0
+            while not hit and i < n_near:
+                m = near[i]
+                i += 1
+                along = 0.0
+                for j in range(d):
+                    along += rel[m, j] * dirs_t[t, j, r]
+                if along < along_min[m]:
+                    continue
+                if m < n_dyn:
+                    hit = True
+                    continue
+                overlap = True
+                for j in range(d):
+                    end = o[t, j] + reach * dirs_t[t, j, r]
+                    lo = min(end, o[t, j])
+                    hi = max(end, o[t, j])
+                    if not (lo <= box_hi[m - n_dyn, j] and hi >= box_lo[m - n_dyn, j]):
+                        overlap = False
+                hit = overlap
+            keep[t, r] = hit
+    return keep
