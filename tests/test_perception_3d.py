@@ -257,6 +257,39 @@ def test_vectorised_free_marking_equals_a_per_ray_reference(dims, res):
             assert k < 2 or np.any(expected == OCCUPIED)
 
 
+@pytest.mark.parametrize("dims", [2, 3])
+def test_compiled_scan_completion_equals_numpy(dims):
+    """Perception.complete (compiled) leaves the grid, its version and the detections exactly as _complete_numpy
+    does, scan after scan, with walls, static boxes and obstacles hit and the sensor outside the arena once."""
+    rng = np.random.default_rng(40 + dims)
+    size = np.array([20.0, 14.0] if dims == 2 else [20.0, 14.0, 9.0])
+    statics = [StaticBody("box", (12.0, 7.0, 4.5)[:dims] if dims == 3 else (12.0, 7.0), size=(1.5, 3.0, 2.0)[:dims],
+                          yaw=0.3)]
+    with PyBulletWorld(dims=dims, arena_size=size, mav_radius=0.3, obstacle_radii=rng.uniform(0.4, 1.2, 10),
+                       static_bodies=statics) as w:
+        grids = [OccupancyGrid(np.zeros(dims), size, 0.7) for _ in range(2)]
+        percs = [Perception(w, g, fov_deg=360.0 if dims == 2 else 90.0, range_m=8.0, resolution_deg=4.0,
+                            vfov_deg=60.0 if dims == 3 else None) for g in grids]
+        kinds = set()
+        for k in range(8):
+            w.set_obstacle_positions(rng.uniform(0.5, size - 0.5, (10, dims)))
+            o = rng.uniform(0.6, size - 0.6)
+            if k == 5:
+                o[0] = -1.5
+            yaw = rng.uniform(-math.pi, math.pi)
+            w.set_mav_pose(o, yaw)
+            scan = percs[0].begin(o, yaw)
+            hits, frac = w.cast_fan_rays(scan.fan)
+            got = percs[0].complete(scan, hits, frac)
+            want = percs[1]._complete_numpy(scan, hits, frac)
+            assert np.array_equal(grids[0].cells, grids[1].cells) and grids[0].version == grids[1].version
+            assert np.array_equal(got.ids, want.ids) and got.ids.dtype == want.ids.dtype
+            assert np.array_equal(got.centers, want.centers) and np.array_equal(got.ranges, want.ranges)
+            kinds.update(("static" if w.is_static_body[h] else "obstacle" if w.dynamic_index_of[h] >= 0 else "none")
+                         for h in hits.tolist())
+        assert kinds == {"static", "obstacle", "none"} and grids[0].version > 0
+
+
 def test_grid_cell_level_marking():
     g = OccupancyGrid([0, 0, 0], [6, 5, 4], 0.5)
     pts = np.random.default_rng(1).uniform(-1.0, 7.0, (50, 3))

@@ -284,8 +284,25 @@ class Perception:
         fractions [R]; world.cast_fans), and the grid updated in place."""
         world, grid = self.world, self.grid
         o, dirs_t = scan.origin, scan.dirs_t
+        if not grid.cells.flags.c_contiguous:
+            return self._complete_numpy(scan, hits, frac)
+        ranges, ids, newly_occupied = _complete_scan(
+            grid.cells.reshape(-1), np.asarray(grid.shape, dtype=np.int64), o, grid.origin, grid.res, dirs_t,
+            self._t_cells, np.asarray(hits, dtype=np.int64), frac, self.range_m, world.is_static_body,
+            world.dynamic_index_of, world.obstacle_ids.shape[0])
+        if newly_occupied:
+            grid.version += 1
+        centers = np.asarray(world.obstacle_positions, dtype=float)[ids]
+        if self.noise_std > 0 and ids.shape[0]:
+            centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
+        return Detections(ids, centers, int(hits.shape[0]), hits, ranges)
+
+    def _complete_numpy(self, scan: "PendingScan", hits: np.ndarray, frac: np.ndarray) -> Detections:
+        """complete() in numpy (the reference of _complete_scan; used for a grid whose cells are not contiguous)."""
+        world, grid = self.world, self.grid
+        o, dirs_t = scan.origin, scan.dirs_t
         ranges = frac * self.range_m
-        self._mark_free(o, dirs_t, np.where(hits >= 0, ranges, np.inf))
+        grid.mark_free_cells(self.free_cells(o, dirs_t, np.where(hits >= 0, ranges, np.inf)))
 
         static = np.flatnonzero(world.is_static_body[hits])
         if static.shape[0]:
@@ -349,3 +366,50 @@ def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
                 flat = flat * shape[k] + i
             if cells[flat] < 0:
                 cells[flat] = 0
+
+
+@njit(cache=True, nogil=True)
+def _complete_scan(cells, shape, o, origin, res, dirs_t, t_cells, hits, frac, range_m, is_static, dynamic_index,
+                   n_obstacles):
+    """Perception.complete's grid update and detections in compiled code, with _complete_numpy's float operations:
+    ranges = frac * range_m; the free-space samples of every ray up to its hit (_mark_free_samples), then the cell
+    (grid.index: floor((p - origin) / res), clipped) of o + u (range + OCCUPIED_NUDGE) of every ray ending on a
+    static body or wall marked OCCUPIED; the obstacles hit, ascending. Body ids index is_static / dynamic_index
+    (-1, no body, their last entry). Returns (ranges [R], obstacle ids, whether a cell became OCCUPIED)."""
+    d, n_rays = dirs_t.shape
+    n_lookup = is_static.shape[0]
+    inv = 1.0 / res
+    ranges = frac * range_m
+    lim = np.empty(n_rays)
+    for r in range(n_rays):
+        h = hits[r]
+        if h < -1 or h >= n_lookup:
+            raise IndexError("a ray hit a body the world does not know")
+        lim[r] = (ranges[r] if h >= 0 else np.inf) * inv - 1e-9
+    oc = (o - origin) * inv
+    _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells)
+    newly = False
+    seen = np.zeros(n_obstacles + 1, dtype=np.bool_)
+    for r in range(n_rays):
+        h = hits[r]
+        if is_static[h]:
+            dist = ranges[r] + OCCUPIED_NUDGE
+            flat = 0
+            for k in range(d):
+                i = np.int64(np.floor((o[k] + dirs_t[k, r] * dist - origin[k]) / res))
+                i = min(max(i, 0), shape[k] - 1)
+                flat = flat * shape[k] + i
+            if cells[flat] != 1:
+                cells[flat] = 1
+                newly = True
+        seen[dynamic_index[h]] = True
+    n_ids = 0
+    for m in range(n_obstacles):
+        n_ids += seen[m]
+    ids = np.empty(n_ids, dtype=np.int64)
+    n_ids = 0
+    for m in range(n_obstacles):
+        if seen[m]:
+            ids[n_ids] = m
+            n_ids += 1
+    return ranges, ids, newly
