@@ -18,6 +18,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.core.extending import intrinsic
 
+from pbdyn.planning.ruckig_sampling import sample_profiles
+
 
 @intrinsic
 def _fma(typingctx, a, b, c):
@@ -101,6 +103,15 @@ def peaks(samples: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
         v_peak[c] = np.sqrt(sv_max)
         a_peak[c] = max(np.sqrt(sa_max), step)
     return v_peak, a_peak
+
+
+@njit(cache=True, nogil=True)
+def sampled_peaks(prof: np.ndarray, duration: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
+    """sample_profiles and peaks in one call: (samples [C, K, 3, d] in the trajectories' frames, peak speeds [C],
+    peak accelerations [C])."""
+    samples = sample_profiles(prof, duration, counts, dt)
+    v_peak, a_peak = peaks(samples, counts, dt, sq_order)
+    return samples, v_peak, a_peak
 
 
 @njit(cache=True, nogil=True)

@@ -27,10 +27,10 @@ import ruckig
 
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
-from pbdyn.planning.candidate_kernels import numpy_orders, peaks, world_and_screen
+from pbdyn.planning.candidate_kernels import numpy_orders, sampled_peaks, world_and_screen
 from pbdyn.planning.checks import WALL_MARGIN_CAP, static_clear
 from pbdyn.planning.protocols import PlannerContext
-from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
 
@@ -403,7 +403,7 @@ class LocalPrimitives:
         lim_v = [v_max] * n
         lim_a = [a_max] * n
         stage = [0] * n
-        accepted: list = [None] * n              # (samples array, row in it) of each accepted candidate
+        accepted: list = [None] * n      # (samples array, its row, sample count) of each accepted candidate
         open_ = list(range(n))
         last = _N_SCALED_REBUILDS + 1
         dt = view.dt
@@ -433,9 +433,9 @@ class LocalPrimitives:
                     stage[c] = last                  # nothing to scale from: go to the conservative limits
                     keep.append(c)
             if built:
-                samples = sample_profiles(np.array(flat).reshape(len(built), d, PROFILE_WIDTH),
-                                          np.array(durations), np.array(counts, dtype=np.int64), dt)
-                v_peaks, a_peaks = peaks(samples, np.array(counts, dtype=np.int64), dt, sq_order)
+                samples, v_peaks, a_peaks = sampled_peaks(np.array(flat).reshape(len(built), d, PROFILE_WIDTH),
+                                                          np.array(durations), np.array(counts, dtype=np.int64), dt,
+                                                          sq_order)
                 for i, (c, v_peak, a_peak) in enumerate(zip(built, v_peaks.tolist(), a_peaks.tolist())):
                     if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
                         accepted[c] = (samples, i, counts[i])
