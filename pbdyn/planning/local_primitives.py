@@ -282,9 +282,12 @@ class LocalPrimitives:
         gap = np.sqrt(np.einsum("kmd,kmd->km", centre[:, None] - pred, centre[:, None] - pred))
         return bool(np.any(gap + ball < tracks.radius + (self.limits.radius + self.margin)))
 
-    CHUNKS = (3, 6, 12, 24)
+    CHUNKS = (4, 8)
     """Sizes of the rank-ordered chunks of candidates built and checked together after the best one failed (the
-    last size repeats): small first, since the next few candidates usually hold the choice."""
+    last size repeats). A chunk's fixed cost is now about that of one candidate's builds, and when the best
+    candidate fails the choice lies at rank ~10 (median; 90th percentile 40): chunks of 4 then 8 build the fewest
+    candidates in vain (measured against (3, 6, 12, 24), (3,), (5,), (6,), (8,), (6, 12): 1.5% less time per step
+    than the doubling sizes on the controlled sample; the choice never depends on them)."""
 
     def chunk_sizes(self, n: int):
         """The chunk sizes (CHUNKS, the last one repeated) that cover ``n`` candidates."""
