@@ -106,12 +106,17 @@ def peaks(samples: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
 
 
 @njit(cache=True, nogil=True)
-def sampled_peaks(prof: np.ndarray, duration: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
-    """sample_profiles and peaks in one call: (samples [C, K, 3, d] in the trajectories' frames, peak speeds [C],
-    peak accelerations [C])."""
+def sampled_peaks(prof: np.ndarray, duration: np.ndarray, dt: float, sq_order: int):
+    """The samples every dt of trajectories (profile rows prof [C, d, PROFILE_WIDTH], durations [C] (s)) that
+    cover their durations, max(2, ceil(duration / dt - 1e-9) + 1) of them (past the duration the end velocity is
+    held), and their limit peaks: (samples [C, K, 3, d] in the trajectories' frames, sample counts [C], peak
+    speeds [C], peak accelerations [C]) -- sample_profiles and peaks in one call."""
+    counts = np.empty(duration.shape[0], dtype=np.int64)
+    for c in range(duration.shape[0]):
+        counts[c] = max(2, np.int64(np.ceil(duration[c] / dt - 1e-9)) + 1)
     samples = sample_profiles(prof, duration, counts, dt)
     v_peak, a_peak = peaks(samples, counts, dt, sq_order)
-    return samples, v_peak, a_peak
+    return samples, counts, v_peak, a_peak
 
 
 @njit(cache=True, nogil=True)

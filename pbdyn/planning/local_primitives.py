@@ -412,36 +412,36 @@ class LocalPrimitives:
         dt = view.dt
         calculate, traj = self._otg.calculate, self._traj
         working, finished = ruckig.Result.Working, ruckig.Result.Finished
+        n_built = 0
         while open_:
-            built, keep, flat, durations, counts = [], [], [], [], []
+            built, keep, flat, durations = [], [], [], []
             for c in open_:
                 if stage[c] == last:
                     lim_v[c], lim_a[c] = v_max / math.sqrt(d), a_max / math.sqrt(d)
                 inp = inputs[c]
                 inp.max_velocity = [lim_v[c]] * d
                 inp.max_acceleration = [lim_a[c]] * d
-                self.last_candidates_built += 1
+                n_built += 1
                 try:
                     result = calculate(inp, traj)
                 except (ruckig.RuckigError, ValueError):   # e.g. an error code the binding cannot name
                     result = None
                 # rejected: e.g. a target velocity above the per-axis limit, or longer than MAX_PLAN_HORIZON_S
-                if (result == working or result == finished) and traj.duration <= MAX_PLAN_HORIZON_S:
-                    duration = traj.duration
+                duration = traj.duration
+                if (result == working or result == finished) and duration <= MAX_PLAN_HORIZON_S:
                     built.append(c)
                     durations.append(duration)
-                    counts.append(max(2, math.ceil(duration / dt - 1e-9) + 1))
                     flat += profile_row(traj)
                 elif stage[c] < last:
                     stage[c] = last                  # nothing to scale from: go to the conservative limits
                     keep.append(c)
             if built:
-                samples, v_peaks, a_peaks = sampled_peaks(np.array(flat).reshape(len(built), d, PROFILE_WIDTH),
-                                                          np.array(durations), np.array(counts, dtype=np.int64), dt,
-                                                          sq_order)
-                for i, (c, v_peak, a_peak) in enumerate(zip(built, v_peaks.tolist(), a_peaks.tolist())):
+                samples, counts, v_peaks, a_peaks = sampled_peaks(
+                    np.array(flat).reshape(len(built), d, PROFILE_WIDTH), np.array(durations), dt, sq_order)
+                for i, (c, k, v_peak, a_peak) in enumerate(zip(built, counts.tolist(), v_peaks.tolist(),
+                                                               a_peaks.tolist())):
                     if v_peak <= v_max + _TOL and a_peak <= a_max + _TOL:
-                        accepted[c] = (samples, i, counts[i])
+                        accepted[c] = (samples, i, k)
                         continue
                     if stage[c] >= last:
                         continue
@@ -452,6 +452,7 @@ class LocalPrimitives:
                     stage[c] += 1
                     keep.append(c)
             open_ = sorted(keep)
+        self.last_candidates_built += n_built
         rows = [c for c in range(n) if accepted[c] is not None]
         if not rows:
             return _Built.nothing(d)
