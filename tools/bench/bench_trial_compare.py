@@ -5,7 +5,8 @@ map, N start/goal pairs each) alternately with the code of a git revision (defau
 steppable core) and with this checkout, each round in fresh processes, and prints per configuration the median over
 rounds of the loop time per step (the steps' wall-time splits, what bench_trial.py reports) and of the whole
 trial's wall time per step (including building the trial's PyBullet world), old and new, and the ratios old/new
-(> 1: the new code is faster).
+(> 1: the new code is faster). Each process first flies one untimed trial (its start-up: imports, numba loading the
+compiled code on first use), whose wall time is printed apart.
 
     .venv/bin/python tools/bench/bench_trial_compare.py [--ref REV] [--rounds R] [--pairs N]
 """
@@ -48,6 +49,11 @@ for dims, count in ((2, 10), (2, 30), (3, 10)):
     m = enumerate_maps(sc)[0]
     ro = build_rollout(sc, m)
     cands = sc.task.candidates
+    if not out:                 # process start-up (imports, compiled code loaded on first use): one untimed trial
+        i, j = demo_pairs(sc, 1)[0]
+        t0 = time.perf_counter()
+        run_trial(make_trial_spec(sc, m, planner=sc.planners[0].label, start=cands[i], goal=cands[j]), ro)
+        out["_first_trial_s"] = time.perf_counter() - t0
     for e in sc.planners:
         wall = steps = loop = 0.0
         for i, j in demo_pairs(sc, pairs):
@@ -97,6 +103,8 @@ def main() -> int:
           f"{'new':>7} {'old/new':>7}   (median of {args.rounds} interleaved rounds, {args.pairs} pairs each)")
     loops, totals = [], []
     for key in per["old"][0]:
+        if key.startswith("_"):
+            continue
         lo, ln = (np.median([1000 * d[key][2] / d[key][1] for d in per[w]]) for w in ("old", "new"))
         to, tn = (np.median([1000 * d[key][0] / d[key][1] for d in per[w]]) for w in ("old", "new"))
         loops.append(lo / ln)
@@ -104,6 +112,9 @@ def main() -> int:
         print(f"{key:<36} {lo:16.4f} {ln:7.4f} {lo / ln:7.3f}   {to:17.4f} {tn:7.4f} {to / tn:7.3f}")
     print(f"{'median ratio old/new':<36} {'':>16} {'':>7} {np.median(loops):7.3f}   {'':>17} {'':>7} "
           f"{np.median(totals):7.3f}")
+    first = [np.median([d.get("_first_trial_s", np.nan) for d in per[w]]) for w in ("old", "new")]
+    print(f"each process's first trial (untimed above: imports, compiled code loaded), s: old {first[0]:.3f}, "
+          f"new {first[1]:.3f}")
     return 0
 
 
