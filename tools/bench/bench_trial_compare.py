@@ -5,8 +5,9 @@ map, N start/goal pairs each) alternately with the code of a git revision (defau
 steppable core) and with this checkout, each round in fresh processes, and prints per configuration the median over
 rounds of the loop time per step (the steps' wall-time splits, what bench_trial.py reports) and of the whole
 trial's wall time per step (including building the trial's PyBullet world), old and new, and the ratios old/new
-(> 1: the new code is faster). Each process first flies one untimed trial (its start-up: imports, numba loading the
-compiled code on first use), whose wall time is printed apart.
+(> 1: the new code is faster). Each process first flies one untimed trial of every planner pair (its start-up:
+imports, numba loading -- or, the first time in a tree, compiling -- the compiled code on first use), whose wall
+time is printed apart.
 
     .venv/bin/python tools/bench/bench_trial_compare.py [--ref REV] [--rounds R] [--pairs N]
 """
@@ -49,10 +50,11 @@ for dims, count in ((2, 10), (2, 30), (3, 10)):
     m = enumerate_maps(sc)[0]
     ro = build_rollout(sc, m)
     cands = sc.task.candidates
-    if not out:                 # process start-up (imports, compiled code loaded on first use): one untimed trial
-        i, j = demo_pairs(sc, 1)[0]
+    if not out:                 # process start-up (imports, compiled code loaded or compiled on first use):
+        i, j = demo_pairs(sc, 1)[0]     # one untimed trial of every planner pair
         t0 = time.perf_counter()
-        run_trial(make_trial_spec(sc, m, planner=sc.planners[0].label, start=cands[i], goal=cands[j]), ro)
+        for e in sc.planners:
+            run_trial(make_trial_spec(sc, m, planner=e.label, start=cands[i], goal=cands[j]), ro)
         out["_first_trial_s"] = time.perf_counter() - t0
     for e in sc.planners:
         wall = steps = loop = 0.0
@@ -113,8 +115,8 @@ def main() -> int:
     print(f"{'median ratio old/new':<36} {'':>16} {'':>7} {np.median(loops):7.3f}   {'':>17} {'':>7} "
           f"{np.median(totals):7.3f}")
     first = [np.median([d.get("_first_trial_s", np.nan) for d in per[w]]) for w in ("old", "new")]
-    print(f"each process's first trial (untimed above: imports, compiled code loaded), s: old {first[0]:.3f}, "
-          f"new {first[1]:.3f}")
+    print(f"each process's first trial of every pair (untimed above: start-up, compiled code loaded), s: old "
+          f"{first[0]:.3f}, new {first[1]:.3f} (median; the first round compiles in a new tree)")
     return 0
 
 
