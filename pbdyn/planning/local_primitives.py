@@ -101,12 +101,13 @@ def frame_basis(u: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _fan(dims: int, n_candidates: int, spacing_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """The candidates' unit directions [n, d] (candidate_directions) and their planning frames [n, d, d]
-    (frame_basis of each), read-only and shared by the planners that ask for the same fan (3D: 412 frames)."""
+    """The candidates' unit directions [n, d] (candidate_directions, read-only) and their planning frames [n, d, d]
+    (frame_basis of each), shared by the planners that ask for the same fan (3D: 412 frames). The frames stay
+    writable (the planners never write them) so that the compiled checks see one array type whether a chunk's
+    frames are a view or a copy (each new type would be compiled, and a compile mid-trial is a long step)."""
     dirs = candidate_directions(dims, n_candidates, spacing_deg)
     bases = np.stack([frame_basis(u) for u in dirs])
     dirs.setflags(write=False)
-    bases.setflags(write=False)
     return dirs, bases
 
 

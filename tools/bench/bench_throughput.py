@@ -7,7 +7,8 @@ Workloads: "quickstart" (scenarios/quickstart.toml, every planner entry, all 72 
 LookAhead + local primitives, all 72 pairs x 3 MAV speeds on the first --maps-per-setup replicates of every one of
 the 27 setups: 5,832 trials with 1 replicate). Each code version runs in its own long-lived process (BLAS threads 1,
 PYTHONHASHSEED 0) fed one map at a time, old and new alternating; CPU time is the process time of the flying itself
-(rollouts are built before timing). Every row (wall times excluded) is compared old vs new: the code change must
+(rollouts are built before timing; each worker first flies the first map untimed: imports, and numba compiling or
+loading its code). Every row (wall times excluded) is compared old vs new: the code change must
 not change a result. The projection is trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
 
     .venv/bin/python tools/bench/bench_throughput.py [--ref REV] [--maps-per-setup 1] [--quick-maps 3]
@@ -142,6 +143,8 @@ def main() -> int:
                        check=True)
         workers = {"old": Worker(old_tree, False, cache), "new": Worker(ROOT, True, cache)}
         try:
+            for w in workers.values():          # untimed: imports, and numba compiling (new tree) or loading
+                w.fly(*jobs[0][1:])
             for n, (name, scenario, m, entries) in enumerate(jobs):
                 order = ("old", "new") if n % 2 == 0 else ("new", "old")
                 got = {w: workers[w].fly(scenario, m, entries) for w in order}
@@ -156,7 +159,8 @@ def main() -> int:
                 w.close()
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old_tree)], check=False)
     print(f"old = {args.ref} (one trial at a time), new = this checkout (lockstep groups of 72 as pbdyn batch); "
-          "rows identical old vs new")
+          "rows identical old vs new; "
+          f"each worker first flew {jobs[0][0]} map {jobs[0][2]} untimed (start-up)")
     print(f"{'workload':<12} {'code':<4} {'trials':>7} {'CPU s':>8} {'trials/CPU-s':>13} {'median map':>11} "
           f"{'step median ms':>15} {'p99 ms':>8} {'p99/med':>8}")
     rates = {}
