@@ -377,6 +377,8 @@ def _complete_scan(cells, shape, o, origin, res, dirs_t, t_cells, hits, frac, ra
     static body or wall marked OCCUPIED; the obstacles hit, ascending. Body ids index is_static / dynamic_index
     (-1, no body, their last entry). Returns (ranges [R], obstacle ids, whether a cell became OCCUPIED)."""
     d, n_rays = dirs_t.shape
+    if hits.shape[0] != n_rays or frac.shape[0] != n_rays or o.shape[0] != d or origin.shape[0] != d:
+        raise ValueError("complete: mismatched scan shapes")
     n_lookup = is_static.shape[0]
     inv = 1.0 / res
     ranges = frac * range_m

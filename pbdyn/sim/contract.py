@@ -131,7 +131,7 @@ def _clearly_valid(traj, t, dt, position, velocity, v_max, a_max, physical) -> b
     if type(traj) is not Trajectory:
         return False
     p, v, a = traj.p, traj.v, traj.a
-    if p.shape[1] != position.shape[0] or p.shape[0] < 2:
+    if p.shape[1] != position.shape[0] or p.shape[0] < 2 or velocity.shape != position.shape:
         return False
     if not (abs(traj.t0 - t) <= TIME_TOL * max(1.0, abs(t)) and abs(traj.dt - dt) <= TIME_TOL * max(1.0, dt)):
         return False
