@@ -158,10 +158,7 @@ class OccupancyGrid:
         out = np.full(pts.shape[0], float(max_dist))
         reach = int(np.ceil(max_dist / self.res)) + 1
         idx_off, flat_off, strides = self._offsets(max_dist, reach)
-        occ, masks = self._occupied() if occupied is None else occupied
-        padded = masks.get(("padded", reach))
-        if padded is None:                 # OCCUPIED padded by reach False cells: offsets from any cell stay inside
-            padded = masks[("padded", reach)] = np.pad(occ, reach).reshape(-1)
+        padded = self._padded(reach, *(self._occupied() if occupied is None else occupied))
         centre = (base + reach) @ strides                                              # [K] in the padded array
         rows, cols = np.nonzero(padded[centre[:, None] + flat_off[None, :]])
         if rows.shape[0] == 0:
@@ -171,6 +168,15 @@ class OccupancyGrid:
         delta = np.maximum(np.maximum(cmin - p, p - (cmin + self.res)), 0.0)
         np.minimum.at(out, rows, np.sqrt(np.sum(delta * delta, axis=-1)))
         return out
+
+    @staticmethod
+    def _padded(reach: int, occ: np.ndarray, masks: dict) -> np.ndarray:
+        """The OCCUPIED mask padded by ``reach`` False cells on every side, flat (offsets from any cell stay inside),
+        cached with the masks built from ``occ``."""
+        padded = masks.get(("padded", reach))
+        if padded is None:
+            padded = masks[("padded", reach)] = np.pad(occ, reach).reshape(-1)
+        return padded
 
     def _offsets(self, max_dist: float, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell offsets [W, d] within Chebyshev distance ``reach`` whose box can come within max_dist of a point in
@@ -202,9 +208,7 @@ class OccupancyGrid:
             return self.clearance(pts, max_dist) < radius
         reach = int(np.ceil(max_dist / self.res)) + 1
         idx_off, flat_off, strides = self._offsets(max_dist, reach)
-        padded = masks.get(("padded", reach))
-        if padded is None:
-            padded = masks[("padded", reach)] = np.pad(occ, reach).reshape(-1)
+        padded = self._padded(reach, occ, masks)
         return _collides(pts, self.origin, self.res, self._last, near.reshape(-1), self._strides, padded, idx_off,
                          flat_off, strides, reach, float(radius))
 

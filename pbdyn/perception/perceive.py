@@ -233,17 +233,6 @@ class Perception:
         seen[cells] = False
         return cells
 
-    def _mark_free(self, o: np.ndarray, dirs_t: np.ndarray, reach: np.ndarray) -> None:
-        """Mark FREE (unless OCCUPIED) the cells of the free-space samples of a scan: the cells free_cells lists,
-        marked in compiled code sample by sample (_mark_free_samples)."""
-        grid = self.grid
-        if not grid.cells.flags.c_contiguous:          # the compiled marking writes through a flat view
-            grid.mark_free_cells(self.free_cells(o, dirs_t, reach))
-            return
-        inv = 1.0 / grid.res
-        _mark_free_samples(grid.cells.reshape(-1), np.asarray(grid.shape, dtype=np.int64), (o - grid.origin) * inv,
-                           dirs_t, reach * inv - 1e-9, self._t_cells)
-
     def directions(self, yaw: float) -> np.ndarray:
         """Unit ray directions [R, d] for ``yaw`` (rad)."""
         return self._rotated(yaw).T.copy()
@@ -351,7 +340,7 @@ class Perception:
 
 @njit(cache=True, nogil=True)
 def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
-    """Perception._mark_free in compiled code: for ray r (direction dirs_t[:, r]) and sample distance t (cell units,
+    """The free-space marking of a scan (the cells Perception.free_cells lists) in compiled code: for ray r (direction dirs_t[:, r]) and sample distance t (cell units,
     t_cells), the sample oc + dirs_t[:, r] * min(t, lim[r]) (cell units from cell 0's corner) lies in the cell
     floor() of it, clipped into the grid; each such cell of ``cells`` (flat, C order, of ``shape``) becomes FREE
     unless it is OCCUPIED (free_cells' float operations, in its order)."""

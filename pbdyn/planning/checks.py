@@ -48,35 +48,6 @@ def trajectory_clear(view: View, p: np.ndarray, times: np.ndarray, margin: float
     return not view.grid.collides(p, view.limits.radius + margin).any()
 
 
-def first_clear_candidate(view: View, paths: list, margin: float = 0.5) -> int:
-    """Index of the first of ``paths`` (each positions [K_c, d] (m) sampled every view.dt from view.t, sample 0 the
-    current state) whose samples 1..K_c-1 are all clear, -1 if none: trajectory_clear on each in turn, the walls
-    and the tracks evaluated for all paths in one array operation ([n, K, M, d]; shorter paths padded with NaN,
-    which meets nothing) and the grid only for the paths those leave clear, with the same float operations."""
-    n = len(paths)
-    if n == 0:
-        return -1
-    lengths = np.fromiter((p.shape[0] - 1 for p in paths), dtype=np.int64, count=n)
-    k_max = int(lengths.max())
-    if k_max <= 0:
-        return 0
-    pts = np.full((n, k_max, paths[0].shape[1]), np.nan)
-    for c, p in enumerate(paths):
-        pts[c, :lengths[c]] = p[1:]
-    bad = _wall_hits(view, pts, margin).any(axis=1)
-    if len(view.tracks) and not bad.all():
-        times = view.t + view.dt * np.arange(k_max + 1)
-        bad |= _track_hits(view, pts, times[1:] - view.t, margin).any(axis=1)
-    left = np.flatnonzero(~bad)
-    if left.shape[0] == 0:
-        return -1
-    valid = np.arange(k_max)[None, :] < lengths[left, None]                     # [n_left, K]
-    hit = np.zeros(valid.shape, dtype=bool)
-    hit[valid] = view.grid.collides(pts[left][valid], view.limits.radius + margin)   # one grid query for all
-    clear = np.flatnonzero(~hit.any(axis=1))
-    return int(left[clear[0]]) if clear.shape[0] else -1
-
-
 def static_clear(view: View, points: np.ndarray, margin: float = 0.5) -> np.ndarray:
     """Per point [K, d] (m): True if the MAV ball is clear of the walls and of OCCUPIED cells (checks b, c)."""
     return ~_static_bad(view, np.asarray(points, dtype=float), margin, grid=True)

@@ -138,21 +138,21 @@ def _clearly_valid(traj, t, dt, position, velocity, v_max, a_max, physical) -> b
     shrink = 1.0 - 1e-12
     start2 = START_TOL * START_TOL * shrink
     if not physical:
-        return _within(p, v, a, position, velocity, start2, -1.0, 0.0, 0.0, 0.0, 0.0)
+        return _within(p, v, a, position, velocity, start2, False, 0.0, 0.0, 0.0, 0.0, 0.0)
     step = traj.dt
     vmax2 = (v_max * (1.0 + REL_TOL)) ** 2 * shrink
     amax2 = (a_max * (1.0 + REL_TOL)) ** 2 * shrink
     dvmax2 = (a_max * step * (1.0 + REL_TOL)) ** 2 * shrink
     gapmax2 = (a_max * step * step / 4.0 * (1.0 + REL_TOL)) ** 2 * shrink
-    return _within(p, v, a, position, velocity, start2, step, vmax2, amax2, dvmax2, gapmax2)
+    return _within(p, v, a, position, velocity, start2, True, step, vmax2, amax2, dvmax2, gapmax2)
 
 
 @njit(cache=True, nogil=True)
-def _within(p, v, a, position, velocity, start2, step, vmax2, amax2, dvmax2, gapmax2) -> bool:
+def _within(p, v, a, position, velocity, start2, physical, step, vmax2, amax2, dvmax2, gapmax2) -> bool:
     """_clearly_valid's bounds on samples p, v, a [K, d]: squared distances of sample 0 from ``position`` and
-    ``velocity`` <= start2, and, when step > 0 (physical), every sample's squared speed and acceleration and every
-    step's squared velocity change and position gap (pbdyn.sim.contract) within vmax2, amax2, dvmax2, gapmax2;
-    when step < 0, only that every value is finite. NaN passes no bound."""
+    ``velocity`` <= start2, and, when ``physical``, every sample's squared speed and acceleration and every step's
+    (``step`` s) squared velocity change and position gap (pbdyn.sim.contract) within vmax2, amax2, dvmax2,
+    gapmax2; otherwise only that every value is finite. NaN passes no bound."""
     n, d = p.shape
     dp2 = 0.0
     dv2 = 0.0
@@ -163,7 +163,7 @@ def _within(p, v, a, position, velocity, start2, step, vmax2, amax2, dvmax2, gap
         dv2 += f * f
     if not (dp2 <= start2 and dv2 <= start2):
         return False
-    if step < 0.0:
+    if not physical:
         for k in range(n):
             for j in range(d):
                 if not (np.isfinite(p[k, j]) and np.isfinite(v[k, j]) and np.isfinite(a[k, j])):
