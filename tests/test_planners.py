@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+import ruckig
 
 from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import FREE, OCCUPIED, OccupancyGrid
@@ -157,7 +158,15 @@ def test_local_primitives_primitive_ends_at_candidate_with_end_velocity():
     ctx = _context()
     planner = LocalPrimitives(ctx)
     tr = planner.plan(_view(ctx, [10, 10], [40, 10]))
-    duration = planner._traj.duration
+    # the reference: ruckig itself, from rest to the candidate 3 m along +x (a straight primitive: per-axis limits
+    # are the norm limits, so the first build is kept)
+    otg, traj, inp = ruckig.Ruckig(2), ruckig.Trajectory(2), ruckig.InputParameter(2)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [3.0, 0.0], [2.0, 0.0], [0.0, 0.0]
+    inp.max_velocity, inp.max_acceleration = [ctx.limits.v_max] * 2, [ctx.limits.a_max] * 2
+    inp.max_jerk, inp.minimum_duration = [planner.jerk_max] * 2, planner.min_duration
+    assert otg.calculate(inp, traj) in (ruckig.Result.Working, ruckig.Result.Finished)
+    duration = traj.duration
     assert duration >= planner.min_duration - 1e-12 and planner.min_duration == pytest.approx(0.9)
     assert tr.n_samples == math.ceil(duration / DT - 1e-9) + 1
     t_last = (tr.n_samples - 1) * DT  # past the duration the end velocity is held
@@ -166,7 +175,7 @@ def test_local_primitives_primitive_ends_at_candidate_with_end_velocity():
     np.testing.assert_allclose(tr.a[-1], [0.0, 0.0], atol=1e-9)
     # samples are the ruckig trajectory at k dt
     for k in (1, 4):
-        p, v, a = planner._traj.at_time(k * DT)
+        p, v, a = traj.at_time(k * DT)
         # planned in a frame whose first axis points at the candidate (+x here), origin at the MAV
         np.testing.assert_allclose(tr.p[k], np.add(p, [10.0, 10.0])), np.testing.assert_allclose(tr.v[k], v)
 

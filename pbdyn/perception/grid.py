@@ -92,11 +92,11 @@ class OccupancyGrid:
 
     def _occupied(self) -> tuple[np.ndarray, dict]:
         """The OCCUPIED mask [shape] and the masks cached from it; the cache is dropped when the OCCUPIED cells
-        differ from those it was built from (any write to ``cells``)."""
-        occ = self.cells == OCCUPIED
+        differ from those it was built from (any write to ``cells``; compared cell by cell in compiled code)."""
         built_from, masks = self._near_cache
-        if built_from is None or not np.array_equal(occ, built_from):
-            self._near_cache = (occ, {})
+        if (built_from is None or built_from.shape != self.cells.shape
+                or not _occupied_equals(self.cells.reshape(-1), built_from.reshape(-1))):
+            self._near_cache = (self.cells == OCCUPIED, {})
         return self._near_cache
 
     def near_occupied(self, h: int) -> np.ndarray | None:
@@ -190,7 +190,7 @@ class OccupancyGrid:
             gap = np.maximum(np.abs(w) - 1, 0) * self.res
             w = w[np.sqrt(np.sum(gap * gap, axis=1)) <= max_dist + 0.01 * self.res]
             padded = np.asarray(self.shape, dtype=np.int64) + 2 * reach
-            strides = np.cumprod(np.concatenate([padded[1:], [1]])[::-1])[::-1]
+            strides = np.ascontiguousarray(np.cumprod(np.concatenate([padded[1:], [1]])[::-1])[::-1])
             hit = (w, w @ strides, strides)
             self._offset_cache[key] = hit
         return hit
@@ -201,16 +201,31 @@ class OccupancyGrid:
         the same distance arithmetic, stopping at the first cell closer than radius."""
         pts = np.asarray(points, dtype=float).reshape(-1, self.dims)
         max_dist = radius + self.res
-        h = max(int(np.ceil(max_dist / self.res)), 0)
-        occ, masks = self._occupied()
-        near = self._near(h, occ, masks)
-        if near is None or pts.shape[0] == 0 or not max_dist > radius:
+        if not max_dist > radius:
             return self.clearance(pts, max_dist) < radius
-        reach = int(np.ceil(max_dist / self.res)) + 1
-        idx_off, flat_off, strides = self._offsets(max_dist, reach)
-        padded = self._padded(reach, occ, masks)
-        return _collides(pts, self.origin, self.res, self._last, near.reshape(-1), self._strides, padded, idx_off,
-                         flat_off, strides, reach, float(radius))
+        query = self.collision_query(radius)
+        if query is None or pts.shape[0] == 0:
+            return np.zeros(pts.shape[0], dtype=bool)        # no OCCUPIED cell: clearance() is max_dist > radius
+        return _collides(pts, *query)
+
+    def collision_query(self, radius: float) -> tuple | None:
+        """The arguments after the points of the compiled query _collides(points, *args) that collides() makes for
+        a ball of ``radius`` (m; radius + res > radius), or None when no cell is OCCUPIED (nothing collides). For
+        compiled callers that check many point sets against one grid state."""
+        occ, masks = self._occupied()
+        key = ("query", radius)
+        if key not in masks:
+            max_dist = radius + self.res
+            h = max(int(np.ceil(max_dist / self.res)), 0)
+            near = self._near(h, occ, masks)
+            if near is None:
+                masks[key] = None
+            else:
+                reach = int(np.ceil(max_dist / self.res)) + 1
+                idx_off, flat_off, strides = self._offsets(max_dist, reach)
+                masks[key] = (self.origin, self.res, self._last, near.reshape(-1), self._strides,
+                              self._padded(reach, occ, masks), idx_off, flat_off, strides, reach, float(radius))
+        return masks[key]
 
     def copy(self) -> "OccupancyGrid":
         """A deep copy."""
@@ -255,3 +270,12 @@ def _collides(pts, origin, res, last, near, cell_strides, padded, idx_off, flat_
                 out[i] = True
                 break
     return out
+
+
+@njit(cache=True, nogil=True)
+def _occupied_equals(cells, occ):
+    """True if the OCCUPIED cells of ``cells`` [n] (int8) are exactly the True entries of ``occ`` [n]."""
+    for i in range(cells.shape[0]):
+        if (cells[i] == OCCUPIED) != occ[i]:
+            return False
+    return True

@@ -27,7 +27,9 @@ import ruckig
 
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
-from pbdyn.planning.candidate_kernels import numpy_orders, sampled_peaks, world_and_screen
+from pbdyn.planning.candidate_kernels import build_candidates, numpy_orders, sampled_peaks, world_and_screen
+from pbdyn.planning.candidate_search import no_grid_query, search
+from pbdyn.planning.native import ruckig_build_address
 from pbdyn.planning.checks import WALL_MARGIN_CAP, static_clear
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row
@@ -184,13 +186,26 @@ class LocalPrimitives:
         self._otg = ruckig.Ruckig(d)
         self._traj = ruckig.Trajectory(d)
         self._input_pool: list = []    # ruckig InputParameters with the fixed fields set (_inputs)
+        self._native = ruckig_build_address()   # the native ruckig batch's entry point, or None (Python package)
         self._orders = numpy_orders(d)
+        self._chunks = np.array(self.CHUNKS, dtype=np.int64)
+        self._counts = np.array([_N_SCALED_REBUILDS, *self._orders], dtype=np.int64)
+        self._limits_row = np.array([self.limits.v_max, self.limits.a_max, self.jerk_max, self.min_duration,
+                                     MAX_PLAN_HORIZON_S, _SCALE_SAFETY, _TOL, 0.0, 0.0])  # t, dt set per view
         self._screen_view: View | None = None
+        self._stacked_view: View | None = None   # _search_native's per-view arguments, for this view
+        self._stacked: tuple = ()
         self._screen_args: tuple = ()
         self.last_candidates_built = 0
         self.last_candidates_tried = 0
         self.last_rank: int | None = None
         self.last_target: np.ndarray | None = None
+
+    @property
+    def uses_native(self) -> bool:
+        """True if this planner builds its candidates through the native ruckig batch and the compiled search
+        (pbdyn.planning.native); False: the ruckig Python package and the Python chunk loop (the same plans)."""
+        return self._native is not None
 
     def replan_check(self, view: View) -> bool:
         """Always True: the thesis program replans every step and executes one sample."""
@@ -239,22 +254,13 @@ class LocalPrimitives:
             return found
         if order is None:
             order = np.arange(self.n_candidates) if angles is None else np.argsort(angles, kind="stable")
-        targets = p0 + self._step_dirs                          # [n, d]
-        static_ok = static_clear(view, targets, self.margin)
-        rest = np.flatnonzero(static_ok[order[1:]]) + 1        # ranks still worth building, ascending
-        lo = 0
-        for size in self.chunk_sizes(rest.shape[0]):
-            ranks = rest[lo:lo + size]
-            lo += size
-            idx = order[ranks]
-            built = self._build_many(view, targets[idx], end_vel[idx], self._bases[idx])
-            j = self._first_clear(view, built)
-            if j >= 0:
-                r = int(ranks[built.rows[j]])
-                self.last_candidates_tried += int(np.searchsorted(rest, r)) + 1
-                return self._chosen(view, targets[order[r]], r + offset, *built.samples(j))
-        self.last_candidates_tried += int(rest.shape[0])
-        return None
+        idx = order[1:]
+        targets = p0 + self._step_dirs[idx]                      # [n - 1, d], ranks 1..
+        j, tried, samples = self._search(view, targets, end_vel[idx], self._bases[idx], prune=True)
+        self.last_candidates_tried += tried
+        if j < 0:
+            return None
+        return self._chosen(view, targets[j], j + 1 + offset, *samples)
 
     def none_can_be_clear(self, view: View) -> bool:
         """True if no primitive this planner can return is clear, proven from the current state alone.
@@ -307,11 +313,58 @@ class LocalPrimitives:
 
     def _try_one(self, view: View, target, vel, basis, rank: int) -> Trajectory | None:
         """Build and check one candidate; its Trajectory (recorded as the choice at ``rank``) or None."""
-        built = self._build_many(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
-                                 basis[None])
-        if self._first_clear(view, built) < 0:
-            return None
-        return self._chosen(view, target, rank, *built.samples(0))
+        j, _, samples = self._search(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
+                                     basis[None], prune=False)
+        return None if j < 0 else self._chosen(view, target, rank, *samples)
+
+    def _search(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray,
+                prune: bool) -> tuple[int, int, tuple]:
+        """The first clear candidate of the rank-ordered end points targets [n, d] (m), end velocities vels [n, d]
+        and frames bases [n, d, d]: those whose end point is blocked skipped unbuilt when ``prune``, the others
+        built in chunks (CHUNKS) and checked together. Returns (its index or -1, candidates counted as tried, its
+        samples (p, v, a) [K, d]). With the native ruckig batch one compiled call (candidate_search.search);
+        without it the chunk loop below, the reference (the same answer bit for bit)."""
+        if self._native is not None:
+            return self._search_native(view, targets, vels, bases, prune)
+        rest = np.flatnonzero(static_clear(view, targets, self.margin)) if prune else np.arange(targets.shape[0])
+        lo = 0
+        for size in self.chunk_sizes(rest.shape[0]):
+            sel = rest[lo:lo + size]
+            built = self._build_many(view, targets[sel], vels[sel], bases[sel])
+            j = self._first_clear(view, built)
+            if j >= 0:
+                return int(sel[built.rows[j]]), lo + int(built.rows[j]) + 1, built.samples(j)
+            lo += size
+        return -1, int(rest.shape[0]), ()
+
+    def _search_native(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray,
+                       prune: bool) -> tuple[int, int, tuple]:
+        """_search in one compiled call; the frame inputs are the products _build_many forms, in numpy."""
+        frame_in = np.empty((4, targets.shape[0], self.dims))
+        frame_in[0] = bases @ view.velocity
+        frame_in[1] = bases @ view.acceleration
+        frame_in[2] = (bases @ (targets - view.position)[:, :, None])[:, :, 0]
+        frame_in[3] = (bases @ vels[:, :, None])[:, :, 0]
+        if self._stacked_view is not view:
+            wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
+            query = view.grid.collision_query(view.limits.radius + self.margin)
+            limits = self._limits_row
+            limits[7], limits[8] = view.t, view.dt
+            state = np.empty((3, self.dims))
+            state[0], state[1], state[2] = view.position, view.velocity, view.acceleration
+            walls = np.empty((2, self.dims))
+            walls[0], walls[1] = wall_lo, wall_hi
+            tracks = np.empty((2, track_pos.shape[0], self.dims))
+            tracks[0], tracks[1] = track_pos, track_vel
+            self._stacked = (limits, state, walls, tracks, reach2, query is not None,
+                             no_grid_query() if query is None else query)
+            self._stacked_view = view
+        limits, state, walls, tracks, reach2, has_grid, query = self._stacked
+        j, tried, n_built, p, v, a = search(self._native, frame_in, np.ascontiguousarray(bases),
+                                            np.ascontiguousarray(targets), prune, self._chunks, limits, self._counts,
+                                            state, walls, tracks, reach2, has_grid, query)
+        self.last_candidates_built += int(n_built)
+        return int(j), int(tried), (p, v, a)
 
     def _first_clear(self, view: View, built: "_Built") -> int:
         """Index (into built.rows) of the first built candidate whose samples 1.. are clear (checks.py: walls and
@@ -391,13 +444,37 @@ class LocalPrimitives:
         evaluation; the frame changes are the same products as numpy's (candidate_kernels)."""
         d = self.dims
         n = targets.shape[0]
-        v_max, a_max = self.limits.v_max, self.limits.a_max
         mm_mode, sq_order = self._orders
+        cur_v = bases @ view.velocity
+        cur_a = bases @ view.acceleration
+        tgt_p = (bases @ (np.asarray(targets, dtype=float) - view.position)[:, :, None])[:, :, 0]
+        tgt_v = (bases @ np.asarray(vels, dtype=float)[:, :, None])[:, :, 0]
+        if self._native is not None:
+            rows, frame, counts, n_built = build_candidates(
+                self._native, cur_v, cur_a, np.ascontiguousarray(tgt_p), np.ascontiguousarray(tgt_v),
+                float(self.limits.v_max), float(self.limits.a_max), self.jerk_max, self.min_duration,
+                MAX_PLAN_HORIZON_S, _N_SCALED_REBUILDS, _SCALE_SAFETY, _TOL, float(view.dt), sq_order)
+        else:
+            rows, frame, counts, n_built = self._frames_python(cur_v, cur_a, tgt_p, tgt_v, view.dt)
+        self.last_candidates_built += n_built
+        if len(rows) == 0:
+            return _Built.nothing(d)
+        wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
+        p, v, a, bad = world_and_screen(frame, counts, bases if len(rows) == n else bases[rows], view.position,
+                                        view.velocity, view.acceleration, wall_lo, wall_hi, track_pos, track_vel,
+                                        reach2, view.t, view.dt, mm_mode, sq_order)
+        return _Built(rows, p, v, a, counts, bad)
+
+    def _frames_python(self, cur_v, cur_a, tgt_p, tgt_v, dt: float) -> tuple:
+        """build_candidates' stages through the ruckig Python package, one calculate() per candidate and stage (the
+        reference of the native path, and the path without the native library): (rows, frame samples [m, K, 3, d],
+        counts [m], the number of ruckig builds)."""
+        d = self.dims
+        n = cur_v.shape[0]
+        v_max, a_max = self.limits.v_max, self.limits.a_max
+        sq_order = self._orders[1]
         inputs = self._inputs(n)
-        cur_v = (bases @ view.velocity).tolist()
-        cur_a = (bases @ view.acceleration).tolist()
-        tgt_p = (bases @ (np.asarray(targets, dtype=float) - view.position)[:, :, None])[:, :, 0].tolist()
-        tgt_v = (bases @ np.asarray(vels, dtype=float)[:, :, None])[:, :, 0].tolist()
+        cur_v, cur_a, tgt_p, tgt_v = cur_v.tolist(), cur_a.tolist(), tgt_p.tolist(), tgt_v.tolist()
         for c in range(n):
             inp = inputs[c]
             inp.current_velocity = cur_v[c]
@@ -410,7 +487,6 @@ class LocalPrimitives:
         accepted: list = [None] * n      # (samples array, its row, sample count) of each accepted candidate
         open_ = list(range(n))
         last = _N_SCALED_REBUILDS + 1
-        dt = view.dt
         calculate, traj = self._otg.calculate, self._traj
         working, finished = ruckig.Result.Working, ruckig.Result.Finished
         n_built = 0
@@ -453,10 +529,9 @@ class LocalPrimitives:
                     stage[c] += 1
                     keep.append(c)
             open_ = sorted(keep)
-        self.last_candidates_built += n_built
         rows = [c for c in range(n) if accepted[c] is not None]
         if not rows:
-            return _Built.nothing(d)
+            return rows, None, None, n_built
         counts = np.array([accepted[c][2] for c in rows], dtype=np.int64)
         first = accepted[rows[0]][0]
         if first.shape[0] == len(rows) and all(accepted[c][0] is first and accepted[c][1] == i
@@ -467,11 +542,7 @@ class LocalPrimitives:
             for i, c in enumerate(rows):
                 src, j, k = accepted[c]
                 frame[i, :k] = src[j, :k]
-        wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
-        p, v, a, bad = world_and_screen(frame, counts, bases if len(rows) == n else bases[rows], view.position,
-                                        view.velocity, view.acceleration, wall_lo, wall_hi, track_pos, track_vel,
-                                        reach2, view.t, dt, mm_mode, sq_order)
-        return _Built(rows, p, v, a, counts, bad)
+        return rows, frame, counts, n_built
 
     def _screen(self, view: View) -> tuple:
         """The wall and track bounds of world_and_screen for ``view`` (kept for the view last asked about): the

@@ -1,0 +1,158 @@
+"""pbdyn's native ruckig batch: ruckig's trajectory calculator called from compiled code, many candidates per call.
+
+The motion-primitive planners build most of their candidates through the ruckig Python package, one binding call
+(plus setting its inputs and reading its profiles) per trajectory: ~9 us of Python around ~2 us of ruckig. When
+the library built by ``python -m pbdyn.planning.native.build`` (`make` builds it) is present, matches the installed
+ruckig version and gives, on a fixed probe of planner-like inputs, the very durations and profiles the Python
+package gives (bit for bit), ruckig_build_address() hands its entry point to the compiled candidate loop
+(candidate_kernels.build_candidates); otherwise None, and the planners use the Python package: the same
+trajectories, slower. PBDYN_NATIVE=0 in the environment turns the library off.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import importlib.metadata
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row
+
+_P = ctypes.c_void_p
+LIBRARY = Path(__file__).resolve().parent / "_ruckig_batch.so"   # built by pbdyn.planning.native.build
+
+
+def _load(path) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(path))
+    lib.pbdyn_ruckig_version.restype = ctypes.c_char_p
+    lib.pbdyn_ruckig_build.restype = ctypes.c_int
+    lib.pbdyn_ruckig_build.argtypes = [ctypes.c_long, ctypes.c_long, _P, _P, _P, _P, _P, _P, ctypes.c_double,
+                                       ctypes.c_double, _P, _P, _P]
+    return lib
+
+
+def probe_inputs(d: int, n: int, seed: int = 20261125) -> tuple:
+    """n planner-like ruckig inputs for d axes (fixed seed): current velocity and acceleration, target position and
+    velocity [n, d], velocity and acceleration limits [n]; some have zero components, some are rejected."""
+    rng = np.random.default_rng(seed + d)
+    cur_v = rng.normal(size=(n, d)) * rng.choice([0.0, 0.5, 2.0], size=(n, 1))
+    cur_a = rng.normal(size=(n, d)) * rng.choice([0.0, 1.0, 5.0], size=(n, 1))
+    tgt_p = rng.normal(size=(n, d)) * 3.0 * rng.choice([0.0, 0.3, 1.0, 3.0], size=(n, 1))
+    tgt_v = rng.normal(size=(n, d)) * rng.choice([0.0, 1.0], size=(n, 1))
+    return cur_v, cur_a, tgt_p, tgt_v, rng.uniform(0.5, 5.0, n), rng.uniform(0.5, 10.0, n)
+
+
+def build_with_library(lib: ctypes.CDLL, inputs: tuple, jerk: float, min_duration: float) -> tuple:
+    """(profiles [n, d, PROFILE_WIDTH], durations [n], result codes [n]) of ``inputs`` (probe_inputs' layout) from
+    the native library (ctypes: for probes and tests; the planners call it from compiled code)."""
+    cur_v, cur_a, tgt_p, tgt_v, lim_v, lim_a = (np.ascontiguousarray(x, dtype=float) for x in inputs)
+    n, d = cur_v.shape
+    prof = np.zeros((n, d, PROFILE_WIDTH))
+    dur = np.zeros(n)
+    res = np.zeros(n, dtype=np.int64)
+    lib.pbdyn_ruckig_build(n, d, cur_v.ctypes.data, cur_a.ctypes.data, tgt_p.ctypes.data, tgt_v.ctypes.data,
+                           lim_v.ctypes.data, lim_a.ctypes.data, float(jerk), float(min_duration), prof.ctypes.data,
+                           dur.ctypes.data, res.ctypes.data)
+    return prof, dur, res
+
+
+def build_with_package(inputs: tuple, jerk: float, min_duration: float) -> tuple:
+    """build_with_library's outputs from the ruckig Python package (the reference); result codes: 0 / 1 for
+    Working / Finished, -1 for a rejected input."""
+    import ruckig
+
+    cur_v, cur_a, tgt_p, tgt_v, lim_v, lim_a = inputs
+    n, d = cur_v.shape
+    otg, traj, inp = ruckig.Ruckig(d), ruckig.Trajectory(d), ruckig.InputParameter(d)
+    inp.current_position = [0.0] * d
+    inp.target_acceleration = [0.0] * d
+    inp.max_jerk = [float(jerk)] * d
+    inp.minimum_duration = float(min_duration)
+    prof = np.zeros((n, d, PROFILE_WIDTH))
+    dur = np.zeros(n)
+    res = np.full(n, -1, dtype=np.int64)
+    for i in range(n):
+        inp.current_velocity = cur_v[i].tolist()
+        inp.current_acceleration = cur_a[i].tolist()
+        inp.target_position = tgt_p[i].tolist()
+        inp.target_velocity = tgt_v[i].tolist()
+        inp.max_velocity = [float(lim_v[i])] * d
+        inp.max_acceleration = [float(lim_a[i])] * d
+        try:
+            result = otg.calculate(inp, traj)
+        except (ruckig.RuckigError, ValueError):
+            continue
+        if result in (ruckig.Result.Working, ruckig.Result.Finished):
+            res[i] = 0 if result == ruckig.Result.Working else 1
+            dur[i] = traj.duration
+            prof[i] = np.array(profile_row(traj)).reshape(d, PROFILE_WIDTH)
+    return canonical(prof), dur, res
+
+
+def canonical(prof: np.ndarray) -> np.ndarray:
+    """Profile rows [..., PROFILE_WIDTH] with the start state of an empty second brake phase (brake t[1] <= 0) set
+    to zero: ruckig leaves it unset (stale from an earlier calculation) and no sample reads it. The library writes
+    rows in this form."""
+    out = prof.copy()
+    empty = ~(out[..., 40] > 0.0)
+    for col in (44, 46, 48):
+        out[..., col] = np.where(empty, 0.0, out[..., col])
+    return out
+
+
+def agrees(lib: ctypes.CDLL, n: int = 300) -> bool:
+    """True if the library gives the ruckig package's results bit for bit on probe_inputs (2D and 3D, n each):
+    the same accepted inputs, durations and profiles."""
+    for d in (2, 3):
+        inputs = probe_inputs(d, n)
+        prof, dur, res = build_with_library(lib, inputs, 20.0, 0.5)
+        ref_prof, ref_dur, ref_res = build_with_package(inputs, 20.0, 0.5)
+        ok = (res == 0) | (res == 1)
+        if not np.array_equal(ok, ref_res >= 0):
+            return False
+        if not (np.array_equal(dur[ok], ref_dur[ok]) and np.array_equal(prof[ok], ref_prof[ok])):
+            return False
+    return True
+
+
+@functools.cache
+def ruckig_build_address() -> int | None:
+    """The address of the library's pbdyn_ruckig_build if it is present, current and agrees with the ruckig
+    package (module doc); None otherwise (a present but unusable library gets a one-time warning)."""
+    if os.environ.get("PBDYN_NATIVE", "1") == "0" or not LIBRARY.is_file():
+        return None
+    try:
+        lib = _load(LIBRARY)
+        built_for = lib.pbdyn_ruckig_version().decode()
+    except (OSError, AttributeError) as exc:
+        warnings.warn(f"pbdyn: cannot load {LIBRARY.name} ({exc}); planners use the ruckig Python package",
+                      RuntimeWarning, stacklevel=2)
+        return None
+    installed = importlib.metadata.version("ruckig")
+    if built_for != installed:
+        warnings.warn(f"pbdyn: {LIBRARY.name} was built for ruckig {built_for}, ruckig {installed} is installed; "
+                      "rebuild it with `python -m pbdyn.planning.native.build` (planners use the Python package)",
+                      RuntimeWarning, stacklevel=2)
+        return None
+    if not agrees(lib):
+        warnings.warn(f"pbdyn: {LIBRARY.name} differs from the ruckig Python package on this machine; planners use "
+                      "the Python package", RuntimeWarning, stacklevel=2)
+        return None
+    _KEEP.append(lib)
+    return ctypes.cast(lib.pbdyn_ruckig_build, ctypes.c_void_p).value
+
+
+_KEEP: list = []   # the loaded library stays referenced while its address is in use
+
+
+def status() -> str:
+    """One line: whether the planners build trajectories through the native library, and if not, why."""
+    if os.environ.get("PBDYN_NATIVE", "1") == "0":
+        return "native ruckig batch: off (PBDYN_NATIVE=0)"
+    if not LIBRARY.is_file():
+        return "native ruckig batch: not built (python -m pbdyn.planning.native.build)"
+    return "native ruckig batch: " + ("in use" if ruckig_build_address() is not None else "present, not used")
