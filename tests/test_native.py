@@ -119,3 +119,26 @@ def test_build_tool_says_what_went_wrong_in_one_line(tmp_path):
         lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
         assert done.returncode == 1 and len(lines) == 1 and words in lines[0], done.stderr
         assert lines[0].startswith("pbdyn: native ruckig batch not built") and not out.exists()
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_compiled_frame_products_equal_numpys_where_the_planner_uses_them(d):
+    """Where the probe lets search() compute the candidates' frame inputs (frame_products_known), they equal
+    numpy's products on fresh random frames, states and fan-sized stacks; elsewhere the planner keeps numpy's."""
+    from pbdyn.planning.candidate_search import frame_inputs, frame_products_known
+
+    planner = LocalPrimitives(_context(d))
+    assert planner._counts[3] == int(frame_products_known(d))
+    if not frame_products_known(d):
+        pytest.skip(f"numpy's {d}D stacked products follow another order here: the planner uses numpy's")
+    rng = np.random.default_rng(99)
+    for n in (1, 3, 71, 411):
+        bases = planner._bases[rng.integers(0, planner.n_candidates, n)]
+        state = rng.normal(size=(3, d)) * np.array([[20.0], [4.0], [4.0]])
+        targets = state[0] + 3.0 * planner.directions[rng.integers(0, planner.n_candidates, n)]
+        vels = rng.normal(size=(n, d))
+        got = frame_inputs(bases, targets, vels, state)
+        want = (bases @ state[1], bases @ state[2], (bases @ (targets - state[0])[:, :, None])[:, :, 0],
+                (bases @ vels[:, :, None])[:, :, 0])
+        for i in range(4):
+            assert np.array_equal(got[i], want[i])

@@ -539,3 +539,32 @@ def test_local_primitives_proof_of_no_candidate():
     assert planner.plan(view) is not None
     wall = _view(ctx, [1.05, 25.0], [45.0, 25.0], np.array([-2.0, 0.0]))   # flying into the wall at 2 m/s
     assert planner.none_can_be_clear(wall) and planner.plan_one_by_one(wall) is None
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_local_primitives_compiled_proof_decides_as_numpy(dims):
+    """none_can_be_clear (compiled) and its numpy evaluation agree on random views, and on views whose obstacle or
+    wall lies just inside and just outside the proof's reach (the decisive comparisons on their bounds)."""
+    ctx = _context(dims)
+    planner = LocalPrimitives(ctx)
+    rng = np.random.default_rng(23)
+    fired = 0
+    for view in _random_views(ctx, rng, 300):
+        got = planner.none_can_be_clear(view)
+        assert got == planner._none_can_be_clear_numpy(view)
+        fired += got
+    assert 0 < fired < 300
+    # an obstacle straight ahead at the decisive distance of sample 1 (gap + ball = reach), nudged both ways
+    dt, a_max = DT, ctx.limits.a_max + 1e-9
+    ball = a_max * dt * dt * 0.75 + 1e-6
+    v = np.zeros(dims)
+    v[0] = 2.0
+    p = np.full(dims, 10.0)
+    for radius in (0.5, 1.0):
+        reach = radius + ctx.limits.radius + planner.margin
+        for nudge in (-1e-9, 0.0, 1e-9):
+            centre = p + v * dt
+            centre[0] += reach - ball + nudge
+            tracks = make_tracks(centre[None], np.zeros((1, dims)), radius)
+            view = _view(ctx, p, np.full(dims, 30.0), v, tracks=tracks)
+            assert planner.none_can_be_clear(view) == planner._none_can_be_clear_numpy(view)

@@ -28,7 +28,7 @@ import ruckig
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.candidate_kernels import build_candidates, numpy_orders, sampled_peaks, world_and_screen
-from pbdyn.planning.candidate_search import no_grid_query, search
+from pbdyn.planning.candidate_search import frame_products_known, no_candidate_proof, no_grid_query, search
 from pbdyn.planning.native import ruckig_build_address
 from pbdyn.planning.checks import WALL_MARGIN_CAP, static_clear
 from pbdyn.planning.protocols import PlannerContext
@@ -189,7 +189,8 @@ class LocalPrimitives:
         self._native = ruckig_build_address()   # the native ruckig batch's entry point, or None (Python package)
         self._orders = numpy_orders(d)
         self._chunks = np.array(self.CHUNKS, dtype=np.int64)
-        self._counts = np.array([_N_SCALED_REBUILDS, *self._orders], dtype=np.int64)
+        self._counts = np.array([_N_SCALED_REBUILDS, *self._orders, frame_products_known(d)], dtype=np.int64)
+        self._no_frames = np.zeros((4, 0, d))
         self._limits_row = np.array([self.limits.v_max, self.limits.a_max, self.jerk_max, self.min_duration,
                                      MAX_PLAN_HORIZON_S, _SCALE_SAFETY, _TOL, 0.0, 0.0])  # t, dt set per view
         self._screen_view: View | None = None
@@ -271,7 +272,24 @@ class LocalPrimitives:
         b_k = a_max dt^2 (k^2 / 2 + k / 4) of p_0 + k dt v_0. If for some such k that whole ball meets a wall
         (checks.py (c)) or lies inside one track's predicted disc (a), every candidate conflicts at sample k (the
         ball gets 1e-6 m of slack for rounding): the search would fail, and plan() returns None at once.
+        Decided in compiled code (candidate_search.no_candidate_proof) with the float operations of the numpy
+        evaluation, _none_can_be_clear_numpy (the reference).
         """
+        n_k = int(math.floor(self.min_duration / view.dt - 1e-6))
+        if n_k < 1:
+            return False
+        tracks = view.tracks
+        radius = tracks.radius
+        if radius.ndim != 1:
+            radius = np.ascontiguousarray(np.broadcast_to(radius, tracks.position.shape[:1]))
+        return no_candidate_proof(view.position, view.velocity, view.bounds_lo, view.bounds_hi, tracks.position,
+                                  tracks.velocity, radius, n_k,
+                                  float(view.dt), self.limits.a_max + _TOL,
+                                  self.limits.radius + min(self.margin, WALL_MARGIN_CAP),
+                                  self.limits.radius + self.margin, self._orders[1])
+
+    def _none_can_be_clear_numpy(self, view: View) -> bool:
+        """none_can_be_clear evaluated with numpy (the reference of the compiled proof)."""
         dt = view.dt
         k = np.arange(1, int(math.floor(self.min_duration / dt - 1e-6)) + 1, dtype=float)
         if k.shape[0] == 0:
@@ -340,11 +358,14 @@ class LocalPrimitives:
     def _search_native(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray,
                        prune: bool) -> tuple[int, int, tuple]:
         """_search in one compiled call; the frame inputs are the products _build_many forms, in numpy."""
-        frame_in = np.empty((4, targets.shape[0], self.dims))
-        frame_in[0] = bases @ view.velocity
-        frame_in[1] = bases @ view.acceleration
-        frame_in[2] = (bases @ (targets - view.position)[:, :, None])[:, :, 0]
-        frame_in[3] = (bases @ vels[:, :, None])[:, :, 0]
+        if self._counts[3]:
+            frame_in = self._no_frames                          # search() computes numpy's products itself
+        else:
+            frame_in = np.empty((4, targets.shape[0], self.dims))
+            frame_in[0] = bases @ view.velocity
+            frame_in[1] = bases @ view.acceleration
+            frame_in[2] = (bases @ (targets - view.position)[:, :, None])[:, :, 0]
+            frame_in[3] = (bases @ vels[:, :, None])[:, :, 0]
         if self._stacked_view is not view:
             wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
             query = view.grid.collision_query(view.limits.radius + self.margin)
@@ -361,8 +382,9 @@ class LocalPrimitives:
             self._stacked_view = view
         limits, state, walls, tracks, reach2, has_grid, query = self._stacked
         j, tried, n_built, p, v, a = search(self._native, frame_in, np.ascontiguousarray(bases),
-                                            np.ascontiguousarray(targets), prune, self._chunks, limits, self._counts,
-                                            state, walls, tracks, reach2, has_grid, query)
+                                            np.ascontiguousarray(targets), np.ascontiguousarray(vels), prune,
+                                            self._chunks, limits, self._counts, state, walls, tracks, reach2,
+                                            has_grid, query)
         self.last_candidates_built += int(n_built)
         return int(j), int(tried), (p, v, a)
 
