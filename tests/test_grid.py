@@ -87,3 +87,19 @@ def test_clearance_equals_the_definition_bit_for_bit():
         for cap in (0.4, 1.0, 1.5, 2.0, 2.5, 3.7):
             assert np.array_equal(g.clearance(pts, cap), _clearance_brute_force(g, pts, cap)), (it, cap)
             assert np.array_equal(g.collides(pts, cap), _clearance_brute_force(g, pts, cap + res) < cap)
+
+
+def test_near_occupied_mask_equals_shift_or_dilation():
+    """The compiled dilation behind clearance()'s shortcut equals numpy shift-ORs (2D and 3D, several reaches,
+    occupied cells on the border), and the padded mask holds the OCCUPIED cells at an offset of ``reach``."""
+    rng = np.random.default_rng(8)
+    for it in range(30):
+        d = 2 if it % 2 else 3
+        g = OccupancyGrid(np.zeros(d), np.full(d, 15.0 if d == 2 else 7.0), 1.0)
+        g.cells[rng.random(g.shape) < rng.uniform(0.002, 0.05)] = OCCUPIED
+        g.cells[(0,) * d] = OCCUPIED
+        occ = g.cells == OCCUPIED
+        for h in (0, 1, 2, 3, 40):
+            assert np.array_equal(g._near(h, occ, {}), OccupancyGrid._near_numpy(h, occ)), (it, h)
+        padded = g._padded(4, occ, {}).reshape(tuple(n + 8 for n in g.shape))
+        assert np.array_equal(padded, np.pad(occ, 4))

@@ -110,17 +110,24 @@ class OccupancyGrid:
         if mask is None:
             if not occ.any():
                 return None
-            mask = occ.copy()
-            for axis in range(mask.ndim):          # a separable square dilation: shift-OR along each axis
-                src = mask.copy()
-                n = mask.shape[axis]
-                for k in range(1, min(h, n - 1) + 1):
-                    lo = [slice(None)] * mask.ndim
-                    hi = [slice(None)] * mask.ndim
-                    lo[axis], hi[axis] = slice(0, n - k), slice(k, n)
-                    mask[tuple(lo)] |= src[tuple(hi)]
-                    mask[tuple(hi)] |= src[tuple(lo)]
+            shape = np.asarray(occ.shape, dtype=np.int64)
+            mask = _dilate(np.ascontiguousarray(occ).reshape(-1), shape, int(h)).reshape(occ.shape)
             masks[h] = mask
+        return mask
+
+    @staticmethod
+    def _near_numpy(h: int, occ: np.ndarray) -> np.ndarray:
+        """_near's mask by shift-ORs in numpy (the reference of the compiled _dilate)."""
+        mask = occ.copy()
+        for axis in range(mask.ndim):          # a separable square dilation: shift-OR along each axis
+            src = mask.copy()
+            n = mask.shape[axis]
+            for k in range(1, min(h, n - 1) + 1):
+                lo = [slice(None)] * mask.ndim
+                hi = [slice(None)] * mask.ndim
+                lo[axis], hi[axis] = slice(0, n - k), slice(k, n)
+                mask[tuple(lo)] |= src[tuple(hi)]
+                mask[tuple(hi)] |= src[tuple(lo)]
         return mask
 
     def clearance(self, points: np.ndarray, max_dist: float) -> np.ndarray:
@@ -175,7 +182,9 @@ class OccupancyGrid:
         cached with the masks built from ``occ``."""
         padded = masks.get(("padded", reach))
         if padded is None:
-            padded = masks[("padded", reach)] = np.pad(occ, reach).reshape(-1)
+            out = np.zeros(tuple(n + 2 * reach for n in occ.shape), dtype=bool)
+            out[(slice(reach, -reach),) * occ.ndim] = occ
+            padded = masks[("padded", reach)] = out.reshape(-1)
         return padded
 
     def _offsets(self, max_dist: float, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -279,3 +288,28 @@ def _occupied_equals(cells, occ):
         if (cells[i] == OCCUPIED) != occ[i]:
             return False
     return True
+
+
+@njit(cache=True, nogil=True)
+def _dilate(occ, shape, h):
+    """The cells [flat, C order, of ``shape``] within Chebyshev index distance h of a True cell of ``occ``: per axis
+    in turn, every True cell marks its neighbours up to h cells away along that axis (a separable square
+    dilation; OccupancyGrid._near_numpy is the reference)."""
+    mask = occ.copy()
+    nd = shape.shape[0]
+    stride = 1
+    for axis in range(nd - 1, -1, -1):
+        n = shape[axis]
+        reach = min(h, n - 1)
+        src = mask.copy()
+        for i in range(src.shape[0]):
+            if not src[i]:
+                continue
+            c = (i // stride) % n
+            for k in range(1, reach + 1):
+                if c - k >= 0:
+                    mask[i - k * stride] = True
+                if c + k < n:
+                    mask[i + k * stride] = True
+        stride *= n
+    return mask

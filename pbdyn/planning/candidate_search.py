@@ -1,13 +1,14 @@
 """The local planner's candidate search in one compiled call (LocalPrimitives with the native ruckig batch).
 
-search() does for a rank-ordered list of candidates what LocalPrimitives' Python chunk loop does (the reference,
-kept as the path without the native library): skip the candidates whose end point is blocked (walls, OCCUPIED
-cells), build the others chunk by chunk (candidate_kernels.build_candidates: ruckig's calculator through the native
-library, sampling and the limit rebuilds), take them to the world frame with the wall and track screen
-(world_and_screen) and check the grid (the compiled query of OccupancyGrid.collides), returning the first clear
-candidate. Every float operation is the reference's, so the choice and the trajectory are the same bit for bit
-(tests/test_candidate_search.py); what is saved is the interpreter's work between the kernels: on a typical step
-one call instead of a dozen.
+search() returns for a rank-ordered list of candidates what LocalPrimitives' Python chunk loop returns (the
+reference, kept as the path without the native library): it skips the candidates whose end point is blocked
+(walls, OCCUPIED cells), then builds the others one at a time -- ruckig's calculator through the native library,
+sampling and the limit rebuilds (_build_one, the rules of candidate_kernels.build_candidates) -- takes each to the
+world frame with the wall and track screen (world_and_screen) and checks the grid (the compiled query of
+OccupancyGrid.collides), and stops at the first clear one. Every float operation is the reference's, so the choice
+and the trajectory are the same bit for bit (tests/test_native.py); what is saved is the interpreter's work between
+the kernels (one call per search instead of a dozen) and the builds of a chunk's candidates after the chosen one
+(the reference builds chunks to spread its per-call cost; here a call costs little).
 """
 
 from __future__ import annotations
@@ -17,10 +18,9 @@ import functools
 import numpy as np
 from numba import njit
 
-from pbdyn.planning.candidate_kernels import _fma
-
 from pbdyn.perception.grid import OCCUPIED, OccupancyGrid, _collides
-from pbdyn.planning.candidate_kernels import _sq, build_candidates, world_and_screen
+from pbdyn.planning.candidate_kernels import _call_ruckig_build, _fma, _sq, sampled_peaks, world_and_screen
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH
 
 
 @njit(cache=True, nogil=True)
@@ -36,19 +36,66 @@ def _blocked(point, wall_lo, wall_hi, has_grid, grid):
 
 
 @njit(cache=True, nogil=True)
-def search(addr, frame_in, bases, targets, vels, prune, chunks, limits, counts_in, state, walls, tracks, reach2,
-           has_grid, grid):
-    """The first clear candidate of a rank-ordered list.
+def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res):
+    """Candidate c's rebuild stages (LocalPrimitives._build_many's rules, candidate_kernels.build_candidates' for
+    one candidate): build with the per-axis limits (v_max, a_max); while a sample's |v| or |a| or a step bound
+    exceeds its norm limit, rebuild with the limit scaled by safety * limit / peak (at most n_rebuilds times), then
+    once with v_max / sqrt(d), a_max / sqrt(d); a build ruckig rejects or longer than the horizon goes straight to
+    those. Returns (the accepted trajectory's samples [K, 3, d] in its frame or an empty array, its sample count
+    (0: none accepted), ruckig builds). scratch [6, d]: input buffers; prof, dur, res: the library's outputs."""
+    d = frame_in.shape[2]
+    v_max, a_max, tol, dt = limits[0], limits[1], limits[6], limits[8]
+    last = counts_in[0] + 1
+    for i in range(4):
+        for j in range(d):
+            scratch[i, j] = frame_in[i, c, j]
+    lim_v = v_max
+    lim_a = a_max
+    stage = 0
+    n_built = 0
+    while True:
+        if stage == last:
+            lim_v = v_max / np.sqrt(d)
+            lim_a = a_max / np.sqrt(d)
+        scratch[4, 0] = lim_v
+        scratch[5, 0] = lim_a
+        _call_ruckig_build(addr, 1, d, scratch[0].ctypes.data, scratch[1].ctypes.data, scratch[2].ctypes.data,
+                           scratch[3].ctypes.data, scratch[4].ctypes.data, scratch[5].ctypes.data, limits[2],
+                           limits[3], prof.ctypes.data, dur.ctypes.data, res.ctypes.data)
+        n_built += 1
+        if (res[0] == 0 or res[0] == 1) and dur[0] <= limits[4]:
+            samples, counts, v_peaks, a_peaks = sampled_peaks(prof, dur, dt, counts_in[2])
+            v_peak = v_peaks[0]
+            a_peak = a_peaks[0]
+            if v_peak <= v_max + tol and a_peak <= a_max + tol:
+                return samples[0], counts[0], n_built
+            if stage >= last:
+                break
+            if v_peak > v_max:
+                lim_v *= limits[5] * v_max / v_peak
+            if a_peak > a_max:
+                lim_a *= limits[5] * a_max / a_peak
+            stage += 1
+        elif stage < last:
+            stage = last
+        else:
+            break
+    return np.zeros((0, 3, d)), 0, n_built
+
+
+@njit(cache=True, nogil=True)
+def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state, walls, tracks, reach2, has_grid,
+           grid):
+    """The first clear candidate of a rank-ordered list, built and checked one candidate at a time.
 
     Args:
         addr: the native library's build entry point (pbdyn.planning.native.ruckig_build_address).
         frame_in: [4, m, d] C-contiguous: the candidates' current velocity, current acceleration, target position
-            and target velocity in their own frames (m/s, m/s^2, m, m/s), as build_candidates takes them (numpy's
-            products); ignored when counts_in[3] is 1 (then computed here, frame_inputs).
+            and target velocity in their own frames (m/s, m/s^2, m, m/s; numpy's products); ignored when
+            counts_in[3] is 1 (then computed here, frame_inputs).
         bases: [m, d, d] the candidates' frames (rows; world -> frame); targets: [m, d] their end points (m, world);
             vels: [m, d] their end velocities (m/s, world).
         prune: skip candidates whose end point is blocked (checks.static_clear) before building any.
-        chunks: chunk sizes (the last one repeats) in which the remaining candidates are built and checked.
         limits: [9] v_max (m/s), a_max (m/s^2), jerk (m/s^3), minimum duration (s), longest duration (s), the
             rebuild safety factor, the limit tolerance, t (s) and dt (s) of the view.
         counts_in: [4] int: the number of limit-scaled rebuilds, numpy's matmul mode and sum-of-squares order
@@ -70,40 +117,34 @@ def search(addr, frame_in, bases, targets, vels, prune, chunks, limits, counts_i
         frame_in = frame_inputs(bases, targets, vels, state)
     if (frame_in.shape[0] != 4 or frame_in.shape[1] != m or frame_in.shape[2] != d or bases.shape[0] != m
             or vels.shape[0] != m or limits.shape[0] != 9 or walls.shape[0] != 2 or tracks.shape[0] != 2
-            or tracks.shape[1] != reach2.shape[0] or chunks.shape[0] < 1):
+            or tracks.shape[1] != reach2.shape[0]):
         raise ValueError("search: mismatched shapes")
-    rest = np.empty(m, dtype=np.int64)
-    n_rest = 0
-    for c in range(m):
-        if not (prune and _blocked(targets[c], walls[0], walls[1], has_grid, grid)):
-            rest[n_rest] = c
-            n_rest += 1
+    scratch = np.zeros((6, d))
+    prof = np.zeros((1, d, PROFILE_WIDTH))
+    dur = np.zeros(1)
+    res = np.zeros(1, dtype=np.int64)
+    one = np.ones(1, dtype=np.int64)
     n_built = 0
-    lo = 0
-    k = 0
-    while lo < n_rest:
-        size = chunks[min(k, chunks.shape[0] - 1)]
-        k += 1
-        sel = rest[lo:min(lo + size, n_rest)]
-        rows, frame, counts, built = build_candidates(
-            addr, frame_in[0][sel], frame_in[1][sel], frame_in[2][sel], frame_in[3][sel], limits[0], limits[1],
-            limits[2], limits[3], limits[4], counts_in[0], limits[5], limits[6], limits[8], counts_in[2])
+    tried = 0
+    for c in range(m):
+        if prune and _blocked(targets[c], walls[0], walls[1], has_grid, grid):
+            continue
+        tried += 1
+        samples, n, built = _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res)
         n_built += built
-        if rows.shape[0] > 0:
-            p, v, a, bad = world_and_screen(frame, counts, bases[sel[rows]], state[0], state[1], state[2], walls[0],
-                                            walls[1], tracks[0], tracks[1], reach2, limits[7], limits[8],
-                                            counts_in[1], counts_in[2])
-            for i in range(rows.shape[0]):
-                if bad[i]:
-                    continue
-                n = counts[i]
-                if has_grid and _collides(p[i, 1:n], *grid).any():
-                    continue
-                return (sel[rows[i]], lo + rows[i] + 1, n_built, p[i, :n].copy(), v[i, :n].copy(),
-                        a[i, :n].copy())
-        lo += size
+        if n == 0:
+            continue
+        one[0] = n
+        p, v, a, bad = world_and_screen(samples[:n].reshape(1, n, 3, d), one, bases[c:c + 1], state[0], state[1],
+                                        state[2], walls[0], walls[1], tracks[0], tracks[1], reach2, limits[7],
+                                        limits[8], counts_in[1], counts_in[2])
+        if bad[0]:
+            continue
+        if has_grid and _collides(p[0, 1:n], *grid).any():
+            continue
+        return c, tried, n_built, p[0], v[0], a[0]
     empty = np.zeros((0, d))
-    return -1, n_rest, n_built, empty, empty.copy(), empty.copy()
+    return -1, tried, n_built, empty, empty.copy(), empty.copy()
 
 
 @functools.cache

@@ -188,7 +188,6 @@ class LocalPrimitives:
         self._input_pool: list = []    # ruckig InputParameters with the fixed fields set (_inputs)
         self._native = ruckig_build_address()   # the native ruckig batch's entry point, or None (Python package)
         self._orders = numpy_orders(d)
-        self._chunks = np.array(self.CHUNKS, dtype=np.int64)
         self._counts = np.array([_N_SCALED_REBUILDS, *self._orders, frame_products_known(d)], dtype=np.int64)
         self._no_frames = np.zeros((4, 0, d))
         self._limits_row = np.array([self.limits.v_max, self.limits.a_max, self.jerk_max, self.min_duration,
@@ -383,8 +382,7 @@ class LocalPrimitives:
         limits, state, walls, tracks, reach2, has_grid, query = self._stacked
         j, tried, n_built, p, v, a = search(self._native, frame_in, np.ascontiguousarray(bases),
                                             np.ascontiguousarray(targets), np.ascontiguousarray(vels), prune,
-                                            self._chunks, limits, self._counts, state, walls, tracks, reach2,
-                                            has_grid, query)
+                                            limits, self._counts, state, walls, tracks, reach2, has_grid, query)
         self.last_candidates_built += int(n_built)
         return int(j), int(tried), (p, v, a)
 

@@ -659,22 +659,26 @@ class PyBulletWorld:
         PyBullet getClosestPoints against the true static geometry, after a broadphase AABB query; returns
         (max_dist, -1) if nothing is nearer than max_dist. The MAV body is not moved (a probe sphere is used).
         """
-        p = self._plane_point(position)
-        p3 = self.to_world3(p)
+        p3l = np.asarray(position, dtype=float)[: self.dims].tolist()   # to_world3 of the plane point, as floats
+        if self.dims == 2:
+            p3l.append(float(self.flight_height))
         md = float(max_dist)
         reach = self.mav_radius + max(md, 0.0) + 1e-6
-        q_lo, q_hi = (p3 - reach).tolist(), (p3 + reach).tolist()
+        x0, x1, x2 = p3l
+        q_lo, q_hi = [x0 - reach, x1 - reach, x2 - reach], [x0 + reach, x1 + reach, x2 + reach]
         # A body nearer than max_dist to the probe lies in the query box: with no static AABB meeting it, nothing
         # can be (the answer Bullet would give, without asking it), unless bodies were added behind this world.
-        if not any(lo[0] <= q_hi[0] and hi[0] >= q_lo[0] and lo[1] <= q_hi[1] and hi[1] >= q_lo[1]
-                   and lo[2] <= q_hi[2] and hi[2] >= q_lo[2] for lo, hi in self._solid_boxes) \
-                and self._num_bodies() == self._known_bodies:
-            return md, -1
+        for lo, hi in self._solid_boxes:
+            if (lo[0] <= q_hi[0] and hi[0] >= q_lo[0] and lo[1] <= q_hi[1] and hi[1] >= q_lo[1]
+                    and lo[2] <= q_hi[2] and hi[2] >= q_lo[2]):
+                break
+        else:
+            if self._num_bodies() == self._known_bodies:
+                return md, -1
         found = self._overlapping(q_lo, q_hi)
         best, best_id = md, -1
         if not found:
             return best, best_id
-        p3l = p3.tolist()
         is_static = self.is_static_body
         for body, _link in found:
             if body < 0 or body >= is_static.shape[0] - 1 or not is_static[body]:
