@@ -70,40 +70,45 @@ def peaks(samples: np.ndarray, counts: np.ndarray, dt: float, sq_order: int):
     acceleration under which consecutive samples are reachable, max over steps of |v_k+1 - v_k| / dt and
     4 |p_k+1 - p_k - (v_k + v_k+1) dt / 2| / dt^2 (the plan contract's step bounds, pbdyn.sim.contract); its
     squared norms are summed axis by axis in order, as numpy's add.reduce sums so few terms."""
-    n_traj, d = samples.shape[0], samples.shape[3]
+    n_traj = samples.shape[0]
     if counts.shape[0] != n_traj or counts.max() > samples.shape[1]:
         raise ValueError("peaks: mismatched shapes")
     v_peak = np.empty(n_traj)
     a_peak = np.empty(n_traj)
     for c in range(n_traj):
-        sv_max = 0.0
-        sa_max = 0.0
-        dv_max = 0.0
-        gap_max = 0.0
-        n = counts[c]
-        for k in range(1, n):
-            v = samples[c, k, 1]
-            a = samples[c, k, 2]
-            sv = _sq(v[0], v[1], v[d - 1], d, sq_order)
-            sa = _sq(a[0], a[1], a[d - 1], d, sq_order)
-            sv_max = max(sv_max, sv)
-            sa_max = max(sa_max, sa)
-        for k in range(n - 1):
-            dv2 = 0.0
-            gap2 = 0.0
-            for i in range(d):
-                v0 = samples[c, k, 1, i]
-                v1 = samples[c, k + 1, 1, i]
-                dv = v1 - v0
-                gap = samples[c, k + 1, 0, i] - samples[c, k, 0, i] - 0.5 * (v0 + v1) * dt
-                dv2 += dv * dv
-                gap2 += gap * gap
-            dv_max = max(dv_max, dv2)
-            gap_max = max(gap_max, gap2)
-        step = max(np.sqrt(dv_max) / dt, 4.0 * np.sqrt(gap_max) / (dt * dt))
-        v_peak[c] = np.sqrt(sv_max)
-        a_peak[c] = max(np.sqrt(sa_max), step)
+        v_peak[c], a_peak[c] = peak_one(samples[c], counts[c], dt, sq_order)
     return v_peak, a_peak
+
+
+@njit(cache=True, nogil=True)
+def peak_one(s_c: np.ndarray, n: int, dt: float, sq_order: int):
+    """peaks for one trajectory of samples s_c [>= n, 3, d] (n valid): (peak speed, peak acceleration)."""
+    d = s_c.shape[2]
+    sv_max = 0.0
+    sa_max = 0.0
+    dv_max = 0.0
+    gap_max = 0.0
+    for k in range(1, n):
+        v = s_c[k, 1]
+        a = s_c[k, 2]
+        sv = _sq(v[0], v[1], v[d - 1], d, sq_order)
+        sa = _sq(a[0], a[1], a[d - 1], d, sq_order)
+        sv_max = max(sv_max, sv)
+        sa_max = max(sa_max, sa)
+    for k in range(n - 1):
+        dv2 = 0.0
+        gap2 = 0.0
+        for i in range(d):
+            v0 = s_c[k, 1, i]
+            v1 = s_c[k + 1, 1, i]
+            dv = v1 - v0
+            gap = s_c[k + 1, 0, i] - s_c[k, 0, i] - 0.5 * (v0 + v1) * dt
+            dv2 += dv * dv
+            gap2 += gap * gap
+        dv_max = max(dv_max, dv2)
+        gap_max = max(gap_max, gap2)
+    step = max(np.sqrt(dv_max) / dt, 4.0 * np.sqrt(gap_max) / (dt * dt))
+    return np.sqrt(sv_max), max(np.sqrt(sa_max), step)
 
 
 @njit(cache=True, nogil=True)

@@ -19,8 +19,8 @@ import numpy as np
 from numba import njit
 
 from pbdyn.perception.grid import OCCUPIED, OccupancyGrid, _collides
-from pbdyn.planning.candidate_kernels import _call_ruckig_build, _fma, _sq, sampled_peaks, world_and_screen
-from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH
+from pbdyn.planning.candidate_kernels import _call_ruckig_build, _fma, _sq, peak_one, world_and_screen
+from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, sample_into
 
 
 @njit(cache=True, nogil=True)
@@ -36,13 +36,15 @@ def _blocked(point, wall_lo, wall_hi, has_grid, grid):
 
 
 @njit(cache=True, nogil=True)
-def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res):
+def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, buf, t_sum):
     """Candidate c's rebuild stages (LocalPrimitives._build_many's rules, candidate_kernels.build_candidates' for
     one candidate): build with the per-axis limits (v_max, a_max); while a sample's |v| or |a| or a step bound
     exceeds its norm limit, rebuild with the limit scaled by safety * limit / peak (at most n_rebuilds times), then
     once with v_max / sqrt(d), a_max / sqrt(d); a build ruckig rejects or longer than the horizon goes straight to
-    those. Returns (the accepted trajectory's samples [K, 3, d] in its frame or an empty array, its sample count
-    (0: none accepted), ruckig builds). scratch [6, d]: input buffers; prof, dur, res: the library's outputs."""
+    those. Samples as sampled_peaks takes them (sample_into, peak_one). Returns (the accepted trajectory's sample
+    count, 0 if none; ruckig builds; the sample buffer [K, 3, d] holding its samples in its frame -- ``buf``, or a
+    larger one when it had too few rows). scratch [6, d]: input buffers; prof, dur, res: the library's outputs;
+    t_sum: scratch [7]."""
     d = frame_in.shape[2]
     v_max, a_max, tol, dt = limits[0], limits[1], limits[6], limits[8]
     last = counts_in[0] + 1
@@ -64,11 +66,13 @@ def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res):
                            limits[3], prof.ctypes.data, dur.ctypes.data, res.ctypes.data)
         n_built += 1
         if (res[0] == 0 or res[0] == 1) and dur[0] <= limits[4]:
-            samples, counts, v_peaks, a_peaks = sampled_peaks(prof, dur, dt, counts_in[2])
-            v_peak = v_peaks[0]
-            a_peak = a_peaks[0]
+            n = max(2, np.int64(np.ceil(dur[0] / dt - 1e-9)) + 1)
+            if n > buf.shape[0]:
+                buf = np.empty((n, 3, d))
+            sample_into(prof[0], dur[0], n, dt, buf, t_sum)
+            v_peak, a_peak = peak_one(buf, n, dt, counts_in[2])
             if v_peak <= v_max + tol and a_peak <= a_max + tol:
-                return samples[0], counts[0], n_built
+                return n, n_built, buf
             if stage >= last:
                 break
             if v_peak > v_max:
@@ -80,7 +84,7 @@ def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res):
             stage = last
         else:
             break
-    return np.zeros((0, 3, d)), 0, n_built
+    return 0, n_built, buf
 
 
 @njit(cache=True, nogil=True)
@@ -124,18 +128,20 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
     dur = np.zeros(1)
     res = np.zeros(1, dtype=np.int64)
     one = np.ones(1, dtype=np.int64)
+    buf = np.empty((32, 3, d))
+    t_sum = np.empty(7)
     n_built = 0
     tried = 0
     for c in range(m):
         if prune and _blocked(targets[c], walls[0], walls[1], has_grid, grid):
             continue
         tried += 1
-        samples, n, built = _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res)
+        n, built, buf = _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, buf, t_sum)
         n_built += built
         if n == 0:
             continue
         one[0] = n
-        p, v, a, bad = world_and_screen(samples[:n].reshape(1, n, 3, d), one, bases[c:c + 1], state[0], state[1],
+        p, v, a, bad = world_and_screen(buf[:n].reshape(1, n, 3, d), one, bases[c:c + 1], state[0], state[1],
                                         state[2], walls[0], walls[1], tracks[0], tracks[1], reach2, limits[7],
                                         limits[8], counts_in[1], counts_in[2])
         if bad[0]:

@@ -67,46 +67,53 @@ def sample_profiles(prof: np.ndarray, duration: np.ndarray, n_samples: np.ndarra
     out = np.zeros((n_traj, n_samples.max(), 3, d))
     t_sum = np.empty(7)
     for c in range(n_traj):
-        dur = duration[c]
-        for dof in range(d):
-            r = prof[c, dof]
-            acc = r[_T]
-            t_sum[0] = acc
-            for i in range(1, 7):
-                acc = acc + r[_T + i]
-                t_sum[i] = acc
-            t_end = t_sum[6]
-            b_dur = r[_BDUR]
-            for k in range(n_samples[c]):
-                time = k * dt
-                if time >= dur:                      # past the end: the end state with zero jerk
-                    td = time - (b_dur + t_end)
+        sample_into(prof[c], duration[c], n_samples[c], dt, out[c], t_sum)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def sample_into(prof_c: np.ndarray, dur: float, n: int, dt: float, out_c: np.ndarray, t_sum: np.ndarray) -> None:
+    """sample_profiles for one trajectory: its samples at k dt, k = 0..n-1, written to out_c[:n] ([>= n, 3, d]) from
+    its profile rows prof_c [d, PROFILE_WIDTH] and duration ``dur`` (s); t_sum: scratch [7]."""
+    d = prof_c.shape[0]
+    for dof in range(d):
+        r = prof_c[dof]
+        acc = r[_T]
+        t_sum[0] = acc
+        for i in range(1, 7):
+            acc = acc + r[_T + i]
+            t_sum[i] = acc
+        t_end = t_sum[6]
+        b_dur = r[_BDUR]
+        for k in range(n):
+            time = k * dt
+            if time >= dur:                      # past the end: the end state with zero jerk
+                td = time - (b_dur + t_end)
+                p0, v0, a0, jerk = r[_P + 7], r[_V + 7], r[_A + 7], 0.0
+            else:
+                td = time
+                brake = False
+                if b_dur > 0.0:
+                    if td < b_dur:
+                        brake = True
+                    else:
+                        td -= b_dur
+                if brake:
+                    i = 0
+                    if td >= r[_BT]:
+                        i = 1
+                        td -= r[_BT]
+                    p0, v0, a0, jerk = r[_BP + i], r[_BV + i], r[_BA + i], r[_BJ + i]
+                elif td >= t_end:
+                    td = td - t_end
                     p0, v0, a0, jerk = r[_P + 7], r[_V + 7], r[_A + 7], 0.0
                 else:
-                    td = time
-                    brake = False
-                    if b_dur > 0.0:
-                        if td < b_dur:
-                            brake = True
-                        else:
-                            td -= b_dur
-                    if brake:
-                        i = 0
-                        if td >= r[_BT]:
-                            i = 1
-                            td -= r[_BT]
-                        p0, v0, a0, jerk = r[_BP + i], r[_BV + i], r[_BA + i], r[_BJ + i]
-                    elif td >= t_end:
-                        td = td - t_end
-                        p0, v0, a0, jerk = r[_P + 7], r[_V + 7], r[_A + 7], 0.0
-                    else:
-                        i = 0
-                        while i < 6 and t_sum[i] <= td:    # upper bound: the first phase ending after td
-                            i += 1
-                        if i > 0:
-                            td -= t_sum[i - 1]
-                        p0, v0, a0, jerk = r[_P + i], r[_V + i], r[_A + i], r[_J + i]
-                out[c, k, 0, dof] = p0 + td * (v0 + td * (a0 / 2 + td * jerk / 6))
-                out[c, k, 1, dof] = v0 + td * (a0 + td * jerk / 2)
-                out[c, k, 2, dof] = a0 + td * jerk
-    return out
+                    i = 0
+                    while i < 6 and t_sum[i] <= td:    # upper bound: the first phase ending after td
+                        i += 1
+                    if i > 0:
+                        td -= t_sum[i - 1]
+                    p0, v0, a0, jerk = r[_P + i], r[_V + i], r[_A + i], r[_J + i]
+            out_c[k, 0, dof] = p0 + td * (v0 + td * (a0 / 2 + td * jerk / 6))
+            out_c[k, 1, dof] = v0 + td * (a0 + td * jerk / 2)
+            out_c[k, 2, dof] = a0 + td * jerk
