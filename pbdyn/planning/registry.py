@@ -72,19 +72,14 @@ def build_planner(cls: type, context: PlannerContext, params: dict | None, field
     params = dict(params or {})
     name = getattr(cls, "__name__", repr(cls))
     try:
-        sig = inspect.signature(cls)
-    except (TypeError, ValueError):
-        sig = None
-    if sig is not None:
-        ps = list(sig.parameters.values())
-        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in ps):
-            accepted = [p.name for p in ps[1:]
-                        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
-            for key in params:
-                if key not in accepted:
-                    hint = ", ".join(accepted) if accepted else "none"
-                    raise ConfigError(f"{field}.{key}", f"unknown parameter of {name} (accepted: {hint})",
-                                      params[key])
+        accepted = _accepted_params(cls)
+    except TypeError:                      # not hashable: ask for its signature every time
+        accepted = _accepted_params.__wrapped__(cls)
+    if accepted is not None:
+        for key in params:
+            if key not in accepted:
+                hint = ", ".join(accepted) if accepted else "none"
+                raise ConfigError(f"{field}.{key}", f"unknown parameter of {name} (accepted: {hint})", params[key])
     check_finite_params(params, field)
     try:
         return cls(context, **params)
@@ -92,6 +87,21 @@ def build_planner(cls: type, context: PlannerContext, params: dict | None, field
         raise
     except Exception as exc:  # any failure of a planner's constructor (built-in or user code) is a bad entry
         raise ConfigError(field, f"invalid parameters for {name} ({one_line(exc)})", params) from None
+
+
+@functools.lru_cache(maxsize=256)
+def _accepted_params(cls) -> tuple[str, ...] | None:
+    """The keyword parameters a planner class takes after its context (from its signature), or None when it takes
+    any (``**kwargs``) or has no readable signature; cached per class (a trial builds two planners)."""
+    try:
+        sig = inspect.signature(cls)
+    except (TypeError, ValueError):
+        return None
+    ps = list(sig.parameters.values())
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in ps):
+        return None
+    return tuple(p.name for p in ps[1:]
+                 if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY))
 
 
 @functools.lru_cache(maxsize=None)
