@@ -150,7 +150,9 @@ def test_wheel_carries_models_and_bundled_scenarios(tmp_path):
     expected |= {p.relative_to(ROOT).as_posix() for p in (ROOT / "pbdyn").rglob("*.py")}
     assert {"pbdyn/models/quadrotor.urdf", "pbdyn/scenarios/quickstart.toml", "pbdyn/scenarios/worlds/meshes/gem.obj",
             "pbdyn/scenarios/worlds/urdf/gem.urdf", "pbdyn/scenarios/datasets/controlled_2d.toml"} <= expected
+    expected.add("pbdyn/planning/native/ruckig_batch.cpp")       # the native batch's source, built on the target
     assert not expected - names, sorted(expected - names)
+    assert not [n for n in names if n.endswith(".so")]              # never a library built for this machine
     tops = {n.split("/")[0] for n in names}
     assert tops == {"pbdyn", wheel.name.split("-py")[0] + ".dist-info"}, tops  # no tests/, tools/, .venv, urdf/
     dist_info = next(t for t in tops if t.endswith(".dist-info"))

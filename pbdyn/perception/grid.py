@@ -248,37 +248,47 @@ class OccupancyGrid:
 
 @njit(cache=True, nogil=True)
 def _collides(pts, origin, res, last, near, cell_strides, padded, idx_off, flat_off, pad_strides, reach, radius):
-    """OccupancyGrid.collides for points [K, d]: a point whose cell (clipped into the grid) is not near an OCCUPIED
-    cell is clear; otherwise it collides if the box of an OCCUPIED cell at one of the offsets idx_off [W, d] (flat
-    offsets flat_off in the mask ``padded`` by reach cells, strides pad_strides) is closer than radius. The box
-    distance is _clearance_search's: per axis max(cmin - p, p - (cmin + res), 0), squares summed axis by axis."""
+    """OccupancyGrid.collides for points [K, d]: _point_collides of each."""
     n_pts, d = pts.shape
     out = np.zeros(n_pts, dtype=np.bool_)
     base = np.empty(d, dtype=np.int64)
     for i in range(n_pts):
-        cell = 0
-        centre = 0
-        for j in range(d):
-            b = np.int64(np.floor((pts[i, j] - origin[j]) / res))
-            b = min(max(b, 0), last[j])
-            base[j] = b
-            cell += b * cell_strides[j]
-            centre += (b + reach) * pad_strides[j]
-        if not near[cell]:
-            continue
-        for w in range(flat_off.shape[0]):
-            if not padded[centre + flat_off[w]]:
-                continue
-            dist2 = 0.0
-            for j in range(d):
-                cmin = origin[j] + (base[j] + idx_off[w, j]) * res
-                p = pts[i, j]
-                delta = max(max(cmin - p, p - (cmin + res)), 0.0)
-                dist2 += delta * delta
-            if np.sqrt(dist2) < radius:
-                out[i] = True
-                break
+        out[i] = _point_collides(pts[i], base, origin, res, last, near, cell_strides, padded, idx_off, flat_off,
+                                 pad_strides, reach, radius)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _point_collides(pt, base, origin, res, last, near, cell_strides, padded, idx_off, flat_off, pad_strides, reach,
+                    radius):
+    """Does the ball of ``radius`` at point pt [d] meet an OCCUPIED cell? Clear if its cell (clipped into the grid)
+    is not near an OCCUPIED cell; otherwise True if the box of an OCCUPIED cell at one of the offsets idx_off [W, d]
+    (flat offsets flat_off in the mask ``padded`` by reach cells, strides pad_strides) is closer than radius. The box
+    distance is _clearance_search's: per axis max(cmin - p, p - (cmin + res), 0), squares summed axis by axis.
+    base: scratch [d] (int64)."""
+    d = pt.shape[0]
+    cell = 0
+    centre = 0
+    for j in range(d):
+        b = np.int64(np.floor((pt[j] - origin[j]) / res))
+        b = min(max(b, 0), last[j])
+        base[j] = b
+        cell += b * cell_strides[j]
+        centre += (b + reach) * pad_strides[j]
+    if not near[cell]:
+        return False
+    for w in range(flat_off.shape[0]):
+        if not padded[centre + flat_off[w]]:
+            continue
+        dist2 = 0.0
+        for j in range(d):
+            cmin = origin[j] + (base[j] + idx_off[w, j]) * res
+            p = pt[j]
+            delta = max(max(cmin - p, p - (cmin + res)), 0.0)
+            dist2 += delta * delta
+        if np.sqrt(dist2) < radius:
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True)

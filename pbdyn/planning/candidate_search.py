@@ -18,20 +18,31 @@ import functools
 import numpy as np
 from numba import njit
 
-from pbdyn.perception.grid import OCCUPIED, OccupancyGrid, _collides
+from pbdyn.perception.grid import OCCUPIED, OccupancyGrid, _point_collides
 from pbdyn.planning.candidate_kernels import _call_ruckig_build, _fma, _sq, peak_one, world_and_screen
 from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, sample_into
 
 
 @njit(cache=True, nogil=True)
-def _blocked(point, wall_lo, wall_hi, has_grid, grid):
+def _blocked(point, wall_lo, wall_hi, has_grid, grid, base):
     """True if the MAV ball at ``point`` [d] meets a wall (a coordinate below wall_lo or above wall_hi) or, when
-    has_grid, an OCCUPIED cell (grid: OccupancyGrid.collision_query's arguments) -- checks.static_clear's test."""
+    has_grid, an OCCUPIED cell (grid: OccupancyGrid.collision_query's arguments) -- checks.static_clear's test.
+    base: scratch [d] (int64)."""
     for j in range(point.shape[0]):
         if point[j] < wall_lo[j] or point[j] > wall_hi[j]:
             return True
     if has_grid:
-        return _collides(point.reshape(1, -1), *grid)[0]
+        return _point_collides(point, base, *grid)
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _grid_hit(pts, grid, base):
+    """True if the MAV ball at any of the points [K, d] meets an OCCUPIED cell (OccupancyGrid.collides(...).any(),
+    stopping at the first that does)."""
+    for i in range(pts.shape[0]):
+        if _point_collides(pts[i], base, *grid):
+            return True
     return False
 
 
@@ -130,10 +141,11 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
     one = np.ones(1, dtype=np.int64)
     buf = np.empty((32, 3, d))
     t_sum = np.empty(7)
+    base = np.empty(d, dtype=np.int64)
     n_built = 0
     tried = 0
     for c in range(m):
-        if prune and _blocked(targets[c], walls[0], walls[1], has_grid, grid):
+        if prune and _blocked(targets[c], walls[0], walls[1], has_grid, grid, base):
             continue
         tried += 1
         n, built, buf = _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, buf, t_sum)
@@ -146,7 +158,7 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
                                         limits[8], counts_in[1], counts_in[2])
         if bad[0]:
             continue
-        if has_grid and _collides(p[0, 1:n], *grid).any():
+        if has_grid and _grid_hit(p[0, 1:n], grid, base):
             continue
         return c, tried, n_built, p[0], v[0], a[0]
     empty = np.zeros((0, d))

@@ -222,9 +222,10 @@ class LocalPrimitives:
         When the goal is closer than step_m, the goal itself (end velocity 0) is tried before the fan. Once the best
         candidate has failed, fan candidates whose end point is blocked by a wall or an occupied cell are skipped
         unbuilt (the primitive ends inside the blocked region: stricter than the sampled check only when the end
-        time falls between samples), and the others are built in rank-ordered chunks (CHUNKS) whose clearance is
-        checked in one compiled evaluation (_first_clear): the same choice as trying them one by one
-        (plan_one_by_one, the reference), at a fraction of the cost when many candidates fail. Before that, once
+        time falls between samples), and the others are searched in rank order (_search): with the native ruckig
+        batch in one compiled call, candidate by candidate (candidate_search.search); without it built in
+        rank-ordered chunks (CHUNKS) whose clearance is checked in one compiled evaluation (_first_clear). Either
+        way the same choice as trying them one by one (plan_one_by_one, the reference). Before that, once
         the best candidate has failed, none_can_be_clear may prove that no candidate can pass, and the plan fails
         without building another (tried first, the proof cost more over the steps whose best candidate passes
         than it saved on the others).
@@ -307,8 +308,8 @@ class LocalPrimitives:
         return bool(np.any(gap + ball < tracks.radius + (self.limits.radius + self.margin)))
 
     CHUNKS = (4, 8)
-    """Sizes of the rank-ordered chunks of candidates built and checked together after the best one failed (the
-    last size repeats). A chunk's fixed cost is now about that of one candidate's builds, and when the best
+    """Sizes of the rank-ordered chunks of candidates built and checked together after the best one failed, on the
+    path without the native ruckig batch (the last size repeats). A chunk's fixed cost is now about that of one candidate's builds, and when the best
     candidate fails the choice lies at rank ~10 (median; 90th percentile 40): chunks of 4 then 8 build the fewest
     candidates in vain (measured against (3, 6, 12, 24), (3,), (5,), (6,), (8,), (6, 12): 1.5% less time per step
     than the doubling sizes on the controlled sample; the choice never depends on them)."""

@@ -21,14 +21,14 @@ from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.contract import PlanViolation, check_plan, plan_violations
-from pbdyn.sim.env import Action
+from pbdyn.sim.env import Action, vector_norm
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.usercode import quiet_user_code, user_stdout
 
 
 def brake(p: np.ndarray, v: np.ndarray, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One braking step: v -= min(a_max dt, |v|) v/|v|; p advances with the mean velocity (exact for constant a)."""
-    speed = float(np.linalg.norm(v))
+    speed = vector_norm(v)
     if speed <= 0.0:
         return p.copy(), np.zeros_like(v), np.zeros_like(v)
     dv = min(a_max * dt, speed)
@@ -41,7 +41,7 @@ def program_brake(p: np.ndarray, v: np.ndarray, a: np.ndarray, a_max: float,
     """One braking step of the thesis program (its Drone2D.brake): if |v| <= a_max dt the MAV stops where it is,
     else v -= a_max dt v/|v| and p += v_new dt; the acceleration keeps its last value (the next primitive starts
     from it)."""
-    speed = float(np.linalg.norm(v))
+    speed = vector_norm(v)
     if speed <= a_max * dt:
         return p.copy(), np.zeros_like(v), a.copy()
     v1 = v - (a_max * dt / speed) * v
@@ -49,7 +49,7 @@ def program_brake(p: np.ndarray, v: np.ndarray, a: np.ndarray, a_max: float,
 
 
 def _project(x: np.ndarray, limit: float) -> np.ndarray:
-    n = float(np.linalg.norm(x))
+    n = vector_norm(x)
     return x * (limit / n) if n > limit else x
 
 
@@ -184,7 +184,7 @@ class Agent:
         t1 = view.t + view.dt                                         # (6)
         traj = self.trajectory
         if traj is not None and traj.covers(t1) and traj.index_at(t1) >= 1:
-            p1, v1, a1 = (np.array(x, dtype=float) for x in traj.state_at(t1))
+            p1, v1, a1 = (x.astype(float) for x in traj.state_at(t1))      # copies: the plan stays as it was
             if self.physical:
                 v1 = _project(v1, limits.v_max)
                 a1 = _project(a1, limits.a_max)

@@ -134,6 +134,10 @@ def main() -> int:
     ap.add_argument("--pair", default="local_primitives+lookahead", help="controlled planner pair trajectory+gaze")
     args = ap.parse_args()
     print(machine())
+    sys.path.insert(0, str(ROOT))
+    from pbdyn.planning import native
+
+    print(f"this checkout: {native.status()}")
     jobs = workloads(args)
     cache = os.environ.get("PBDYN_CACHE") or tempfile.mkdtemp(prefix="pbdyn-bench-cache-")
     per = {w: {"old": [], "new": []} for w in ("quickstart", "controlled")}

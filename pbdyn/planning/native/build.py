@@ -93,10 +93,14 @@ def build(sdist: Path | None = None, output: Path = LIBRARY) -> Path:
         if done.returncode != 0:
             first = next((ln for ln in done.stderr.splitlines() if "error" in ln), done.stderr.strip()[:200])
             raise BuildError(f"{Path(cxx).name} failed: {first}")
-        output.parent.mkdir(parents=True, exist_ok=True)
         final_tmp = output.with_name(output.name + ".tmp")
-        shutil.copyfile(staged, final_tmp)
-        os.replace(final_tmp, output)
+        try:
+            output.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(staged, final_tmp)
+            os.replace(final_tmp, output)
+        except OSError as exc:
+            final_tmp.unlink(missing_ok=True)
+            raise BuildError(f"cannot write {output} ({exc.strerror})") from exc
     return output
 
 
