@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from pbdyn.planning.local_primitives import LocalPrimitives
 
 
@@ -11,4 +13,13 @@ class FlakyPlanner(LocalPrimitives):
     def plan(self, view):
         if view.t == 0.0 and view.position[0] > 40.0:
             raise RuntimeError("flaky planner: start x > 40 m")
+        return super().plan(view)
+
+
+class SlowPlanner(LocalPrimitives):
+    """Local primitives that wait 2 ms before every plan (the same plans): a batch that lasts long enough to be
+    signalled while both workers fly, however fast the built-in planner has become."""
+
+    def plan(self, view):
+        time.sleep(0.002)
         return super().plan(view)

@@ -202,13 +202,38 @@ def _alive(pid: int, started: float) -> bool:
         return False
 
 
+SLOW = """
+[[planners]]
+trajectory = "tests.batch_plugins:SlowPlanner"
+gaze = "lookahead"
+[[planners]]
+trajectory = "straight_line"
+gaze = "fullrange"
+"""
+PLUGIN_ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+
+
+@pytest.fixture(scope="module")
+def slow_reference(tmp_path_factory):
+    """An uninterrupted 2-worker run of the small experiment with a planner that takes 2 ms more per plan (80
+    trials that last long enough to be signalled mid-batch)."""
+    d = tmp_path_factory.mktemp("slow")
+    sc = small(d, SLOW)
+    out = d / "ref.sqlite"
+    res = batch([str(sc), "--out", str(out), "--workers", "2", "--no-metrics", "--json"], env=PLUGIN_ENV)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["ran"] == 80
+    return sc, out
+
+
 @pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_sigterm_and_sigint_stop_the_workers_keep_committed_rows_and_resume_exactly(reference, tmp_path, sig, status):
-    sc, ref_out = reference
+def test_sigterm_and_sigint_stop_the_workers_keep_committed_rows_and_resume_exactly(slow_reference, tmp_path, sig,
+                                                                                   status):
+    sc, ref_out = slow_reference
     out = tmp_path / "signalled.sqlite"
     args = [str(sc), "--out", str(out), "--workers", "2", "--no-metrics", "--lockstep", "10"]
     proc = subprocess.Popen(pbdyn_cmd() + ["batch", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, env=PLUGIN_ENV)
     try:
         _wait_rows(out, 2, proc)
         t0 = time.time()
@@ -235,7 +260,7 @@ def test_sigterm_and_sigint_stop_the_workers_keep_committed_rows_and_resume_exac
     assert not [k for k in kids if _alive(*k)], "processes of the batch outlived it"
     committed = _count(out)
     assert 2 <= committed < 80 and f": {committed} trials committed" in last
-    res = batch(args + ["--json"])
+    res = batch(args + ["--json"], env=PLUGIN_ENV)
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["already_stored"] == committed
     rows, ref = rows_without_wall(out), rows_without_wall(ref_out)

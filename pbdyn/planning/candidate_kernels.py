@@ -17,9 +17,8 @@ import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.core.extending import intrinsic
-from numba.typed import List
 
-from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, sample_profiles
+from pbdyn.planning.ruckig_sampling import sample_profiles
 
 
 @intrinsic
@@ -247,106 +246,3 @@ def _call_ruckig_build(typingctx, addr, n, d, cur_v, cur_a, tgt_p, tgt_v, lim_v,
         return builder.call(fn, call_args)
 
     return sig, codegen
-
-
-@njit(cache=True, nogil=True)
-def build_candidates(addr, cur_v, cur_a, tgt_p, tgt_v, v_max, a_max, jerk, min_duration, horizon, n_rebuilds,
-                     safety, tol, dt, sq_order):
-    """The local planner's rebuild stages (LocalPrimitives._build_many, whose Python loop is the reference) with
-    ruckig called through the native library at ``addr`` (pbdyn.planning.native.ruckig_build_address).
-
-    Args:
-        cur_v, cur_a, tgt_p, tgt_v: [n, d] C-contiguous; the candidates' current velocity, acceleration, target
-            position and velocity in their own frames (m/s, m/s^2, m, m/s; current position 0, target
-            acceleration 0).
-        v_max, a_max: the norm limits (m/s, m/s^2); jerk: per-axis jerk limit (m/s^3); min_duration (s).
-        horizon: longest accepted duration (s); n_rebuilds: rebuilds with limits scaled by safety * limit / peak
-            before the conservative per-axis limits v_max / sqrt(d), a_max / sqrt(d); tol: slack on the limits.
-        dt: sample spacing (s); sq_order: numpy's sum-of-squares order (numpy_orders).
-    Returns:
-        (rows [m]: the accepted candidates, ascending; frame samples [m, K, 3, d] (sampled_peaks; zeros past a
-        row's count); counts [m]; the number of ruckig builds).
-    """
-    n, d = cur_v.shape
-    lim_v = np.full(n, v_max)
-    lim_a = np.full(n, a_max)
-    stage = np.zeros(n, dtype=np.int64)
-    last = n_rebuilds + 1
-    acc_stage = np.full(n, -1, dtype=np.int64)
-    acc_row = np.zeros(n, dtype=np.int64)
-    acc_count = np.zeros(n, dtype=np.int64)
-    stages = List()
-    open_ = np.arange(n)
-    n_built = 0
-    while open_.shape[0] > 0:
-        m = open_.shape[0]
-        cv = np.empty((m, d))
-        ca = np.empty((m, d))
-        tp = np.empty((m, d))
-        tv = np.empty((m, d))
-        lv = np.empty(m)
-        la = np.empty(m)
-        for q in range(m):
-            c = open_[q]
-            if stage[c] == last:
-                lim_v[c] = v_max / np.sqrt(d)
-                lim_a[c] = a_max / np.sqrt(d)
-            cv[q] = cur_v[c]
-            ca[q] = cur_a[c]
-            tp[q] = tgt_p[c]
-            tv[q] = tgt_v[c]
-            lv[q] = lim_v[c]
-            la[q] = lim_a[c]
-        prof = np.zeros((m, d, PROFILE_WIDTH))
-        dur = np.zeros(m)
-        res = np.zeros(m, dtype=np.int64)
-        _call_ruckig_build(addr, m, d, cv.ctypes.data, ca.ctypes.data, tp.ctypes.data, tv.ctypes.data,
-                           lv.ctypes.data, la.ctypes.data, jerk, min_duration, prof.ctypes.data, dur.ctypes.data,
-                           res.ctypes.data)
-        n_built += m
-        built = np.empty(m, dtype=np.int64)
-        keep = np.empty(m, dtype=np.int64)
-        n_b = 0
-        n_k = 0
-        for q in range(m):
-            c = open_[q]
-            if (res[q] == 0 or res[q] == 1) and dur[q] <= horizon:
-                built[n_b] = q
-                n_b += 1
-            elif stage[c] < last:
-                stage[c] = last
-                keep[n_k] = c
-                n_k += 1
-        if n_b > 0:
-            sel = built[:n_b]
-            samples, counts, v_peaks, a_peaks = sampled_peaks(prof[sel], dur[sel], dt, sq_order)
-            stages.append(samples)
-            s = len(stages) - 1
-            for i in range(n_b):
-                c = open_[sel[i]]
-                v_peak = v_peaks[i]
-                a_peak = a_peaks[i]
-                if v_peak <= v_max + tol and a_peak <= a_max + tol:
-                    acc_stage[c] = s
-                    acc_row[c] = i
-                    acc_count[c] = counts[i]
-                    continue
-                if stage[c] >= last:
-                    continue
-                if v_peak > v_max:
-                    lim_v[c] *= safety * v_max / v_peak
-                if a_peak > a_max:
-                    lim_a[c] *= safety * a_max / a_peak
-                stage[c] += 1
-                keep[n_k] = c
-                n_k += 1
-        open_ = np.sort(keep[:n_k])
-    rows = np.flatnonzero(acc_stage >= 0)
-    k_max = 0
-    for c in rows:
-        k_max = max(k_max, acc_count[c])
-    frame = np.zeros((rows.shape[0], k_max, 3, d))
-    for i in range(rows.shape[0]):
-        c = rows[i]
-        frame[i, :acc_count[c]] = stages[acc_stage[c]][acc_row[c], :acc_count[c]]
-    return rows, frame, acc_count[rows], n_built

@@ -3,7 +3,7 @@
 search() returns for a rank-ordered list of candidates what LocalPrimitives' Python chunk loop returns (the
 reference, kept as the path without the native library): it skips the candidates whose end point is blocked
 (walls, OCCUPIED cells), then builds the others one at a time -- ruckig's calculator through the native library,
-sampling and the limit rebuilds (_build_one, the rules of candidate_kernels.build_candidates) -- takes each to the
+sampling and the limit rebuilds (_build_one, the rules of LocalPrimitives._build_many) -- takes each to the
 world frame with the wall and track screen (world_and_screen) and checks the grid (the compiled query of
 OccupancyGrid.collides), and stops at the first clear one. Every float operation is the reference's, so the choice
 and the trajectory are the same bit for bit (tests/test_native.py); what is saved is the interpreter's work between
@@ -48,8 +48,8 @@ def _grid_hit(pts, grid, base):
 
 @njit(cache=True, nogil=True)
 def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, buf, t_sum):
-    """Candidate c's rebuild stages (LocalPrimitives._build_many's rules, candidate_kernels.build_candidates' for
-    one candidate): build with the per-axis limits (v_max, a_max); while a sample's |v| or |a| or a step bound
+    """Candidate c's rebuild stages (LocalPrimitives._build_many's rules, whose Python loop _frames_python is the
+    reference): build with the per-axis limits (v_max, a_max); while a sample's |v| or |a| or a step bound
     exceeds its norm limit, rebuild with the limit scaled by safety * limit / peak (at most n_rebuilds times), then
     once with v_max / sqrt(d), a_max / sqrt(d); a build ruckig rejects or longer than the horizon goes straight to
     those. Samples as sampled_peaks takes them (sample_into, peak_one). Returns (the accepted trajectory's sample

@@ -27,7 +27,7 @@ import ruckig
 
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
-from pbdyn.planning.candidate_kernels import build_candidates, numpy_orders, sampled_peaks, world_and_screen
+from pbdyn.planning.candidate_kernels import numpy_orders, sampled_peaks, world_and_screen
 from pbdyn.planning.candidate_search import frame_products_known, no_candidate_proof, no_grid_query, search
 from pbdyn.planning.native import ruckig_build_address
 from pbdyn.planning.checks import WALL_MARGIN_CAP, static_clear
@@ -309,8 +309,8 @@ class LocalPrimitives:
 
     CHUNKS = (4, 8)
     """Sizes of the rank-ordered chunks of candidates built and checked together after the best one failed, on the
-    path without the native ruckig batch (the last size repeats). A chunk's fixed cost is now about that of one candidate's builds, and when the best
-    candidate fails the choice lies at rank ~10 (median; 90th percentile 40): chunks of 4 then 8 build the fewest
+    path without the native ruckig batch (the last size repeats). A chunk's fixed cost is about that of one
+    candidate's builds, and when the best candidate fails the choice lies at rank ~10 (median; 90th percentile 40): chunks of 4 then 8 build the fewest
     candidates in vain (measured against (3, 6, 12, 24), (3,), (5,), (6,), (8,), (6, 12): 1.5% less time per step
     than the doubling sizes on the controlled sample; the choice never depends on them)."""
 
@@ -470,13 +470,7 @@ class LocalPrimitives:
         cur_a = bases @ view.acceleration
         tgt_p = (bases @ (np.asarray(targets, dtype=float) - view.position)[:, :, None])[:, :, 0]
         tgt_v = (bases @ np.asarray(vels, dtype=float)[:, :, None])[:, :, 0]
-        if self._native is not None:
-            rows, frame, counts, n_built = build_candidates(
-                self._native, cur_v, cur_a, np.ascontiguousarray(tgt_p), np.ascontiguousarray(tgt_v),
-                float(self.limits.v_max), float(self.limits.a_max), self.jerk_max, self.min_duration,
-                MAX_PLAN_HORIZON_S, _N_SCALED_REBUILDS, _SCALE_SAFETY, _TOL, float(view.dt), sq_order)
-        else:
-            rows, frame, counts, n_built = self._frames_python(cur_v, cur_a, tgt_p, tgt_v, view.dt)
+        rows, frame, counts, n_built = self._frames_python(cur_v, cur_a, tgt_p, tgt_v, view.dt)
         self.last_candidates_built += n_built
         if len(rows) == 0:
             return _Built.nothing(d)
@@ -487,9 +481,9 @@ class LocalPrimitives:
         return _Built(rows, p, v, a, counts, bad)
 
     def _frames_python(self, cur_v, cur_a, tgt_p, tgt_v, dt: float) -> tuple:
-        """build_candidates' stages through the ruckig Python package, one calculate() per candidate and stage (the
-        reference of the native path, and the path without the native library): (rows, frame samples [m, K, 3, d],
-        counts [m], the number of ruckig builds)."""
+        """_build_many's rebuild stages through the ruckig Python package, one calculate() per candidate and stage
+        (the reference of the native path's candidate_search._build_one, and the path without the native library):
+        (rows, frame samples [m, K, 3, d], counts [m], the number of ruckig builds)."""
         d = self.dims
         n = cur_v.shape[0]
         v_max, a_max = self.limits.v_max, self.limits.a_max

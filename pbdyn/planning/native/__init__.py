@@ -4,8 +4,8 @@ The motion-primitive planners build most of their candidates through the ruckig 
 (plus setting its inputs and reading its profiles) per trajectory: ~9 us of Python around ~2 us of ruckig. When
 the library built by ``python -m pbdyn.planning.native.build`` (`make` builds it) is present, matches the installed
 ruckig version and gives, on a fixed probe of planner-like inputs, the very durations and profiles the Python
-package gives (bit for bit), ruckig_build_address() hands its entry point to the compiled candidate loop
-(candidate_kernels.build_candidates); otherwise None, and the planners use the Python package: the same
+package gives (bit for bit), ruckig_build_address() hands its entry point to the compiled candidate search
+(candidate_search.search); otherwise None, and the planners use the Python package: the same
 trajectories, slower. PBDYN_NATIVE=0 in the environment turns the library off.
 """
 
