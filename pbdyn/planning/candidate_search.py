@@ -48,14 +48,13 @@ def _grid_hit(pts, grid, base):
 
 @njit(cache=True, nogil=True)
 def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, buf, t_sum):
-    """Candidate c's rebuild stages (LocalPrimitives._build_many's rules, whose Python loop _frames_python is the
-    reference): build with the per-axis limits (v_max, a_max); while a sample's |v| or |a| or a step bound
-    exceeds its norm limit, rebuild with the limit scaled by safety * limit / peak (at most n_rebuilds times), then
-    once with v_max / sqrt(d), a_max / sqrt(d); a build ruckig rejects or longer than the horizon goes straight to
-    those. Samples as sampled_peaks takes them (sample_into, peak_one). Returns (the accepted trajectory's sample
-    count, 0 if none; ruckig builds; the sample buffer [K, 3, d] holding its samples in its frame -- ``buf``, or a
-    larger one when it had too few rows). scratch [6, d]: input buffers; prof, dur, res: the library's outputs;
-    t_sum: scratch [7]."""
+    """Candidate c's rebuild stages (LocalPrimitives._build_many's rules; its Python loop is the reference): build
+    with the per-axis limits (v_max, a_max); while a sample's |v| or |a| or a step bound exceeds its norm limit,
+    rebuild with the limit scaled by safety * limit / peak (at most n_rebuilds times), then once with v_max /
+    sqrt(d), a_max / sqrt(d); a build ruckig rejects or longer than the horizon goes straight to those. Samples as
+    sampled_peaks takes them (sample_into, peak_one). Returns (the accepted trajectory's sample count, 0 if none;
+    ruckig builds; the sample buffer [K, 3, d] holding its samples in its frame -- ``buf``, or a larger one when it
+    had too few rows). scratch [6, d]: input buffers; prof, dur, res: the library's outputs; t_sum: scratch [7]."""
     d = frame_in.shape[2]
     v_max, a_max, tol, dt = limits[0], limits[1], limits[6], limits[8]
     last = counts_in[0] + 1

@@ -310,9 +310,10 @@ class LocalPrimitives:
     CHUNKS = (4, 8)
     """Sizes of the rank-ordered chunks of candidates built and checked together after the best one failed, on the
     path without the native ruckig batch (the last size repeats). A chunk's fixed cost is about that of one
-    candidate's builds, and when the best candidate fails the choice lies at rank ~10 (median; 90th percentile 40): chunks of 4 then 8 build the fewest
-    candidates in vain (measured against (3, 6, 12, 24), (3,), (5,), (6,), (8,), (6, 12): 1.5% less time per step
-    than the doubling sizes on the controlled sample; the choice never depends on them)."""
+    candidate's builds, and when the best candidate fails the choice lies at rank ~10 (median; 90th percentile 40):
+    chunks of 4 then 8 build the fewest candidates in vain (measured against (3, 6, 12, 24), (3,), (5,), (6,), (8,),
+    (6, 12): 1.5% less time per step than the doubling sizes on the controlled sample; the choice never depends on
+    them)."""
 
     def chunk_sizes(self, n: int):
         """The chunk sizes (CHUNKS, the last one repeated) that cover ``n`` candidates."""
@@ -465,31 +466,13 @@ class LocalPrimitives:
         evaluation; the frame changes are the same products as numpy's (candidate_kernels)."""
         d = self.dims
         n = targets.shape[0]
-        mm_mode, sq_order = self._orders
-        cur_v = bases @ view.velocity
-        cur_a = bases @ view.acceleration
-        tgt_p = (bases @ (np.asarray(targets, dtype=float) - view.position)[:, :, None])[:, :, 0]
-        tgt_v = (bases @ np.asarray(vels, dtype=float)[:, :, None])[:, :, 0]
-        rows, frame, counts, n_built = self._frames_python(cur_v, cur_a, tgt_p, tgt_v, view.dt)
-        self.last_candidates_built += n_built
-        if len(rows) == 0:
-            return _Built.nothing(d)
-        wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
-        p, v, a, bad = world_and_screen(frame, counts, bases if len(rows) == n else bases[rows], view.position,
-                                        view.velocity, view.acceleration, wall_lo, wall_hi, track_pos, track_vel,
-                                        reach2, view.t, view.dt, mm_mode, sq_order)
-        return _Built(rows, p, v, a, counts, bad)
-
-    def _frames_python(self, cur_v, cur_a, tgt_p, tgt_v, dt: float) -> tuple:
-        """_build_many's rebuild stages through the ruckig Python package, one calculate() per candidate and stage
-        (the reference of the native path's candidate_search._build_one, and the path without the native library):
-        (rows, frame samples [m, K, 3, d], counts [m], the number of ruckig builds)."""
-        d = self.dims
-        n = cur_v.shape[0]
         v_max, a_max = self.limits.v_max, self.limits.a_max
-        sq_order = self._orders[1]
+        mm_mode, sq_order = self._orders
         inputs = self._inputs(n)
-        cur_v, cur_a, tgt_p, tgt_v = cur_v.tolist(), cur_a.tolist(), tgt_p.tolist(), tgt_v.tolist()
+        cur_v = (bases @ view.velocity).tolist()
+        cur_a = (bases @ view.acceleration).tolist()
+        tgt_p = (bases @ (np.asarray(targets, dtype=float) - view.position)[:, :, None])[:, :, 0].tolist()
+        tgt_v = (bases @ np.asarray(vels, dtype=float)[:, :, None])[:, :, 0].tolist()
         for c in range(n):
             inp = inputs[c]
             inp.current_velocity = cur_v[c]
@@ -502,6 +485,7 @@ class LocalPrimitives:
         accepted: list = [None] * n      # (samples array, its row, sample count) of each accepted candidate
         open_ = list(range(n))
         last = _N_SCALED_REBUILDS + 1
+        dt = view.dt
         calculate, traj = self._otg.calculate, self._traj
         working, finished = ruckig.Result.Working, ruckig.Result.Finished
         n_built = 0
@@ -544,9 +528,10 @@ class LocalPrimitives:
                     stage[c] += 1
                     keep.append(c)
             open_ = sorted(keep)
+        self.last_candidates_built += n_built
         rows = [c for c in range(n) if accepted[c] is not None]
         if not rows:
-            return rows, None, None, n_built
+            return _Built.nothing(d)
         counts = np.array([accepted[c][2] for c in rows], dtype=np.int64)
         first = accepted[rows[0]][0]
         if first.shape[0] == len(rows) and all(accepted[c][0] is first and accepted[c][1] == i
@@ -557,7 +542,11 @@ class LocalPrimitives:
             for i, c in enumerate(rows):
                 src, j, k = accepted[c]
                 frame[i, :k] = src[j, :k]
-        return rows, frame, counts, n_built
+        wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
+        p, v, a, bad = world_and_screen(frame, counts, bases if len(rows) == n else bases[rows], view.position,
+                                        view.velocity, view.acceleration, wall_lo, wall_hi, track_pos, track_vel,
+                                        reach2, view.t, dt, mm_mode, sq_order)
+        return _Built(rows, p, v, a, counts, bad)
 
     def _screen(self, view: View) -> tuple:
         """The wall and track bounds of world_and_screen for ``view`` (kept for the view last asked about): the
