@@ -3,12 +3,14 @@
 search() returns for a rank-ordered list of candidates what LocalPrimitives' Python chunk loop returns (the
 reference, kept as the path without the native library): it skips the candidates whose end point is blocked
 (walls, OCCUPIED cells), then builds the others one at a time -- ruckig's calculator through the native library,
-sampling and the limit rebuilds (_build_one, the rules of LocalPrimitives._build_many) -- takes each to the
-world frame with the wall and track screen (world_and_screen) and checks the grid (the compiled query of
-OccupancyGrid.collides), and stops at the first clear one. Every float operation is the reference's, so the choice
-and the trajectory are the same bit for bit (tests/test_native.py); what is saved is the interpreter's work between
-the kernels (one call per search instead of a dozen) and the builds of a chunk's candidates after the chosen one
-(the reference builds chunks to spread its per-call cost; here a call costs little).
+sampling and the limit rebuilds (_build_one, the rules of LocalPrimitives._build_many) -- takes each one's
+positions to the world frame sample by sample with the wall and track screen (_screened_out: world_and_screen's
+test, stopping at the first sample that fails), checks the grid (the compiled query of OccupancyGrid.collides), and
+stops at the first clear one, whose velocities and accelerations alone are then taken to the world (_to_world).
+Every float operation is the reference's, so the choice and the trajectory are the same bit for bit
+(tests/test_native.py); what is saved is the interpreter's work between the kernels (one call per search instead of
+a dozen), the builds of a chunk's candidates after the chosen one (the reference builds chunks to spread its
+per-call cost; here a call costs little), and the frame changes of rejected candidates past their first conflict.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from pbdyn.perception.grid import OCCUPIED, OccupancyGrid, _point_collides
-from pbdyn.planning.candidate_kernels import _call_ruckig_build, _fma, _sq, peak_one, world_and_screen
+from pbdyn.planning.candidate_kernels import _call_ruckig_build, _dot, _fma, _sq, peak_one
 from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, sample_into
 
 
@@ -98,6 +100,53 @@ def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, bu
 
 
 @njit(cache=True, nogil=True)
+def _screened_out(buf, n, b, p0, walls, tracks, reach2, t, dt, mm_mode, sq_order, pos):
+    """world_and_screen's test for one candidate (samples buf[:n] in its frame b [d, d]): True if one of samples
+    1..n-1 meets a wall or a track's prediction (the same float operations, stopping at the first sample that
+    does). Writes the world positions of samples 1.. it reached to pos [>= n, d] (m)."""
+    d = p0.shape[0]
+    n_tracks = tracks.shape[1]
+    track_pos, track_vel = tracks[0], tracks[1]
+    for k in range(1, n):
+        x = buf[k, 0]
+        for j in range(d):
+            pj = _dot(x, b, j, d, mm_mode) + p0[j]
+            pos[k, j] = pj
+            if pj < walls[0, j] or pj > walls[1, j]:
+                return True
+        tau = (t + dt * k) - t
+        for m in range(n_tracks):
+            r0 = (pos[k, 0] - track_pos[m, 0]) - tau * track_vel[m, 0]
+            r1 = (pos[k, 1] - track_pos[m, 1]) - tau * track_vel[m, 1]
+            r2 = 0.0
+            if d == 3:
+                r2 = (pos[k, 2] - track_pos[m, 2]) - tau * track_vel[m, 2]
+            if _sq(r0, r1, r2, d, sq_order) < reach2[m]:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _to_world(buf, n, b, state, mm_mode):
+    """The samples buf[:n] [n, 3, d] of a candidate in its frame b taken to the world: p, v, a [n, d] (m, m/s,
+    m/s^2), sample 0 the MAV's state (state [3, d]) -- world_and_screen's rows for it."""
+    d = state.shape[1]
+    out = np.empty((3, n, d))
+    for r in range(3):
+        for j in range(d):
+            out[r, 0, j] = state[r, j]
+    for k in range(1, n):
+        for r in range(3):
+            x = buf[k, r]
+            for j in range(d):
+                w = _dot(x, b, j, d, mm_mode)
+                if r == 0:
+                    w = w + state[0, j]
+                out[r, k, j] = w
+    return out[0], out[1], out[2]
+
+
+@njit(cache=True, nogil=True)
 def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state, walls, tracks, reach2, has_grid,
            grid):
     """The first clear candidate of a rank-ordered list, built and checked one candidate at a time.
@@ -137,8 +186,8 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
     prof = np.zeros((1, d, PROFILE_WIDTH))
     dur = np.zeros(1)
     res = np.zeros(1, dtype=np.int64)
-    one = np.ones(1, dtype=np.int64)
     buf = np.empty((32, 3, d))
+    pos = np.empty((32, d))
     t_sum = np.empty(7)
     base = np.empty(d, dtype=np.int64)
     n_built = 0
@@ -151,15 +200,15 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
         n_built += built
         if n == 0:
             continue
-        one[0] = n
-        p, v, a, bad = world_and_screen(buf[:n].reshape(1, n, 3, d), one, bases[c:c + 1], state[0], state[1],
-                                        state[2], walls[0], walls[1], tracks[0], tracks[1], reach2, limits[7],
-                                        limits[8], counts_in[1], counts_in[2])
-        if bad[0]:
+        if pos.shape[0] < n:
+            pos = np.empty((buf.shape[0], d))
+        if _screened_out(buf, n, bases[c], state[0], walls, tracks, reach2, limits[7], limits[8], counts_in[1],
+                         counts_in[2], pos):
             continue
-        if has_grid and _grid_hit(p[0, 1:n], grid, base):
+        if has_grid and _grid_hit(pos[1:n], grid, base):
             continue
-        return c, tried, n_built, p[0], v[0], a[0]
+        p, v, a = _to_world(buf, n, bases[c], state, counts_in[1])
+        return c, tried, n_built, p, v, a
     empty = np.zeros((0, d))
     return -1, tried, n_built, empty, empty.copy(), empty.copy()
 

@@ -15,14 +15,17 @@ namespace {
 
 constexpr long kWidth = 49;
 
+// One calculator per axis count, with the axis count fixed at compile time (ruckig's arithmetic is the same for
+// any DOFs; fixed sizes keep its vectors and the profile copy below off the heap).
+template<size_t DOFs>
 struct Builder {
-    explicit Builder(size_t dofs) : otg(dofs), input(dofs), trajectory(dofs) {}
-    ruckig::Ruckig<ruckig::DynamicDOFs> otg;
-    ruckig::InputParameter<ruckig::DynamicDOFs> input;
-    ruckig::Trajectory<ruckig::DynamicDOFs> trajectory;
+    ruckig::Ruckig<DOFs> otg;
+    ruckig::InputParameter<DOFs> input;
+    ruckig::Trajectory<DOFs> trajectory;
 };
 
-thread_local std::unique_ptr<Builder> builders[4];
+thread_local std::unique_ptr<Builder<2>> builder2;
+thread_local std::unique_ptr<Builder<3>> builder3;
 
 void write_profile(const ruckig::Profile& p, double* out) {
     std::memcpy(out, p.t.data(), 7 * sizeof(double));
@@ -48,25 +51,11 @@ void write_profile(const ruckig::Profile& p, double* out) {
     }
 }
 
-}  // namespace
-
-extern "C" {
-
-// The ruckig version this library was built from (its sources' version string).
-const char* pbdyn_ruckig_version() { return PBDYN_RUCKIG_VERSION; }
-
-// Build n trajectories with d axes (2 or 3). Inputs [n, d] row-major: current velocity and acceleration, target
-// position and velocity; [n]: per-axis velocity and acceleration limits; scalars: the per-axis jerk limit and the
-// minimum duration (s). Outputs: profiles [n, d, 49], durations [n] (s), ruckig result codes [n] (Working = 0 and
-// Finished = 1 are successes; a rejected input gives its error code, an exception -1). Returns 0, or -1 for a d
-// outside 2..3 (nothing written).
-int pbdyn_ruckig_build(long n, long d, const double* cur_v, const double* cur_a, const double* tgt_p,
-                       const double* tgt_v, const double* lim_v, const double* lim_a, double jerk,
-                       double min_duration, double* profiles, double* durations, long* results) {
-    if (d < 2 || d > 3) return -1;
-    auto& slot = builders[d];
-    if (!slot) slot = std::make_unique<Builder>(static_cast<size_t>(d));
-    Builder& b = *slot;
+template<size_t DOFs>
+void build_all(Builder<DOFs>& b, long n, const double* cur_v, const double* cur_a, const double* tgt_p,
+               const double* tgt_v, const double* lim_v, const double* lim_a, double jerk, double min_duration,
+               double* profiles, double* durations, long* results) {
+    constexpr long d = static_cast<long>(DOFs);
     auto& in = b.input;
     for (long i = 0; i < n; ++i) {
         for (long k = 0; k < d; ++k) {
@@ -95,7 +84,36 @@ int pbdyn_ruckig_build(long n, long d, const double* cur_v, const double* cur_a,
             for (long k = 0; k < d; ++k) write_profile(sections[0][k], profiles + (i * d + k) * kWidth);
         }
     }
-    return 0;
+}
+
+}  // namespace
+
+extern "C" {
+
+// The ruckig version this library was built from (its sources' version string).
+const char* pbdyn_ruckig_version() { return PBDYN_RUCKIG_VERSION; }
+
+// Build n trajectories with d axes (2 or 3). Inputs [n, d] row-major: current velocity and acceleration, target
+// position and velocity; [n]: per-axis velocity and acceleration limits; scalars: the per-axis jerk limit and the
+// minimum duration (s). Outputs: profiles [n, d, 49], durations [n] (s), ruckig result codes [n] (Working = 0 and
+// Finished = 1 are successes; a rejected input gives its error code, an exception -1). Returns 0, or -1 for a d
+// outside 2..3 (nothing written).
+int pbdyn_ruckig_build(long n, long d, const double* cur_v, const double* cur_a, const double* tgt_p,
+                       const double* tgt_v, const double* lim_v, const double* lim_a, double jerk,
+                       double min_duration, double* profiles, double* durations, long* results) {
+    if (d == 2) {
+        if (!builder2) builder2 = std::make_unique<Builder<2>>();
+        build_all(*builder2, n, cur_v, cur_a, tgt_p, tgt_v, lim_v, lim_a, jerk, min_duration, profiles, durations,
+                  results);
+        return 0;
+    }
+    if (d == 3) {
+        if (!builder3) builder3 = std::make_unique<Builder<3>>();
+        build_all(*builder3, n, cur_v, cur_a, tgt_p, tgt_v, lim_v, lim_a, jerk, min_duration, profiles, durations,
+                  results);
+        return 0;
+    }
+    return -1;
 }
 
 }  // extern "C"
