@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+NATIVE := $(VENV)/.native
 
 .PHONY: demo test bench sysdeps native clean
 
@@ -11,8 +12,12 @@ $(STAMP): setup.cfg pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
-	-$(PY) -m pbdyn.planning.native.build
 	touch $(STAMP)
+
+## Built (or tried: a failed build leaves the Python package in use) after the install and whenever its source changes.
+$(NATIVE): $(STAMP) pbdyn/planning/native/ruckig_batch.cpp pbdyn/planning/native/build.py
+	-$(PY) -m pbdyn.planning.native.build
+	touch $(NATIVE)
 
 ## Optional system libraries (libusb-1.0 for open3d's mesh backend), installed only when missing.
 sysdeps:
@@ -24,15 +29,15 @@ native: $(STAMP)
 	$(PY) -m pbdyn.planning.native.build
 
 ## The first study: a resumable batch on the quickstart scenario, its maps' metrics, the evaluation table and figures.
-demo: $(STAMP)
+demo: $(NATIVE)
 	$(VENV)/bin/pbdyn batch scenarios/quickstart.toml --out results/quickstart.sqlite
 	$(VENV)/bin/pbdyn evaluate results/quickstart.sqlite --plots results/quickstart-figures
 
-test: $(STAMP)
+test: $(NATIVE)
 	@bash tools/install_sysdeps.sh
 	$(PY) -m pytest -q -p no:cacheprovider
 
-bench: $(STAMP)
+bench: $(NATIVE)
 	$(PY) tools/bench/bench_trial.py
 
 
