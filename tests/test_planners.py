@@ -568,3 +568,20 @@ def test_local_primitives_compiled_proof_decides_as_numpy(dims):
             tracks = make_tracks(centre[None], np.zeros((1, dims)), radius)
             view = _view(ctx, p, np.full(dims, 30.0), v, tracks=tracks)
             assert planner.none_can_be_clear(view) == planner._none_can_be_clear_numpy(view)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_goal_angles_are_numpys_rounded_arccos_of_the_clipped_cosines(dims):
+    """goal_angles computes np.round(np.arccos(np.clip(cos, -1, 1)), 12) in place: the same floats, including the
+    clip's edges, exact ties after rounding and directions straight at or away from the goal."""
+    from pbdyn.planning.local_primitives import candidate_directions, goal_angles
+
+    rng = np.random.default_rng(7)
+    dirs = candidate_directions(dims, 72, 15.0)
+    goals = [rng.normal(size=dims) * 10.0 ** rng.integers(-6, 3) for _ in range(3000)]
+    goals += [dirs[5] * 3.0, -dirs[9] * 0.5, dirs[0] + 1e-15, np.zeros(dims) + 1e-9]
+    for g in goals:
+        got = goal_angles(dirs, g)
+        x = dirs @ (g / math.sqrt(float(g @ g)))
+        assert np.array_equal(got, np.round(np.arccos(np.clip(x, -1.0, 1.0)), 12))
+    assert goal_angles(dirs, np.zeros(dims)) is None

@@ -100,13 +100,12 @@ def _build_one(addr, frame_in, c, limits, counts_in, scratch, prof, dur, res, bu
 
 
 @njit(cache=True, nogil=True)
-def _screened_out(buf, n, b, p0, walls, tracks, reach2, t, dt, mm_mode, sq_order, pos):
+def _screened_out(buf, n, b, p0, walls, track_pos, track_vel, reach2, t, dt, mm_mode, sq_order, pos):
     """world_and_screen's test for one candidate (samples buf[:n] in its frame b [d, d]): True if one of samples
     1..n-1 meets a wall or a track's prediction (the same float operations, stopping at the first sample that
     does). Writes the world positions of samples 1.. it reached to pos [>= n, d] (m)."""
     d = p0.shape[0]
-    n_tracks = tracks.shape[1]
-    track_pos, track_vel = tracks[0], tracks[1]
+    n_tracks = track_pos.shape[0]
     for k in range(1, n):
         x = buf[k, 0]
         for j in range(d):
@@ -147,8 +146,8 @@ def _to_world(buf, n, b, state, mm_mode):
 
 
 @njit(cache=True, nogil=True)
-def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state, walls, tracks, reach2, has_grid,
-           grid):
+def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, position, velocity, acceleration,
+           bounds_lo, bounds_hi, wall_r, track_pos, track_vel, track_radius, reach_r, has_grid, grid):
     """The first clear candidate of a rank-ordered list, built and checked one candidate at a time.
 
     Args:
@@ -163,9 +162,11 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
             rebuild safety factor, the limit tolerance, t (s) and dt (s) of the view.
         counts_in: [4] int: the number of limit-scaled rebuilds, numpy's matmul mode and sum-of-squares order
             (candidate_kernels.numpy_orders), and 1 to compute frame_in here (frame_products_known), else 0.
-        state: [3, d] the MAV's position, velocity, acceleration (m, m/s, m/s^2; sample 0 of every candidate).
-        walls: [2, d] lowest and highest admissible sample coordinate (m).
-        tracks: [2, M, d] the tracks' means and velocities at t (m, m/s); reach2: [M] squared reach (m^2).
+        position, velocity, acceleration: the MAV's state [d] (m, m/s, m/s^2; sample 0 of every candidate).
+        bounds_lo, bounds_hi: the arena box [d] (m); wall_r: a sample closer than this to its border meets a wall
+            (m; the lowest admissible coordinate is bounds_lo + wall_r, the highest bounds_hi - wall_r).
+        track_pos, track_vel: the tracks' means and velocities at t [M, d] (m, m/s); track_radius [M] (m); reach_r:
+            added to a track's radius, the distance below which a sample meets its prediction (m).
         has_grid, grid: whether any cell is OCCUPIED, and OccupancyGrid.collision_query's arguments (a grid's
             query arguments of the same types when has_grid is False; unused then).
     Returns:
@@ -174,13 +175,28 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
         samples p, v, a [K, d] (world; empty when none is clear)).
     """
     m, d = targets.shape[0], targets.shape[1]
-    if counts_in.shape[0] != 4 or state.shape[0] != 3 or state.shape[1] != d:
+    n_tracks = track_pos.shape[0]
+    if (counts_in.shape[0] != 4 or position.shape[0] != d or velocity.shape[0] != d or acceleration.shape[0] != d
+            or bounds_lo.shape[0] != d or bounds_hi.shape[0] != d or track_vel.shape[0] != n_tracks
+            or track_radius.shape[0] != n_tracks or (n_tracks and (track_pos.shape[1] != d
+                                                                   or track_vel.shape[1] != d))):
         raise ValueError("search: mismatched shapes")
+    state = np.empty((3, d))
+    walls = np.empty((2, d))
+    for j in range(d):
+        state[0, j] = position[j]
+        state[1, j] = velocity[j]
+        state[2, j] = acceleration[j]
+        walls[0, j] = bounds_lo[j] + wall_r
+        walls[1, j] = bounds_hi[j] - wall_r
+    reach2 = np.empty(n_tracks)
+    for i in range(n_tracks):
+        reach = track_radius[i] + reach_r
+        reach2[i] = reach * reach
     if counts_in[3] == 1:
         frame_in = frame_inputs(bases, targets, vels, state)
     if (frame_in.shape[0] != 4 or frame_in.shape[1] != m or frame_in.shape[2] != d or bases.shape[0] != m
-            or vels.shape[0] != m or limits.shape[0] != 9 or walls.shape[0] != 2 or tracks.shape[0] != 2
-            or tracks.shape[1] != reach2.shape[0]):
+            or vels.shape[0] != m or limits.shape[0] != 9):
         raise ValueError("search: mismatched shapes")
     scratch = np.zeros((6, d))
     prof = np.zeros((1, d, PROFILE_WIDTH))
@@ -202,8 +218,8 @@ def search(addr, frame_in, bases, targets, vels, prune, limits, counts_in, state
             continue
         if pos.shape[0] < n:
             pos = np.empty((buf.shape[0], d))
-        if _screened_out(buf, n, bases[c], state[0], walls, tracks, reach2, limits[7], limits[8], counts_in[1],
-                         counts_in[2], pos):
+        if _screened_out(buf, n, bases[c], state[0], walls, track_pos, track_vel, reach2, limits[7], limits[8],
+                         counts_in[1], counts_in[2], pos):
             continue
         if has_grid and _grid_hit(pos[1:n], grid, base):
             continue

@@ -86,7 +86,16 @@ def goal_angles(directions: np.ndarray, to_goal: np.ndarray) -> np.ndarray | Non
     dist = math.sqrt(float(g @ g))
     if dist < 1e-12:
         return None
-    return np.round(np.arccos(np.clip(directions @ (g / dist), -1.0, 1.0)), 12)
+    x = directions @ (g / dist)
+    # np.round(np.arccos(np.clip(x, -1, 1)), 12) in place, with the same float operations (numpy rounds to 12
+    # decimals as x * 1e12, rint, / 1e12; tests/test_planners.py compares both)
+    np.maximum(x, -1.0, out=x)
+    np.minimum(x, 1.0, out=x)
+    np.arccos(x, out=x)
+    np.multiply(x, 1e12, out=x)
+    np.rint(x, out=x)
+    np.divide(x, 1e12, out=x)
+    return x
 
 
 def frame_basis(u: np.ndarray) -> np.ndarray:
@@ -192,6 +201,8 @@ class LocalPrimitives:
         self._no_frames = np.zeros((4, 0, d))
         self._limits_row = np.array([self.limits.v_max, self.limits.a_max, self.jerk_max, self.min_duration,
                                      MAX_PLAN_HORIZON_S, _SCALE_SAFETY, _TOL, 0.0, 0.0])  # t, dt set per view
+        self._wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)   # _screen's wall distance (m)
+        self._reach_r = self.limits.radius + self.margin                         # ... and track reach beyond radius
         self._screen_view: View | None = None
         self._stacked_view: View | None = None   # _search_native's per-view arguments, for this view
         self._stacked: tuple = ()
@@ -368,23 +379,16 @@ class LocalPrimitives:
             frame_in[2] = (bases @ (targets - view.position)[:, :, None])[:, :, 0]
             frame_in[3] = (bases @ vels[:, :, None])[:, :, 0]
         if self._stacked_view is not view:
-            wall_lo, wall_hi, track_pos, track_vel, reach2 = self._screen(view)
             query = view.grid.collision_query(view.limits.radius + self.margin)
-            limits = self._limits_row
-            limits[7], limits[8] = view.t, view.dt
-            state = np.empty((3, self.dims))
-            state[0], state[1], state[2] = view.position, view.velocity, view.acceleration
-            walls = np.empty((2, self.dims))
-            walls[0], walls[1] = wall_lo, wall_hi
-            tracks = np.empty((2, track_pos.shape[0], self.dims))
-            tracks[0], tracks[1] = track_pos, track_vel
-            self._stacked = (limits, state, walls, tracks, reach2, query is not None,
-                             no_grid_query() if query is None else query)
+            self._limits_row[7], self._limits_row[8] = view.t, view.dt
+            self._stacked = (query is not None, no_grid_query() if query is None else query)
             self._stacked_view = view
-        limits, state, walls, tracks, reach2, has_grid, query = self._stacked
-        j, tried, n_built, p, v, a = search(self._native, frame_in, np.ascontiguousarray(bases),
-                                            np.ascontiguousarray(targets), np.ascontiguousarray(vels), prune,
-                                            limits, self._counts, state, walls, tracks, reach2, has_grid, query)
+        has_grid, query = self._stacked
+        tracks = view.tracks
+        j, tried, n_built, p, v, a = search(self._native, frame_in, bases, targets, vels, prune, self._limits_row,
+                                            self._counts, view.position, view.velocity, view.acceleration,
+                                            view.bounds_lo, view.bounds_hi, self._wall_r, tracks.position,
+                                            tracks.velocity, tracks.radius, self._reach_r, has_grid, query)
         self.last_candidates_built += int(n_built)
         return int(j), int(tried), (p, v, a)
 
@@ -419,7 +423,7 @@ class LocalPrimitives:
     def _chosen(self, view: View, target, rank: int, p, v, a) -> Trajectory:
         self.last_rank = rank
         self.last_target = np.array(target, dtype=float)
-        return Trajectory(view.t, view.dt, np.ascontiguousarray(p), np.ascontiguousarray(v), np.ascontiguousarray(a))
+        return Trajectory(view.t, view.dt, p, v, a)          # both searches give C-contiguous samples
 
     def plan_one_by_one(self, view: View) -> Trajectory | None:
         """plan() trying the candidates strictly one at a time in rank order (build, check, next): the reference
@@ -554,10 +558,9 @@ class LocalPrimitives:
         squared distances [M] (m^2) below which a sample meets one (a)."""
         if self._screen_view is not view:
             tracks = view.tracks
-            wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)
-            reach = tracks.radius + (self.limits.radius + self.margin)
-            self._screen_args = (view.bounds_lo + wall_r, view.bounds_hi - wall_r, tracks.position, tracks.velocity,
-                                 reach * reach)
+            reach = tracks.radius + self._reach_r
+            self._screen_args = (view.bounds_lo + self._wall_r, view.bounds_hi - self._wall_r, tracks.position,
+                                 tracks.velocity, reach * reach)
             self._screen_view = view
         return self._screen_args
 
