@@ -32,27 +32,13 @@ class TrialSpec:
 
     def resolved(self) -> dict:
         """The canonical, path- and version-free description of the trial (what config_hash hashes)."""
-        sc = self.scenario.to_dict()
-        skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures"}
-        if sc["obstacles"]["motion"] != "rvo":
-            skip.add("rvo")
-        skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
-        obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
-        drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
-        task = {k: v for k, v in sc["task"].items() if k != "candidates"}
-        later = later_fields("tracking", sc["tracking"])
-        tracking = {k: v for k, v in sc["tracking"].items() if k not in later}
+        base = _scenario_part(self.scenario)
         return {
-            "world": sc["world"], "obstacles": obstacles, "map": self._map_dict(),
-            "static_obstacles": sc["static_obstacles"], "drone": drone, "v_max": float(self.v_max),
-            "sensor": sc["sensor"], "tracking": tracking, "task": task,
-            "candidates": sc["task"]["candidates"],
+            **base, "map": self._map_dict(), "v_max": float(self.v_max),
             "start": [float(x) for x in self.start], "goal": [float(x) for x in self.goal],
             "planner": {"trajectory": self.planner.trajectory, "gaze": self.planner.gaze,
                         "trajectory_params": dict(self.planner.trajectory_params),
                         "gaze_params": dict(self.planner.gaze_params)},
-            "collision_check": self.scenario.collision_check, "profile": self.scenario.profile,
-            **({"bodies": bodies_fingerprint(self.scenario)} if self.scenario.is_world else {}),
         }
 
     def _map_dict(self) -> dict:
@@ -71,6 +57,40 @@ class TrialSpec:
     def seed(self) -> int:
         """A per-trial seed (sensor noise, planners that need randomness), derived from config_hash."""
         return stable_hash64(self.config_hash) >> 1
+
+
+_SCENARIO_PARTS: dict = {}
+"""id(scenario) -> (scenario, its part of resolved()): the scenarios last asked about (kept alive while cached, so
+that an id is not reused), at most _SCENARIO_PARTS_KEPT."""
+_SCENARIO_PARTS_KEPT = 8
+
+
+def _scenario_part(scenario: Scenario) -> dict:
+    """The scenario's part of TrialSpec.resolved() (the same for all its trials; computed once per scenario object,
+    since Scenario is frozen). Callers must not modify it."""
+    got = _SCENARIO_PARTS.get(id(scenario))
+    if got is not None and got[0] is scenario:
+        return got[1]
+    sc = scenario.to_dict()
+    skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures"}
+    if sc["obstacles"]["motion"] != "rvo":
+        skip.add("rvo")
+    skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
+    obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
+    drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
+    task = {k: v for k, v in sc["task"].items() if k != "candidates"}
+    later = later_fields("tracking", sc["tracking"])
+    tracking = {k: v for k, v in sc["tracking"].items() if k not in later}
+    part = {
+        "world": sc["world"], "obstacles": obstacles, "static_obstacles": sc["static_obstacles"], "drone": drone,
+        "sensor": sc["sensor"], "tracking": tracking, "task": task, "candidates": sc["task"]["candidates"],
+        "collision_check": scenario.collision_check, "profile": scenario.profile,
+        **({"bodies": bodies_fingerprint(scenario)} if scenario.is_world else {}),
+    }
+    if len(_SCENARIO_PARTS) >= _SCENARIO_PARTS_KEPT:
+        _SCENARIO_PARTS.pop(next(iter(_SCENARIO_PARTS)))
+    _SCENARIO_PARTS[id(scenario)] = (scenario, part)
+    return part
 
 
 def _structure_dict(scenario, map_spec) -> dict:
