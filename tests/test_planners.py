@@ -585,3 +585,50 @@ def test_goal_angles_are_numpys_rounded_arccos_of_the_clipped_cosines(dims):
         x = dirs @ (g / math.sqrt(float(g @ g)))
         assert np.array_equal(got, np.round(np.arccos(np.clip(x, -1.0, 1.0)), 12))
     assert goal_angles(dirs, np.zeros(dims)) is None
+
+
+def test_clip_rate_is_numpys_clip_of_a_float():
+    """The gaze planners' scalar clip gives np.clip's value bit for bit, signed zeros, limits and NaN included."""
+    from pbdyn.planning.gaze import clip_rate
+
+    rng = np.random.default_rng(3)
+    values = list(rng.normal(size=2000) * 3.0) + [0.0, -0.0, 1.4, -1.4, 1.4 + 1e-16, math.inf, -math.inf, math.nan]
+    for limit in (1.4, 0.5, 1e-300):
+        for x in values:
+            want = float(np.clip(x, -limit, limit))
+            got = clip_rate(float(x), limit)
+            assert type(got) is float
+            assert (math.isnan(want) and math.isnan(got)) or (got == want and math.copysign(1, got) ==
+                                                               math.copysign(1, want))
+
+
+def test_the_environments_views_equal_views_built_field_by_field():
+    """TrialEnv.view (View.of_owned: no dataclass __init__, shared read-only goal and bounds) gives what View(...)
+    gives for the same values: every field equal, arrays read-only, and the state arrays copies of the env's."""
+    import dataclasses
+
+    from pbdyn.sim.env import TrialEnv
+    from pbdyn.sim.spec import make_trial_spec
+    from tests.helpers import first_map, handmade_rollout, open_scenario
+
+    sc = open_scenario(obstacles={"count": 1})
+    env = TrialEnv(make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 40.0)),
+                   handmade_rollout(sc, [[20.0, 20.0]], [[0.0, 1.0]], [1.0]))
+    env.reset()
+    traj = Trajectory(0.0, env.dt, np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)))
+    got = env.view(traj)
+    sensor = sc.sensor
+    want = View(env.t, env.dt, env.position, env.velocity, env.acceleration, env.yaw, env.goal, env.goal_radius,
+                env.limits, env.bounds[0], env.bounds[1], env.grid, env.tracks, traj, env.fov_deg, sensor.range,
+                sensor.vfov_deg)
+    assert type(got) is View and got.extras == {} and got.extras is not env.view().extras
+    for f in dataclasses.fields(View):
+        a, b = getattr(got, f.name), getattr(want, f.name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype and np.array_equal(a, b) and not a.flags.writeable
+        else:
+            assert a is b or a == b, f.name
+    assert not np.shares_memory(got.position, env.position) and not np.shares_memory(got.goal, env.goal)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        got.t = 1.0
+    env.close()

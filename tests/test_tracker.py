@@ -155,3 +155,24 @@ def test_setup_track_radius_reports_the_setup_radius_for_every_track():
         np.testing.assert_array_equal(tr.tracks(radii).radius, want)
     with pytest.raises(ValueError, match="track_radius"):
         KalmanTracks(3, 2, 0.1, track_radius="mean", **kw)
+
+
+def test_the_tracks_read_out_equals_tracks_built_field_by_field_and_is_read_only():
+    """KalmanTracks.tracks (Tracks.of_owned: fresh copies made read-only, no dataclass __init__) gives what Tracks(...)
+    gives; writing to it fails and the filter's own state is not shared."""
+    from pbdyn.perception.tracks import Tracks
+
+    tr = KalmanTracks(4, 2, DT, bounds_lo=np.full(2, LO), bounds_hi=np.full(2, HI))
+    tr.step(np.array([1, 3]), np.array([[10.0, 10.0], [20.0, 30.0]]))
+    tr.step(np.array([1, 3]), np.array([[10.1, 10.0], [20.0, 30.2]]))
+    radii = np.array([0.5, 0.8, 1.0, 1.2])
+    got = tr.tracks(radii)
+    idx = np.flatnonzero(tr.active)
+    want = Tracks(idx, tr.x[idx, :2], tr.x[idx, 2:], tr.P[idx], radii[idx])
+    assert type(got) is Tracks and len(got) == 2
+    for name in ("ids", "position", "velocity", "covariance", "radius"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b) and not a.flags.writeable
+        assert not np.shares_memory(a, tr.x) and not np.shares_memory(a, tr.P)
+    with pytest.raises(ValueError):
+        got.position[0, 0] = 1.0

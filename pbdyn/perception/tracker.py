@@ -197,7 +197,7 @@ class KalmanTracks:
             radii = np.full(self.n, self.nominal_radius)
         elif self.restarted.any():
             radii = np.where(self.restarted, self.nominal_radius, radii)
-        return Tracks(idx, self.x[idx, :d], self.x[idx, d:], self.P[idx], radii[idx])
+        return Tracks.of_owned(idx, self.x[idx, :d], self.x[idx, d:], self.P[idx], radii[idx])   # fresh copies
 
     def model(self) -> tuple:
         """What the filter's arithmetic depends on besides its state (trackers with equal models can share a

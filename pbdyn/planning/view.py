@@ -28,6 +28,9 @@ class MAVLimits:
     yaw_rate: float
 
 
+_ARRAYS = ("position", "velocity", "acceleration", "goal", "bounds_lo", "bounds_hi")
+
+
 @dataclass(frozen=True)
 class View:
     """What the MAV knows at time t (all SI, world frame, z-up; d = 2 or 3).
@@ -67,8 +70,25 @@ class View:
     extras: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name in ("position", "velocity", "acceleration", "goal", "bounds_lo", "bounds_hi"):
+        for name in _ARRAYS:
             object.__setattr__(self, name, readonly(np.array(getattr(self, name), dtype=float)))
+
+    @classmethod
+    def of_owned(cls, t: float, dt: float, position, velocity, acceleration, yaw: float, goal: np.ndarray,
+                 goal_radius: float, limits: MAVLimits, bounds_lo: np.ndarray, bounds_hi: np.ndarray, grid, tracks,
+                 trajectory: "Trajectory | None", fov_deg: float, range_m: float, vfov_deg: float | None) -> "View":
+        """The View View(...) makes of the same values (the environment's per-step view, without the dataclass
+        __init__'s per-field cost): position, velocity and acceleration [d] are copied read-only as there; goal,
+        bounds_lo and bounds_hi must already be read-only float arrays [d] that nobody writes (they are shared,
+        not copied)."""
+        view = object.__new__(cls)
+        view.__dict__.update(t=t, dt=dt, position=readonly(np.array(position, dtype=float)),
+                             velocity=readonly(np.array(velocity, dtype=float)),
+                             acceleration=readonly(np.array(acceleration, dtype=float)), yaw=yaw, goal=goal,
+                             goal_radius=goal_radius, limits=limits, bounds_lo=bounds_lo, bounds_hi=bounds_hi,
+                             grid=grid, tracks=tracks, trajectory=trajectory, fov_deg=fov_deg, range_m=range_m,
+                             vfov_deg=vfov_deg, extras={})
+        return view
 
     @property
     def dims(self) -> int:

@@ -19,6 +19,7 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import OccupancyGrid
 from pbdyn.perception.perceive import Perception
 from pbdyn.perception.tracker import KalmanTracks
+from pbdyn.perception.tracks import readonly
 from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.collision import (DynamicContact, sampled_dynamic, sampled_static, shape_dynamic, swept_dynamic,
                                  swept_dynamic_many, swept_static)
@@ -129,6 +130,7 @@ class TrialEnv:
         lo = np.zeros(self.dims)
         hi = np.asarray(sc.world.size, dtype=float)
         self.bounds = (lo, hi)
+        self._view_consts = tuple(readonly(np.array(x, dtype=float)) for x in (self.goal, lo, hi))  # shared by views
         self.fov_deg = float(fov_deg) if fov_deg is not None else sc.sensor.fov_deg
         self.swept = sc.collision_check == "swept"
         bodies = rollout.bodies
@@ -234,9 +236,10 @@ class TrialEnv:
     def view(self, trajectory=None) -> View:
         """The read-only snapshot planners see at t_k, with the plan in execution (or None)."""
         sc = self.spec.scenario
-        return View(self.t, self.dt, self.position, self.velocity, self.acceleration, self.yaw, self.goal,
-                    self.goal_radius, self.limits, self.bounds[0], self.bounds[1], self.grid, self.tracks,
-                    trajectory, self.fov_deg, sc.sensor.range, sc.sensor.vfov_deg)
+        goal, lo, hi = self._view_consts
+        return View.of_owned(self.t, self.dt, self.position, self.velocity, self.acceleration, self.yaw, goal,
+                             self.goal_radius, self.limits, lo, hi, self.grid, self.tracks, trajectory, self.fov_deg,
+                             sc.sensor.range, sc.sensor.vfov_deg)
 
     def step(self, action: Action, *, sense: bool = True, dynamic: DynamicContact | None = None) -> None:
         """Steps (6)-(7): move the MAV to the action's state at t_k+1 and turn it by the clipped yaw rate, then
