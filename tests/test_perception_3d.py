@@ -306,8 +306,9 @@ def test_grid_cell_level_marking():
 
 @pytest.mark.parametrize("dims", [2, 3])
 def test_fans_culled_together_cast_as_every_ray(dims):
-    """Lockstep trials cull their fans together (fan_rays_many): every fan's hits equal casting all its rays, walls,
-    static boxes and grazed obstacles included, and the kept rays equal fan_candidates' one fan at a time."""
+    """Lockstep trials cull their fans together (fan_rays_many; cast_fans_many, which lockstep uses, gives the same
+    hits): every fan's hits equal casting all its rays, walls, static boxes and grazed obstacles included, and the
+    kept rays equal fan_candidates' one fan at a time."""
     rng = np.random.default_rng(10 + dims)
     size = np.array([24.0, 16.0] if dims == 2 else [24.0, 16.0, 10.0])
     statics = [StaticBody("pillar", (6.0, 8.0), radius=0.7),
@@ -324,7 +325,9 @@ def test_fans_culled_together_cast_as_every_ray(dims):
             origins[1] = [9.0, 15.1, 5.0][:dims]                     # beside the slab
             w.set_obstacle_positions(centres)
             made = w.fan_rays_many(origins, np.array([f.T for f in fans]), 8.0)
-            for (ids, frac), o, fan, rays in zip(w.cast_fans(made), origins, fans, made):
+            many_ids, many_frac = w.cast_fans_many(origins, np.array([f.T for f in fans]), 8.0)
+            for k, ((ids, frac), o, fan, rays) in enumerate(zip(w.cast_fans(made), origins, fans, made)):
+                assert np.array_equal(many_ids[k], ids) and np.array_equal(many_frac[k], frac)
                 starts = np.tile(w.to_world3(o), (fan.shape[0], 1))
                 ends = starts.copy()
                 ends[:, :dims] += 8.0 * fan

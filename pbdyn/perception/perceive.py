@@ -343,11 +343,14 @@ def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
     """The free-space marking of a scan (the cells Perception.free_cells lists) in compiled code: for ray r (direction dirs_t[:, r]) and sample distance t (cell units,
     t_cells), the sample oc + dirs_t[:, r] * min(t, lim[r]) (cell units from cell 0's corner) lies in the cell
     floor() of it, clipped into the grid; each such cell of ``cells`` (flat, C order, of ``shape``) becomes FREE
-    unless it is OCCUPIED (free_cells' float operations, in its order)."""
+    unless it is OCCUPIED (free_cells' float operations, in its order; the samples past lim[r], all in the cell of
+    the first one, are visited once)."""
     d, n_rays = dirs_t.shape
     for r in range(n_rays):
+        lr = lim[r]
         for t in t_cells:
-            dist = min(t, lim[r])
+            clamped = t >= lr           # t_cells ascend: this and every later sample lie at lim[r], in one cell
+            dist = lr if clamped else min(t, lr)
             flat = 0
             for k in range(d):
                 i = np.int64(np.floor(dirs_t[k, r] * dist + oc[k]))
@@ -355,6 +358,8 @@ def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
                 flat = flat * shape[k] + i
             if cells[flat] < 0:
                 cells[flat] = 0
+            if clamped:
+                break
 
 
 @njit(cache=True, nogil=True)

@@ -4,7 +4,7 @@ Obstacles never react to the MAV, so every trial on a map sees the same obstacle
 A trial starts at the tick of its start step k0 (the start rule), so at tick T every running trial senses rollout
 step T (T + 1 with sensor.obstacles_at = "next"): the obstacles are posed once per tick and rollout (the thesis
 program's start-dependent layouts are rollouts of their own), the running MAVs' ray fans are culled together
-(PyBulletWorld.fan_rays_many) and their rays go to Bullet in one batch, and the trials' Kalman trackers step
+(PyBulletWorld.cast_fans_many) and their rays go to Bullet in one batch, and the trials' Kalman trackers step
 together (pbdyn.perception.tracker.TrackerBank). Then every agent decides
 (planners keep their per-trial interface), the moves of all trials are checked against the obstacles in one
 evaluation per (rollout, step) (collision.swept_dynamic_many), and each environment steps as in run_trial. Every row
@@ -201,7 +201,6 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _B
         c0 = time.perf_counter()
         members[0].env.pose_obstacles()
         pose_share = (time.perf_counter() - c0) / len(members)
-        scans: dict = {}
         rays = dict.fromkeys((tr.index for tr in members), 0.0)
         fans: dict = {}
         # Nothing reads the MAV body's pose while the scans are made (Bullet's rays exclude it; cast_rays parks it
@@ -220,32 +219,28 @@ def _sense_all(running: list[_Trial], world: PyBulletWorld, out: list, banks: _B
                 env.detections = frame
             else:
                 fans.setdefault((env.perception.range_m, frame[1].shape), []).append((tr, frame))
-        for (range_m, _), group in fans.items():     # the fans of one shape culled together
+        for (range_m, _), group in fans.items():     # the fans of one shape culled and cast together
+            c1 = time.perf_counter()
             try:
-                made = world.fan_rays_many(np.array([o for _, (o, _) in group]),
-                                           np.array([d for _, (_, d) in group]), range_m)
+                ids, frac = world.cast_fans_many(np.array([o for _, (o, _) in group]),
+                                                 np.array([d for _, (_, d) in group]), range_m)
+                cast = [(tr, o, dirs_t, ids[k], frac[k]) for k, (tr, (o, dirs_t)) in enumerate(group)]
             except Exception:                         # each trial on its own, to end only the ones that fail
-                made = []
+                cast = []
                 for tr, (o, dirs_t) in group:
                     try:
-                        made.append(world.fan_rays(o, dirs_t.T, range_m))
+                        cast.append((tr, o, dirs_t, *world.cast_fan_rays(world.fan_rays(o, dirs_t.T, range_m))))
                     except Exception as exc:
                         out[tr.index] = failed[tr.index] = exc
-                        made.append(None)
-            scans.update({tr.index: PendingScan(o, dirs_t, fan) for (tr, (o, dirs_t)), fan in zip(group, made)
-                          if fan is not None})
-        pending = [(tr, scans[tr.index]) for tr in members if tr.index in scans]
-        c1 = time.perf_counter()
-        hits = world.cast_fans([scan.fan for _, scan in pending])
-        share = (time.perf_counter() - c1) / max(len(pending), 1)
-        for (tr, scan), (ids, frac) in zip(pending, hits):
-            t0 = time.perf_counter()
-            try:
-                tr.env.detections = tr.env.perception.complete(scan, ids, frac)
-            except Exception as exc:
-                out[tr.index] = failed[tr.index] = exc
-                continue
-            rays[tr.index] = share + time.perf_counter() - t0
+            share = (time.perf_counter() - c1) / max(len(cast), 1)
+            for tr, o, dirs_t, hit_ids, hit_frac in cast:
+                t0 = time.perf_counter()
+                try:
+                    tr.env.detections = tr.env.perception.complete(PendingScan(o, dirs_t, None), hit_ids, hit_frac)
+                except Exception as exc:
+                    out[tr.index] = failed[tr.index] = exc
+                    continue
+                rays[tr.index] = share + time.perf_counter() - t0
         tracked = banks.step([tr for tr in members if tr.index not in failed])
         for index, got in tracked.items():
             tr = by_index[index]

@@ -572,6 +572,25 @@ class PyBulletWorld:
             out.append(self._fan_of(o3[i], dirs_t[i].T, None if sel.shape[0] == n_rays else sel, range_m))
         return out
 
+    def cast_fans_many(self, origins: np.ndarray, dirs_t: np.ndarray, range_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """cast_fans(fan_rays_many(origins, dirs_t, range_m)) as two arrays: body ids [T, R] (int64) and fractions
+        [T, R] of T fans from origins [T, d] along unit directions [T, d, R] -- the same rays (kept by the same
+        culling, with the same start and end points, in the same order) sent to Bullet in one cast_rays call,
+        without a FanRays per fan."""
+        o = np.asarray(origins, dtype=float)
+        dirs_t = np.ascontiguousarray(dirs_t, dtype=float)
+        n_fans, _, n_rays = dirs_t.shape
+        if self._num_bodies() != self._known_bodies:
+            keep = np.ones((n_fans, n_rays), dtype=bool)
+        else:
+            keep = self.fan_candidates_many(o, dirs_t, range_m)
+        starts, ends, where = _fan_segments(np.ascontiguousarray(self.to_world3(o)), dirs_t, keep, float(range_m))
+        ids = np.full(n_fans * n_rays, -1, dtype=np.int64)
+        frac = np.ones(n_fans * n_rays)
+        if where.shape[0]:
+            ids[where], frac[where] = self.cast_rays(starts, ends)
+        return ids.reshape(n_fans, n_rays), frac.reshape(n_fans, n_rays)
+
     def cast_fan(self, origin, directions, range_m: float, *, cull: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Cast rays from ``origin`` [d] along unit ``directions`` [R, d] to range_m (m): (body_ids [R], fractions [R]).
 
@@ -722,6 +741,33 @@ def what_if_pose(world: PyBulletWorld, position, yaw: float) -> Iterator[PyBulle
         yield world
     finally:
         world.set_mav_pose(old_p, old_yaw)
+
+
+@njit(cache=True, nogil=True)
+def _fan_segments(o3, dirs_t, keep, reach):
+    """The rays of fans kept by ``keep`` [T, R], fan by fan, as _fan_of makes them: starts o3[t] [3] (m, world) and
+    ends o3[t] + reach * dirs_t[t, :, r] on the first d coordinates ([N, 3] each), and their flat indices t R + r."""
+    n_fans, d, n_rays = dirs_t.shape
+    n = 0
+    for t in range(n_fans):
+        for r in range(n_rays):
+            n += keep[t, r]
+    starts = np.empty((n, 3))
+    ends = np.empty((n, 3))
+    where = np.empty(n, dtype=np.int64)
+    i = 0
+    for t in range(n_fans):
+        for r in range(n_rays):
+            if not keep[t, r]:
+                continue
+            for j in range(3):
+                starts[i, j] = o3[t, j]
+                ends[i, j] = o3[t, j]
+            for j in range(d):
+                ends[i, j] = o3[t, j] + reach * dirs_t[t, j, r]
+            where[i] = t * n_rays + r
+            i += 1
+    return starts, ends, where
 
 
 @njit(cache=True, nogil=True)
