@@ -49,6 +49,13 @@ def test_tracker_bank_steps_exactly_like_each_tracker_alone(rule, dims):
             assert a.tracked_time_s == b.tracked_time_s
             ta, tb = a.tracks(np.full(n, 0.7)), b.tracks(np.full(n, 0.7))
             assert np.array_equal(ta.ids, tb.ids) and np.array_equal(ta.radius, tb.radius)
+        radii = [rng.uniform(0.3, 1.5, n) for _ in live]              # the bank's read-out of every tracker at once
+        for i, r, got in zip(live, radii, bank.read_tracks([rows[i] for i in live], radii)):
+            want = alone[i].tracks(r)
+            for name in ("ids", "position", "velocity", "covariance", "radius"):
+                x, y = getattr(got, name), getattr(want, name)
+                assert x.dtype == y.dtype and np.array_equal(x, y) and not x.flags.writeable
+                assert x.flags.c_contiguous and not np.shares_memory(x, bank.x) and not np.shares_memory(x, bank.P)
     drops = sum(int(t.ever.sum()) for t in alone)
     assert drops > 0 and any(t.n_active < t.ever_tracked for t in alone)   # tracks were started and dropped
 

@@ -284,3 +284,28 @@ class TrackerBank:
         n_active = np.count_nonzero(self.active[rows_a], axis=1).tolist()
         for tr, m in zip(trackers, n_active):
             tr.tracked_time_s += tr.dt * m
+
+    def read_tracks(self, rows: list[int], radii_list: list) -> list[Tracks]:
+        """KalmanTracks.tracks(radii) of the trackers attached at ``rows`` (radii_list: each one's obstacle radii
+        [N], m), for all of them in one array evaluation: the same ids, means, velocities, covariances and radii,
+        each tracker's Tracks holding read-only slices of shared fresh copies."""
+        t = self.template
+        d = t.dims
+        rows_a = np.asarray(rows, dtype=np.intp)
+        act = self.active[rows_a]
+        ti, ni = (np.ascontiguousarray(i) for i in np.nonzero(act))     # (nonzero's are strided views)
+        rr = rows_a[ti]
+        if t.track_radius == "setup":
+            radii = np.full(act.shape, t.nominal_radius)
+        else:
+            radii = np.stack([np.asarray(r, dtype=float).reshape(t.n) for r in radii_list])
+            restarted = self.restarted[rows_a]
+            if restarted.any():
+                radii = np.where(restarted, t.nominal_radius, radii)
+        pos, vel, cov, rad = self.x[rr, ni, :d], self.x[rr, ni, d:], self.P[rr, ni], radii[ti, ni]
+        ends = np.cumsum(np.count_nonzero(act, axis=1)).tolist()
+        out, lo = [], 0
+        for hi in ends:
+            out.append(Tracks.of_owned(ni[lo:hi], pos[lo:hi], vel[lo:hi], cov[lo:hi], rad[lo:hi]))
+            lo = hi
+        return out
