@@ -340,26 +340,34 @@ class Perception:
 
 @njit(cache=True, nogil=True)
 def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
-    """The free-space marking of a scan (the cells Perception.free_cells lists) in compiled code: for ray r (direction dirs_t[:, r]) and sample distance t (cell units,
-    t_cells), the sample oc + dirs_t[:, r] * min(t, lim[r]) (cell units from cell 0's corner) lies in the cell
-    floor() of it, clipped into the grid; each such cell of ``cells`` (flat, C order, of ``shape``) becomes FREE
-    unless it is OCCUPIED (free_cells' float operations, in its order; the samples past lim[r], all in the cell of
-    the first one, are visited once)."""
+    """The free-space marking of a scan (the cells Perception.free_cells lists) in compiled code: for ray r
+    (direction dirs_t[:, r]) and sample distance t (cell units, t_cells), the sample oc + dirs_t[:, r] * min(t, lim[r])
+    (cell units from cell 0's corner) lies in the cell floor() of it, clipped into the grid; each such cell of
+    ``cells`` (flat, C order, of ``shape``) becomes FREE unless it is OCCUPIED (free_cells' float operations, in its
+    order). The samples past lim[r], all in the cell of the first one, are visited once; a ray's cell indices are
+    formed axis by axis over its samples (loops the compiler vectorises), then marked."""
     d, n_rays = dirs_t.shape
+    n_t = t_cells.shape[0]
+    flat = np.empty(n_t, dtype=np.int64)
     for r in range(n_rays):
         lr = lim[r]
-        for t in t_cells:
-            clamped = t >= lr           # t_cells ascend: this and every later sample lie at lim[r], in one cell
-            dist = lr if clamped else min(t, lr)
-            flat = 0
-            for k in range(d):
-                i = np.int64(np.floor(dirs_t[k, r] * dist + oc[k]))
-                i = min(max(i, 0), shape[k] - 1)
-                flat = flat * shape[k] + i
-            if cells[flat] < 0:
-                cells[flat] = 0
-            if clamped:
+        n_use = n_t
+        for s in range(n_t):
+            if t_cells[s] >= lr:            # t_cells ascend: this and every later sample lie at lim[r]
+                n_use = s + 1
                 break
+        for s in range(n_use):
+            flat[s] = 0
+        for k in range(d):
+            dk, ok, top, size = dirs_t[k, r], oc[k], shape[k] - 1, shape[k]
+            for s in range(n_use):
+                t = t_cells[s]
+                dist = lr if t >= lr else min(t, lr)
+                i = np.int64(np.floor(dk * dist + ok))
+                flat[s] = flat[s] * size + min(max(i, 0), top)
+        for s in range(n_use):
+            if cells[flat[s]] < 0:
+                cells[flat[s]] = 0
 
 
 @njit(cache=True, nogil=True)
