@@ -632,3 +632,16 @@ def test_the_environments_views_equal_views_built_field_by_field():
     with pytest.raises(dataclasses.FrozenInstanceError):
         got.t = 1.0
     env.close()
+
+
+def test_trajectory_of_owned_equals_the_checked_constructor():
+    """Trajectory.of_owned (planners' fresh samples made read-only in place) gives what Trajectory(...) gives."""
+    rng = np.random.default_rng(5)
+    p, v, a = (rng.normal(size=(7, 2)) for _ in range(3))
+    got = Trajectory.of_owned(0.3, DT, p.copy(), v.copy(), a.copy())
+    want = Trajectory(0.3, DT, p, v, a)
+    assert type(got) is Trajectory and (got.t0, got.dt) == (want.t0, want.dt)
+    for name in ("p", "v", "a"):
+        x, y = getattr(got, name), getattr(want, name)
+        assert x.dtype == y.dtype and np.array_equal(x, y) and not x.flags.writeable
+    assert got.state_at(0.5)[0].tolist() == want.state_at(0.5)[0].tolist() and got.t_end == want.t_end

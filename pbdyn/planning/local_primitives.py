@@ -261,7 +261,9 @@ class LocalPrimitives:
             i = int(order[0])
         end_vel = self._end_vel
         self.last_candidates_tried += 1
-        found = self._try_one(view, p0 + self._step_dirs[i], end_vel[i], self._bases[i], offset)
+        best = p0 + self._step_dirs[i:i + 1]                      # [1, d]: _try_one's arrays, as slices
+        j, _, samples = self._search(view, best, end_vel[i:i + 1], self._bases[i:i + 1], prune=False)
+        found = None if j < 0 else self._chosen(view, best[0], offset, *samples)
         if found is not None or self.n_candidates == 1 or self.none_can_be_clear(view):
             return found
         if order is None:
@@ -423,7 +425,7 @@ class LocalPrimitives:
     def _chosen(self, view: View, target, rank: int, p, v, a) -> Trajectory:
         self.last_rank = rank
         self.last_target = np.array(target, dtype=float)
-        return Trajectory(view.t, view.dt, p, v, a)          # both searches give C-contiguous samples
+        return Trajectory.of_owned(view.t, view.dt, p, v, a)   # both searches give fresh C-contiguous float samples
 
     def plan_one_by_one(self, view: View) -> Trajectory | None:
         """plan() trying the candidates strictly one at a time in rank order (build, check, next): the reference

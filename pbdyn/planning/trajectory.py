@@ -35,6 +35,17 @@ class Trajectory:
         if not (self.p.shape == self.v.shape == self.a.shape) or self.p.shape[0] < 1:
             raise ValueError("Trajectory p, v, a must share one non-empty [K, d] shape")
 
+    @classmethod
+    def of_owned(cls, t0: float, dt: float, p: np.ndarray, v: np.ndarray, a: np.ndarray) -> "Trajectory":
+        """The Trajectory Trajectory(...) makes of float arrays p, v, a [K, d] (K >= 1, one shape) that nobody else
+        writes (e.g. a planner's fresh samples): made read-only in place, without the dataclass __init__'s per-field
+        cost and the checks (the caller guarantees them)."""
+        for x in (p, v, a):
+            x.setflags(write=False)
+        traj = object.__new__(cls)
+        traj.__dict__.update(t0=t0, dt=dt, p=p, v=v, a=a)
+        return traj
+
     @property
     def n_samples(self) -> int:
         """Number of samples K."""

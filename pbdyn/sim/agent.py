@@ -184,7 +184,8 @@ class Agent:
         t1 = view.t + view.dt                                         # (6)
         traj = self.trajectory
         if traj is not None and traj.covers(t1) and traj.index_at(t1) >= 1:
-            p1, v1, a1 = (x.astype(float) for x in traj.state_at(t1))      # copies: the plan stays as it was
+            p1, v1, a1 = traj.state_at(t1)
+            p1, v1, a1 = p1.astype(float), v1.astype(float), a1.astype(float)   # copies: the plan stays as it was
             if self.physical:
                 v1 = _project(v1, limits.v_max)
                 a1 = _project(a1, limits.a_max)

@@ -183,7 +183,7 @@ def swept_static(world, mav_p0, mav_p1, *, eps: float = 1e-4, margin: float = 5.
     p0 = np.asarray(mav_p0, dtype=float)
     p1 = np.asarray(mav_p1, dtype=float)
     delta = p1 - p0
-    length = float(np.sqrt(delta @ delta))
+    length = math.sqrt(float(delta @ delta))       # (np.sqrt's value: both round the square root correctly)
     max_dist = length + float(margin)
     d, body = world.nearest_static(p0, max_dist)
     if d <= eps:

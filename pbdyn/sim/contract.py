@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from pbdyn.planning.trajectory import Trajectory
+
 START_TOL = 1e-6   # m and m/s: sample 0 against the MAV's current state
 REL_TOL = 1e-9     # relative tolerance on every limit and bound
 TIME_TOL = 1e-9    # s: t0 against now, dt against the world step (relative to max(1, |value|))
@@ -79,8 +81,6 @@ def plan_violations(traj, *, t: float, dt: float, position: np.ndarray, velocity
     ``position`` (m) / ``velocity`` (m/s), world step ``dt`` (s) and limits ``v_max`` (m/s), ``a_max`` (m/s^2);
     per check, the first offending sample. ``physical=False`` checks only the form and continuity (type, shape,
     finite, t0, dt, sample 0). ``first_only`` stops at the first violation. An empty list: the plan is valid."""
-    from pbdyn.planning.trajectory import Trajectory
-
     found: list[PlanViolation] = []
 
     def add(v: PlanViolation | None) -> bool:
@@ -126,8 +126,6 @@ def _clearly_valid(traj, t, dt, position, velocity, v_max, a_max, physical) -> b
     """A fast screen of the common case: True only if every check passes with a margin (squared norms against
     slightly shrunk bounds, so rounding can never pass what plan_violations would refuse); False sends the plan
     to plan_violations, which decides."""
-    from pbdyn.planning.trajectory import Trajectory
-
     if type(traj) is not Trajectory:
         return False
     p, v, a = traj.p, traj.v, traj.a
