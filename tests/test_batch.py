@@ -712,3 +712,37 @@ def test_the_slurm_array_recipe_flies_shards_that_merge(reference, tmp_path):
                          text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert rows_without_wall(merged) == rows_without_wall(ref_out)
+
+
+def test_a_pool_worker_settles_its_heap_once_after_its_first_group(tmp_path):
+    """Local pool workers (worker_init) freeze their long-lived heap after their first trial group (settle_heap:
+    gc.collect, then gc.freeze) and never again; a process without worker_init (Dask workers) never does. In fresh
+    processes, so that this one's collector is left as it is."""
+    import sys
+
+    code = (
+        "import gc, sys\n"
+        "from pbdyn.config import load_scenario\n"
+        "from pbdyn.experiments import tasks\n"
+        "from pbdyn.sim.trial import make_trial_spec\n"
+        "from pbdyn.world.maps import get_map\n"
+        "from pbdyn.world.rollout import get_rollout\n"
+        "sc = load_scenario('quickstart'); ms = get_map(sc, 0); c = sc.task.candidates\n"
+        f"path = {str(tmp_path / 'ro.npz')!r}; get_rollout(sc, ms).save(path)\n"
+        "specs = tuple(make_trial_spec(sc, ms, start=tuple(c[i]), goal=tuple(c[-1])) for i in (0, 1))\n"
+        "task = tasks.TrialGroupTask(('a', 'b'), specs, tasks.RolloutRef('r', path))\n"
+        "if sys.argv[1] == 'pool':\n"
+        "    tasks.worker_init()\n"
+        "counts = []\n"
+        "for _ in range(2):\n"
+        "    rows = tasks.run_trial_group_task(task)\n"
+        "    assert [r[2] for r in rows] == [None, None], rows\n"
+        "    counts.append(gc.get_freeze_count())\n"
+        "print(*counts)\n")
+    got = {}
+    for kind in ("pool", "dask"):
+        done = subprocess.run([sys.executable, "-c", code, kind], capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        got[kind] = [int(x) for x in done.stdout.split()]
+    assert got["pool"][0] > 10000 and got["pool"][1] <= got["pool"][0]      # (frozen objects can still be freed)
+    assert got["dask"] == [0, 0]

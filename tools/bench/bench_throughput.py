@@ -8,7 +8,8 @@ LookAhead + local primitives, all 72 pairs x 3 MAV speeds on the first --maps-pe
 the 27 setups: 5,832 trials with 1 replicate). Each code version runs in its own long-lived process (BLAS threads 1,
 PYTHONHASHSEED 0) fed one map at a time, old and new alternating; CPU time is the process time of the flying itself
 (rollouts are built before timing; each worker first flies the first map untimed: imports, and numba compiling or
-loading its code). Every row (wall times excluded) is compared old vs new: the code change must
+loading its code; then, where the code has it, it settles its heap as pbdyn batch's workers do after their first
+group: pbdyn.experiments.tasks.settle_heap). Every row (wall times excluded) is compared old vs new: the code change must
 not change a result. The projection is trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
 
     .venv/bin/python tools/bench/bench_throughput.py [--ref REV] [--maps-per-setup 1] [--quick-maps 3]
@@ -43,8 +44,13 @@ try:
     from pbdyn.sim.lockstep import run_lockstep
 except ImportError:
     run_lockstep = None
+try:
+    from pbdyn.experiments.tasks import settle_heap       # what pbdyn batch's workers do after their first group
+except ImportError:
+    settle_heap = None
 lockstep = sys.argv[2] == "lockstep"
 scenarios = {}
+first = True
 for line in sys.stdin:
     job = json.loads(line)
     sc = scenarios.setdefault(job["scenario"], load_scenario(job["scenario"]))
@@ -77,6 +83,9 @@ for line in sys.stdin:
     steps = [round(w * 1e6, 1) for ws in walls for w in ws]
     print(json.dumps({"cpu": cpu, "wall": wall, "trials": len(results), "steps": steps, "rows": digests}),
           flush=True)
+    if first and settle_heap is not None:
+        settle_heap()
+    first = False
 '''
 
 
