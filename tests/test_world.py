@@ -280,3 +280,29 @@ def test_a_subprocess_building_a_world_prints_nothing_on_stdout():
     assert out.returncode == 0, out.stderr
     assert out.stdout == ""
     assert "2" in out.stderr.split()   # the ray hit the static pillar (body 2); PyBullet's chatter went here too
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_nearest_static_equals_bullets_broad_phase_choice(dims):
+    """nearest_static asks Bullet only about the static bodies and walls whose AABB meets the query box; the answer
+    equals the one with Bullet's own broad phase choosing the bodies (_nearest_static_broadphase), at points near and
+    inside pillars, yawed boxes, walls and corners, with moving obstacles around and any query distance."""
+    rng = np.random.default_rng(30 + dims)
+    size = np.array([24.0, 16.0, 10.0][:dims])
+    statics = [StaticBody("pillar", (6.0, 8.0), radius=0.7),
+               StaticBody("box", (16.0, 5.0, 5.0)[:dims], size=(2.0, 1.0, 3.0)[:dims], yaw=0.5),
+               StaticBody("box", (12.0, 14.5, 5.0)[:dims], size=(8.0, 0.3, 3.0)[:dims])]
+    with PyBulletWorld(dims=dims, arena_size=size, mav_radius=0.4, obstacle_radii=np.ones(8),
+                       static_bodies=statics) as w:
+        kinds = set()
+        for _ in range(400):
+            w.set_obstacle_positions(rng.uniform(0.0, size, (8, dims)))
+            p = rng.uniform(-0.5, size + 0.5)
+            md = float(rng.choice([0.3, 1.0, 5.0, 30.0]))
+            got = w.nearest_static(p, md)
+            p3 = w.to_world3(p).tolist()
+            reach = w.mav_radius + md + 1e-6
+            want = w._nearest_static_broadphase(p3, md, [x - reach for x in p3], [x + reach for x in p3])
+            assert got == want
+            kinds.add(w.body_kind(got[1])[0] if got[1] >= 0 else "none")
+        assert kinds == {"static", "wall", "none"}

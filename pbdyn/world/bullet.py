@@ -397,9 +397,10 @@ class PyBulletWorld:
         self._cull_bound2 = bound * bound
         self._cull_reach = (math.nan, bound)         # (range_m, (range_m + bound)^2) of the last fan
         self._cull_inner = (np.full(self.dims, CULL_PAD), self.arena_size - CULL_PAD)
-        # nearest_static's broad phase before Bullet's: the AABBs of every static body and wall (fixed bodies)
-        solid = [self._body_aabb(int(b)) for b in (*self.static_ids.tolist(), *self.wall_ids.tolist())]
-        self._solid_boxes = [(tuple(a.tolist()), tuple(b.tolist())) for a, b in solid]
+        # nearest_static's broad phase: (AABB, body id) of every static body and wall (fixed bodies)
+        solid_ids = [*self.static_ids.tolist(), *self.wall_ids.tolist()]
+        solid = [self._body_aabb(int(b)) for b in solid_ids]
+        self._solid = [((tuple(a.tolist()), tuple(b.tolist())), int(body)) for (a, b), body in zip(solid, solid_ids)]
 
     def _body_aabb(self, body: int) -> tuple[np.ndarray, np.ndarray]:
         """World AABB (lo [3], hi [3]) of every link of ``body`` (Bullet's broadphase boxes, margins included)."""
@@ -675,8 +676,9 @@ class PyBulletWorld:
     def nearest_static(self, position, max_dist: float) -> tuple[float, int]:
         """(signed distance m, body id) from the MAV sphere at ``position`` [d] to the nearest static body or wall.
 
-        PyBullet getClosestPoints against the true static geometry, after a broadphase AABB query; returns
-        (max_dist, -1) if nothing is nearer than max_dist. The MAV body is not moved (a probe sphere is used).
+        PyBullet getClosestPoints against the true static geometry of the static bodies and walls whose AABB meets the
+        query box (the ones within reach); returns (max_dist, -1) if nothing is nearer than max_dist (on an exact tie
+        the body found first, static bodies before walls). The MAV body is not moved (a probe sphere is used).
         """
         p3l = np.asarray(position, dtype=float)[: self.dims].tolist()   # to_world3 of the plane point, as floats
         if self.dims == 2:
@@ -685,15 +687,23 @@ class PyBulletWorld:
         reach = self.mav_radius + max(md, 0.0) + 1e-6
         x0, x1, x2 = p3l
         q_lo, q_hi = [x0 - reach, x1 - reach, x2 - reach], [x0 + reach, x1 + reach, x2 + reach]
-        # A body nearer than max_dist to the probe lies in the query box: with no static AABB meeting it, nothing
-        # can be (the answer Bullet would give, without asking it), unless bodies were added behind this world.
-        for lo, hi in self._solid_boxes:
+        # A body nearer than max_dist to the probe lies in the query box, so only the static bodies and walls whose
+        # AABB meets it can be (the bodies Bullet's broad phase would return, less the moving ones), unless bodies
+        # were added behind this world: then Bullet's broad phase is asked.
+        if self._num_bodies() != self._known_bodies:
+            return self._nearest_static_broadphase(p3l, md, q_lo, q_hi)
+        best, best_id = md, -1
+        for (lo, hi), body in self._solid:
             if (lo[0] <= q_hi[0] and hi[0] >= q_lo[0] and lo[1] <= q_hi[1] and hi[1] >= q_lo[1]
                     and lo[2] <= q_hi[2] and hi[2] >= q_lo[2]):
-                break
-        else:
-            if self._num_bodies() == self._known_bodies:
-                return md, -1
+                for c in self._closest(-1, body, md, collisionShapeA=self._probe, collisionShapePositionA=p3l):
+                    if c[8] < best:
+                        best, best_id = float(c[8]), body
+        return best, best_id
+
+    def _nearest_static_broadphase(self, p3l: list, md: float, q_lo: list, q_hi: list) -> tuple[float, int]:
+        """nearest_static's answer with Bullet's broad phase choosing the bodies (every static body or wall with a
+        link in the query box q_lo..q_hi), for a client holding bodies this world did not add."""
         found = self._overlapping(q_lo, q_hi)
         best, best_id = md, -1
         if not found:
