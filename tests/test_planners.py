@@ -574,17 +574,25 @@ def test_local_primitives_compiled_proof_decides_as_numpy(dims):
 def test_goal_angles_are_numpys_rounded_arccos_of_the_clipped_cosines(dims):
     """goal_angles computes np.round(np.arccos(np.clip(cos, -1, 1)), 12) in place: the same floats, including the
     clip's edges, exact ties after rounding and directions straight at or away from the goal."""
-    from pbdyn.planning.local_primitives import candidate_directions, goal_angles
+    from pbdyn.planning.local_primitives import candidate_directions, goal_angles, goal_angles_argmin
 
     rng = np.random.default_rng(7)
     dirs = candidate_directions(dims, 72, 15.0)
     goals = [rng.normal(size=dims) * 10.0 ** rng.integers(-6, 3) for _ in range(3000)]
     goals += [dirs[5] * 3.0, -dirs[9] * 0.5, dirs[0] + 1e-15, np.zeros(dims) + 1e-9]
+    goals += [np.full(dims, np.nan)]
     for g in goals:
         got = goal_angles(dirs, g)
         x = dirs @ (g / math.sqrt(float(g @ g)))
-        assert np.array_equal(got, np.round(np.arccos(np.clip(x, -1.0, 1.0)), 12))
-    assert goal_angles(dirs, np.zeros(dims)) is None
+        want = np.round(np.arccos(np.clip(x, -1.0, 1.0)), 12)
+        assert np.array_equal(got, want, equal_nan=True)
+        angles, i = goal_angles_argmin(dirs, g)
+        assert np.array_equal(angles, want, equal_nan=True) and i == int(np.argmin(want))
+    ties = dirs.copy()
+    ties[[3, 40]] = ties[[40, 3]]                         # equal angles: the first index wins, as in np.argmin
+    g = dirs[3] + dirs[40]
+    assert goal_angles_argmin(ties, g)[1] == int(np.argmin(goal_angles(ties, g)))
+    assert goal_angles(dirs, np.zeros(dims)) is None and goal_angles_argmin(dirs, np.zeros(dims)) is None
 
 
 def test_clip_rate_is_numpys_clip_of_a_float():

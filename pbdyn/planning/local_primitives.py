@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 import ruckig
+from numba import njit
 
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
@@ -82,20 +83,49 @@ def rank_by_goal_angle(directions: np.ndarray, to_goal: np.ndarray) -> np.ndarra
 def goal_angles(directions: np.ndarray, to_goal: np.ndarray) -> np.ndarray | None:
     """The angles (rad, rounded to 1e-12) between unit ``directions`` [n, d] and ``to_goal`` [d] that
     rank_by_goal_angle sorts; None when the MAV is at the goal (|to_goal| < 1e-12 m)."""
+    got = goal_angles_argmin(directions, to_goal)
+    return None if got is None else got[0]
+
+
+def goal_angles_argmin(directions: np.ndarray, to_goal: np.ndarray) -> tuple[np.ndarray, int] | None:
+    """(goal_angles, np.argmin of them: the first NaN if any, else the first smallest), or None at the goal.
+    np.round(np.arccos(np.clip(x, -1, 1)), 12) with the same float operations: the clip and the rounding (numpy's:
+    x * 1e12, rint, / 1e12) in compiled code around numpy's arccos (tests/test_planners.py compares both)."""
     g = np.asarray(to_goal, dtype=float)
     dist = math.sqrt(float(g @ g))
     if dist < 1e-12:
         return None
     x = directions @ (g / dist)
-    # np.round(np.arccos(np.clip(x, -1, 1)), 12) in place, with the same float operations (numpy rounds to 12
-    # decimals as x * 1e12, rint, / 1e12; tests/test_planners.py compares both)
-    np.maximum(x, -1.0, out=x)
-    np.minimum(x, 1.0, out=x)
+    _clip_unit(x)
     np.arccos(x, out=x)
-    np.multiply(x, 1e12, out=x)
-    np.rint(x, out=x)
-    np.divide(x, 1e12, out=x)
-    return x
+    return x, int(_round_argmin(x))
+
+
+@njit(cache=True, nogil=True)
+def _clip_unit(x):
+    """x [n] clipped to [-1, 1] in place as np.maximum(x, -1) then np.minimum(., 1) (NaN stays NaN)."""
+    for k in range(x.shape[0]):
+        v = x[k]
+        if v < -1.0:
+            x[k] = -1.0
+        elif v > 1.0:
+            x[k] = 1.0
+
+
+@njit(cache=True, nogil=True)
+def _round_argmin(x):
+    """x [n] rounded to 12 decimals in place as np.round does it (x * 1e12, rint, / 1e12); then np.argmin(x): the
+    first NaN if any, else the first smallest."""
+    best = 0
+    for k in range(x.shape[0]):
+        x[k] = np.rint(x[k] * 1e12) / 1e12
+    for k in range(x.shape[0]):
+        v = x[k]
+        if v != v:
+            return k
+        if v < x[best]:
+            best = k
+    return best
 
 
 def frame_basis(u: np.ndarray) -> np.ndarray:
@@ -253,9 +283,9 @@ class LocalPrimitives:
             found = self._try_one(view, view.goal, np.zeros(self.dims), basis, 0)
             if found is not None:
                 return found
-        angles = goal_angles(self.directions, g)
+        got = goal_angles_argmin(self.directions, g)
+        angles, i = (None, 0) if got is None else got            # the first of rank_by_goal_angle's order ...
         order = None
-        i = 0 if angles is None else int(np.argmin(angles))     # the first of rank_by_goal_angle's order ...
         if angles is not None and math.isnan(angles[i]):          # ... unless an angle is NaN (argsort puts it last)
             order = np.argsort(angles, kind="stable")
             i = int(order[0])
