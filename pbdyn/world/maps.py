@@ -13,6 +13,7 @@ import operator
 import random
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -62,12 +63,12 @@ class MapSpec:
     replicate: int
     root_seed: int
 
-    @property
+    @cached_property
     def key(self) -> str:
-        """Canonical JSON of (setup values, replicate): the map's identity."""
+        """Canonical JSON of (setup values, replicate): the map's identity (computed once per MapSpec)."""
         return canonical_json({"setup": self.setup, "replicate": self.replicate})
 
-    @property
+    @cached_property
     def map_id(self) -> str:
         """A short readable id: the first 12 hex digits of the key's sha256."""
         return hashlib.sha256(self.key.encode()).hexdigest()[:12]
@@ -76,7 +77,7 @@ class MapSpec:
         """SeedSequence([root_seed, stable hash of the key])."""
         return np.random.SeedSequence([self.root_seed, stable_hash64(self.key)])
 
-    @property
+    @cached_property
     def seed(self) -> int:
         """A 63-bit integer summarising the map's seed (for the record)."""
         return int(self.seed_sequence().generate_state(2, np.uint64)[0] >> np.uint64(1))
