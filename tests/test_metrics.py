@@ -442,3 +442,29 @@ def test_survivability_decreases_with_count_radius_and_speed():
     resid = data[:, 3] - x @ coef
     r2 = 1.0 - resid @ resid / np.sum((data[:, 3] - data[:, 3].mean()) ** 2)
     assert np.all(coef[:3] < 0) and r2 >= 0.9, (coef, r2)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_compiled_sampled_survival_equals_the_numpy_reference(dims):
+    """survival_times' "sampled" mode (compiled, first hit per point) gives _survival_chunked's numpy floats exactly,
+    for points that are hit at once, later, or never, from several start times."""
+    from pbdyn.metrics.survivability import _survival_chunked
+    from tests.helpers import handmade_rollout, open_scenario
+
+    rng = np.random.default_rng(11 + dims)
+    sc = open_scenario(dims, obstacles={"count": 12})
+    size = np.asarray(sc.world.size, dtype=float)
+    ro = handmade_rollout(sc, rng.uniform(0.0, size, (12, dims)), rng.normal(size=(12, dims)) * 2.0,
+                          rng.uniform(0.3, 1.5, 12))
+    pts = rng.uniform(0.0, size, (300, dims))
+    pts[:5] = ro.positions[0, :5]                           # inside obstacles at t = 0
+    seen = set()
+    for start, t_max in ((0.0, 12.0), (1.3, 6.0), (0.0, 0.05)):
+        got = survival_times(ro, pts, start_time=start, t_max=t_max, mav_radius=0.4)
+        k0 = ro.step_index(start)
+        n = int(round(t_max / ro.dt))
+        want = _survival_chunked(pts, ro.positions[k0:k0 + n + 1], (ro.radii + 0.4) ** 2, ro.dt, t_max, "sampled",
+                                 np.full(pts.shape[0], t_max))
+        assert np.array_equal(got, want)
+        seen.update({"now" if t == 0 else "never" if t == t_max else "later" for t in got.tolist()})
+    assert seen == {"now", "later", "never"}

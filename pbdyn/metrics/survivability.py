@@ -21,6 +21,7 @@ from __future__ import annotations
 import time as _time
 
 import numpy as np
+from numba import njit
 
 from pbdyn.errors import ConfigError, check_positive
 from pbdyn.metrics.result import MetricResult
@@ -113,9 +114,10 @@ def survival_times(rollout, points, *, mav_radius: float = 1.0, t_max: float = 1
     """Survival time (s, relative to ``start_time``) of a static MAV at each point [n, d] (m, world frame) (eq. 3-6).
 
     The first time an obstacle overlaps the MAV (centre distance < r_i + mav_radius), capped at t_max.
-    mode "sampled": first step k >= 0 with overlap, t = k dt (thesis); "exact": first contact with linear motion
-    between steps (closed form), never later than "sampled". Chunked in time; samples already hit are dropped from
-    later chunks. HorizonError if start_time + t_max is past the horizon.
+    mode "sampled": first step k >= 0 with overlap, t = k dt (thesis; compiled, each point stopping at its first hit:
+    _first_overlap, whose numpy reference is _survival_chunked); "exact": first contact with linear motion between
+    steps (closed form), never later than "sampled" (numpy, chunked in time; samples already hit are dropped from
+    later chunks). HorizonError if start_time + t_max is past the horizon.
     """
     if mode not in MODES:
         raise ConfigError("mode", f"must be one of {', '.join(MODES)}", mode)
@@ -129,11 +131,22 @@ def survival_times(rollout, points, *, mav_radius: float = 1.0, t_max: float = 1
     reach2 = (rollout.radii + mav_radius) ** 2
     window = rollout.positions[k0:k0 + n_steps + 1]                    # [K + 1, N, d]
     dt = rollout.dt
+    if mode == "sampled" and pts.shape[1] == window.shape[2]:
+        _first_overlap(np.ascontiguousarray(pts), np.ascontiguousarray(window, dtype=float),
+                       np.ascontiguousarray(reach2, dtype=float), float(dt), t_max, out)
+        return out
+    return _survival_chunked(pts, window, reach2, dt, t_max, mode, out)
+
+
+def _survival_chunked(pts, window, reach2, dt, t_max, mode, out):
+    """survival_times in numpy, chunked in time (the "exact" mode, and the reference of the compiled "sampled"
+    mode, _first_overlap); fills and returns ``out`` (t_max where nothing overlaps)."""
     alive = np.arange(pts.shape[0])
     first = 0
+    n_steps, n_obs, dims = window.shape[0] - 1, window.shape[1], window.shape[2]
     n_items = n_steps + 1 if mode == "sampled" else n_steps            # steps, or intervals between steps
     while first < n_items and alive.size:
-        chunk = max(1, CHUNK_ELEMENTS // (alive.size * rollout.n_obstacles * rollout.dims))
+        chunk = max(1, CHUNK_ELEMENTS // (alive.size * n_obs * dims))
         stop = min(n_items, first + chunk)
         sub = pts[alive]
         if mode == "sampled":
@@ -148,6 +161,30 @@ def survival_times(rollout, points, *, mav_radius: float = 1.0, t_max: float = 1
         alive = alive[~got]
         first = stop
     return out
+
+
+@njit(cache=True, nogil=True)
+def _first_overlap(pts, window, reach2, dt, t_max, out):
+    """survival_times' "sampled" mode in compiled code: for each point [n, d], the first step k of window [K, N, d]
+    with an obstacle j whose squared centre distance (_sq_dist's sum over the axes in order) is below reach2[j];
+    out[i] = min(k dt, t_max) (numpy's floats), left as it is when there is none. Each point stops at its first hit."""
+    n_k, n_obs, d = window.shape
+    for i in range(pts.shape[0]):
+        for k in range(n_k):
+            hit = False
+            for j in range(n_obs):
+                diff = pts[i, 0] - window[k, j, 0]
+                sq = diff * diff
+                for a in range(1, d):
+                    diff = pts[i, a] - window[k, j, a]
+                    sq = sq + diff * diff
+                if sq < reach2[j]:
+                    hit = True
+                    break
+            if hit:
+                t = float(k) * dt
+                out[i] = t if t <= t_max else t_max
+                break
 
 
 def _exact_chunk(pts: np.ndarray, obs: np.ndarray, reach2: np.ndarray) -> np.ndarray:
