@@ -280,7 +280,7 @@ class LocalPrimitives:
             offset = 1
             self.last_candidates_tried += 1
             basis = frame_basis(g / max(g_dist, 1e-12))
-            found = self._try_one(view, view.goal, np.zeros(self.dims), basis, 0)
+            found = self._try_one(view, np.array(view.goal)[None], np.zeros((1, self.dims)), basis[None], 0)
             if found is not None:
                 return found
         got = goal_angles_argmin(self.directions, g)
@@ -291,9 +291,7 @@ class LocalPrimitives:
             i = int(order[0])
         end_vel = self._end_vel
         self.last_candidates_tried += 1
-        best = p0 + self._step_dirs[i:i + 1]                      # [1, d]: _try_one's arrays, as slices
-        j, _, samples = self._search(view, best, end_vel[i:i + 1], self._bases[i:i + 1], prune=False)
-        found = None if j < 0 else self._chosen(view, best[0], offset, *samples)
+        found = self._try_one(view, p0 + self._step_dirs[i:i + 1], end_vel[i:i + 1], self._bases[i:i + 1], offset)
         if found is not None or self.n_candidates == 1 or self.none_can_be_clear(view):
             return found
         if order is None:
@@ -328,8 +326,7 @@ class LocalPrimitives:
         return no_candidate_proof(view.position, view.velocity, view.bounds_lo, view.bounds_hi, tracks.position,
                                   tracks.velocity, radius, n_k,
                                   float(view.dt), self.limits.a_max + _TOL,
-                                  self.limits.radius + min(self.margin, WALL_MARGIN_CAP),
-                                  self.limits.radius + self.margin, self._orders[1])
+                                  self._wall_r, self._reach_r, self._orders[1])
 
     def _none_can_be_clear_numpy(self, view: View) -> bool:
         """none_can_be_clear evaluated with numpy (the reference of the compiled proof)."""
@@ -340,7 +337,7 @@ class LocalPrimitives:
         a_max = self.limits.a_max + _TOL
         centre = view.position + (k * dt)[:, None] * view.velocity                    # [k, d]
         ball = (a_max * dt * dt * (0.5 * k * k + 0.25 * k) + 1e-6)[:, None]           # [k, 1]
-        wall_r = self.limits.radius + min(self.margin, WALL_MARGIN_CAP)
+        wall_r = self._wall_r
         if np.any((centre + ball < view.bounds_lo + wall_r) | (centre - ball > view.bounds_hi - wall_r)):
             return True
         tracks = view.tracks
@@ -348,7 +345,7 @@ class LocalPrimitives:
             return False
         pred = tracks.position[None] + (k * dt)[:, None, None] * tracks.velocity[None]    # [k, M, d]
         gap = np.sqrt(np.einsum("kmd,kmd->km", centre[:, None] - pred, centre[:, None] - pred))
-        return bool(np.any(gap + ball < tracks.radius + (self.limits.radius + self.margin)))
+        return bool(np.any(gap + ball < tracks.radius + self._reach_r))
 
     CHUNKS = (4, 8)
     """Sizes of the rank-ordered chunks of candidates built and checked together after the best one failed, on the
@@ -373,11 +370,12 @@ class LocalPrimitives:
         self.last_rank = None
         self.last_target = None
 
-    def _try_one(self, view: View, target, vel, basis, rank: int) -> Trajectory | None:
-        """Build and check one candidate; its Trajectory (recorded as the choice at ``rank``) or None."""
-        j, _, samples = self._search(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
-                                     basis[None], prune=False)
-        return None if j < 0 else self._chosen(view, target, rank, *samples)
+    def _try_one(self, view: View, target: np.ndarray, vel: np.ndarray, basis: np.ndarray,
+                 rank: int) -> Trajectory | None:
+        """Build and check one candidate (end point target [1, d] m, end velocity vel [1, d] m/s, frame basis
+        [1, d, d], float arrays); its Trajectory (recorded as the choice at ``rank``) or None."""
+        j, _, samples = self._search(view, target, vel, basis, prune=False)
+        return None if j < 0 else self._chosen(view, target[0], rank, *samples)
 
     def _search(self, view: View, targets: np.ndarray, vels: np.ndarray, bases: np.ndarray,
                 prune: bool) -> tuple[int, int, tuple]:
@@ -484,7 +482,8 @@ class LocalPrimitives:
                 target, vel = targets[i], end_vel[i]
                 basis = self._bases[i]
             self.last_candidates_tried += 1
-            found = self._try_one(view, target, vel, basis, r + 1 if rank < 0 else r)
+            found = self._try_one(view, np.asarray(target, dtype=float)[None], np.asarray(vel, dtype=float)[None],
+                                  basis[None], r + 1 if rank < 0 else r)
             if found is not None:
                 return found
         return None
