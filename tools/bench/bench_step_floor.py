@@ -22,9 +22,13 @@ from __future__ import annotations
 
 import argparse
 import copy
+import os
 import sys
 import time
 from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")        # as pbdyn batch's workers: one BLAS thread
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
@@ -66,7 +70,7 @@ class _Recorder:
             if key in rec.keep:
                 kept = copy.copy(view)
                 object.__setattr__(kept, "grid", view.grid.copy())
-                rec.views[key] = (planner.limits, kept)
+                rec.views[key] = (planner, kept)
             return out
 
         lp.LocalPrimitives.__init__, lp.LocalPrimitives.plan = init, plan
@@ -103,16 +107,11 @@ def fly(setups: list[int], keep: set | None = None) -> tuple[list, _Recorder]:
     return walls, rec
 
 
-def ruckig_inputs(limits, view) -> tuple:
-    """The ruckig inputs of the native planner's builds on ``view``: the planner's Python path, one candidate per
-    chunk (the compiled search's build sequence), with calculate() recorded. (inputs in probe_inputs' layout, jerk,
-    minimum duration, the Python path's build count)."""
-    import ruckig
-
-    from pbdyn.planning.local_primitives import LocalPrimitives
-    from pbdyn.planning.protocols import PlannerContext
-
-    planner = LocalPrimitives(PlannerContext(2, view.dt, limits, view.bounds_lo, view.bounds_hi))
+def ruckig_inputs(flown, view) -> tuple:
+    """The ruckig inputs of the builds of planner ``flown`` (a LocalPrimitives of the flight) on ``view``: a copy of
+    it on its Python path, one candidate per chunk (the compiled search's build sequence), with calculate()
+    recorded. (inputs in probe_inputs' layout, jerk, minimum duration, the Python path's build count)."""
+    planner = copy.copy(flown)
     planner._native = None
     planner.CHUNKS = (1,)
     rows: list = []
@@ -127,7 +126,6 @@ def ruckig_inputs(limits, view) -> tuple:
     planner._otg = _Otg()
     planner.plan(view)
     a = np.array(rows, dtype=float).reshape(-1, 10)
-    assert isinstance(otg, ruckig.Ruckig)
     inputs = (a[:, 0:2], a[:, 2:4], a[:, 4:6], a[:, 6:8], a[:, 8], a[:, 9])
     return inputs, planner.jerk_max, planner.min_duration, planner.last_candidates_built
 
@@ -172,8 +170,8 @@ def main() -> int:
     _, rec2 = fly(setups, keep=heavy)
     ruck = {}
     per_build = []
-    for key, (limits, view) in rec2.views.items():
-        inputs, jerk, min_dur, n_python = ruckig_inputs(limits, view)
+    for key, (flown, view) in rec2.views.items():
+        inputs, jerk, min_dur, n_python = ruckig_inputs(flown, view)
         n_native = rec2.calls[key[0]][key[1]][1]
         if n_python != n_native or inputs[0].shape[0] != n_native:
             raise SystemExit(f"step {key}: replay built {inputs[0].shape[0]} ({n_python}), the flight {n_native}")
