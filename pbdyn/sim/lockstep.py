@@ -51,8 +51,8 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
     together on ``rollout`` in ``world`` (make_world of that map; left open). Returns, per spec in order, its
     TrialResult (bit-identical to run_trial(spec, rollout, world=world) apart from wall times) or the Exception
     that ended it (a planner or trial that raised ends only its own trial; the others fly on). ``step_walls``: a
-    list that receives, per spec in order, the wall time (s) of each of its steps (its share of the shared work
-    included). ``on_result(index, result_or_exception)`` is called as each trial ends (batch workers stream rows)."""
+    list that receives, per spec in order, the wall time (s) of each of its steps: its own parts, its share of the
+    shared work, and its share of the rest of the tick (_share_rest), so that the steps account for the loop's time. ``on_result(index, result_or_exception)`` is called as each trial ends (batch workers stream rows)."""
     out = _Results(len(specs), on_result)
     trials: list[_Trial] = []
     waiting: list[_Trial] = []
@@ -72,6 +72,8 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
     banks = _Banks(len(trials))
     tick = waiting[0].env.k0 if waiting else 0
     while waiting or running:
+        t_tick = time.perf_counter()
+        results_s = 0.0                          # time of this tick's _finish calls: results, not steps
         while waiting and waiting[0].env.k0 <= tick:
             tr = waiting.pop(0)
             tr.env.reset(sense=False)
@@ -88,21 +90,24 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
                 out[tr.index] = exc
                 continue
             if decision is None:
+                t0 = time.perf_counter()
                 out[tr.index] = _finish(tr, rollout)
+                results_s += time.perf_counter() - t0
             else:
                 acting.append((tr, decision))
         contacts = _dynamic_contacts(acting)
-        still = []
+        still, stepped, ended = [], [], []
         for tr, decision in acting:          # (7): each trial steps, with its share of the batched obstacle check
             try:
                 done = _step(tr, decision, contacts.get(tr.index))
             except Exception as exc:
                 out[tr.index] = exc
                 continue
-            if done:
-                out[tr.index] = _finish(tr, rollout)
-            else:
-                still.append(tr)
+            stepped.append(tr)
+            (ended if done else still).append(tr)
+        _share_rest(stepped, time.perf_counter() - t_tick - results_s)
+        for tr in ended:
+            out[tr.index] = _finish(tr, rollout)
         running = still
         tick += 1
     if step_walls is not None:
@@ -298,6 +303,18 @@ def _step(tr: _Trial, decision, contact) -> bool:
         tr.timings[name] += value
     tr.step_walls.append(sum(splits))
     return env.done
+
+
+def _share_rest(stepped: list[_Trial], tick_s: float) -> None:
+    """Make the steps of one tick account for all of its time (s; the results made in it excluded): what the
+    trials' step splits did not measure (views, the act wrapper, each step's bookkeeping, grouping, the trials
+    started) is shared out equally among the trials that stepped, as run_trial's step is its whole iteration."""
+    if not stepped:
+        return
+    rest = (tick_s - sum(tr.step_walls[-1] for tr in stepped)) / len(stepped)
+    if rest > 0.0:
+        for tr in stepped:
+            tr.step_walls[-1] += rest
 
 
 def _finish(tr: _Trial, rollout: Rollout) -> TrialResult:

@@ -10,7 +10,9 @@ PYTHONHASHSEED 0) fed one map at a time, old and new alternating; CPU time is th
 (rollouts are built before timing; each worker first flies the first map untimed: imports, and numba compiling or
 loading its code; then, where the code has it, it settles its heap as pbdyn batch's workers do after their first
 group: pbdyn.experiments.tasks.settle_heap). Every row (wall times excluded) is compared old vs new: the code change must
-not change a result. The projection is trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
+not change a result. A step's time counts all of its work: lockstep's step walls account for their ticks' time
+(pbdyn.sim.lockstep._share_rest); one trial at a time, the trial's time outside its step splits (views, the
+planner call's wrapper, bookkeeping, its first sensing and its result) is spread evenly over its steps. The projection is trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
 
     .venv/bin/python tools/bench/bench_throughput.py [--ref REV] [--maps-per-setup 1] [--quick-maps 3]
 """
@@ -71,8 +73,11 @@ for line in sys.stdin:
         else:
             for spec in specs:
                 prof = {}
-                results.append(run_trial(spec, ro, world=world, profile=prof))
-                walls.append([sum(x) for x in zip(*(prof[k] for k in prof if k.startswith("wall_")))])
+                r = run_trial(spec, ro, world=world, profile=prof)
+                results.append(r)
+                steps = [sum(x) for x in zip(*(prof[k] for k in prof if k.startswith("wall_")))]
+                rest = r.wall_time_s - r.wall_timings.get("wall_setup_s", 0.0) - sum(steps)   # outside the splits
+                walls.append([w + rest / len(steps) for w in steps] if steps and rest > 0.0 else steps)
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     world.close()
     digests = []
