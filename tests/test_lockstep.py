@@ -124,3 +124,46 @@ def test_a_trial_that_raises_ends_only_itself():
     flown = [r for s, r in zip(specs, together) if s.start[0] < 40.0]
     assert [r.outcome for r in flown] == [r.outcome for r in single]
     assert [r.steps for r in flown] == [r.steps for r in single]
+
+
+def test_share_rest_spreads_a_ticks_unmeasured_time_over_the_trials_that_stepped():
+    from pbdyn.sim.lockstep import _share_rest, _Trial
+
+    a, b = _Trial(0, None, 0.0), _Trial(1, None, 0.0)
+    a.step_walls, b.step_walls = [5.0, 1.0], [3.0]
+    _share_rest([a, b], 10.0)                     # 10 s tick, 4 s measured: 3 s more each
+    assert a.step_walls == [5.0, 4.0] and b.step_walls == [6.0]
+    _share_rest([a], 1.0)                         # measured more than the tick (clock granularity): unchanged
+    assert a.step_walls == [5.0, 4.0]
+    _share_rest([], 1.0)
+
+
+def test_step_times_account_for_the_loop_in_lockstep_and_one_by_one():
+    """A trial's wall_time_s is its setup plus its steps, and the steps hold all of the loop's work: the trials'
+    times add up to the run's (less the results made at their ends), where the measured step parts alone left
+    about a fifth of it out."""
+    import time
+
+    from pbdyn.sim.observers import SPLITS
+
+    sc = load_scenario(SCENARIOS / "quickstart.toml")
+    ms = get_map(sc, 0)
+    ro = get_rollout(sc, ms)
+    specs = _specs(sc, ms, [("local_primitives", "lookahead")], (4.0,), 8)
+    world = make_world(specs[0], ro)
+    try:
+        run_lockstep(specs[:1], ro, world)        # imports and compiled code in place before timing
+        t0 = time.perf_counter()
+        together = run_lockstep(specs, ro, world)
+        elapsed = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        single = [run_trial(s, ro, world=world) for s in specs]
+        elapsed_single = time.perf_counter() - t0
+    finally:
+        world.close()
+    for results, total in ((together, elapsed), (single, elapsed_single)):
+        covered = sum(r.wall_time_s for r in results)
+        assert 0.9 * total < covered <= total, (covered, total)
+        for r in results:
+            steps = r.wall_timings["wall_step_mean_s"] * r.steps
+            assert steps > sum(r.wall_timings[k] for k in SPLITS)
