@@ -105,12 +105,18 @@ class _RaisesFromTheRight(LocalPrimitives):
         return super().plan(view)
 
 
-def test_a_trial_that_raises_ends_only_itself():
+def _quickstart_local_primitives(n_pairs):
+    """(rollout, specs of local primitives + LookAhead at 4 m/s on n_pairs start/goal pairs, world) of quickstart
+    map 0; the caller closes the world."""
     sc = load_scenario(SCENARIOS / "quickstart.toml")
     ms = get_map(sc, 0)
     ro = get_rollout(sc, ms)
-    specs = _specs(sc, ms, [("local_primitives", "lookahead")], (4.0,), 12)
-    world = make_world(specs[0], ro)
+    specs = _specs(sc, ms, [("local_primitives", "lookahead")], (4.0,), n_pairs)
+    return ro, specs, make_world(specs[0], ro)
+
+
+def test_a_trial_that_raises_ends_only_itself():
+    ro, specs, world = _quickstart_local_primitives(12)
     try:
         single = [run_trial(s, ro, world=world) for s in specs if s.start[0] < 40.0]
         from pbdyn.sim.spec import with_planner_objects
@@ -146,11 +152,7 @@ def test_step_times_account_for_the_loop_in_lockstep_and_one_by_one():
 
     from pbdyn.sim.observers import SPLITS
 
-    sc = load_scenario(SCENARIOS / "quickstart.toml")
-    ms = get_map(sc, 0)
-    ro = get_rollout(sc, ms)
-    specs = _specs(sc, ms, [("local_primitives", "lookahead")], (4.0,), 8)
-    world = make_world(specs[0], ro)
+    ro, specs, world = _quickstart_local_primitives(8)
     try:
         run_lockstep(specs[:1], ro, world)        # imports and compiled code in place before timing
         t0 = time.perf_counter()

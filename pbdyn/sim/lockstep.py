@@ -49,10 +49,11 @@ def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWo
                  step_walls: list | None = None, on_result=None) -> list:
     """Fly ``specs`` (trials of one map and scenario, in any mix of planner pairs, MAV speeds and start/goal pairs)
     together on ``rollout`` in ``world`` (make_world of that map; left open). Returns, per spec in order, its
-    TrialResult (bit-identical to run_trial(spec, rollout, world=world) apart from wall times) or the Exception
-    that ended it (a planner or trial that raised ends only its own trial; the others fly on). ``step_walls``: a
-    list that receives, per spec in order, the wall time (s) of each of its steps: its own parts, its share of the
-    shared work, and its share of the rest of the tick (_share_rest), so that the steps account for the loop's time. ``on_result(index, result_or_exception)`` is called as each trial ends (batch workers stream rows)."""
+    TrialResult (bit-identical to run_trial(spec, rollout, world=world) apart from wall times) or the Exception that
+    ended it (a planner or trial that raised ends only its own trial; the others fly on). ``step_walls``: a list
+    that receives, per spec in order, the wall time (s) of each of its steps: its own parts, its share of the shared
+    work, and its share of the rest of the tick (_share_rest), so that the steps account for the loop's time.
+    ``on_result(index, result_or_exception)`` is called as each trial ends (batch workers stream rows)."""
     out = _Results(len(specs), on_result)
     trials: list[_Trial] = []
     waiting: list[_Trial] = []

@@ -1,9 +1,10 @@
-"""Shared by the benchmark scripts: a one-line description of the machine."""
+"""Shared by the benchmark scripts: a one-line description of the machine, the best time of a call."""
 
 from __future__ import annotations
 
 import os
 import platform
+import time
 
 import numpy as np
 
@@ -18,3 +19,13 @@ def machine() -> str:
         pass
     return f"machine: {cpu} ({platform.machine()}), cpus={os.cpu_count()}, python={platform.python_version()}, " \
            f"numpy={np.__version__}"
+
+
+def best_time(fn, rounds: int) -> float:
+    """The shortest wall time (s) of ``rounds`` calls of fn()."""
+    best = float("inf")
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best

@@ -65,7 +65,7 @@ def record_views(setups: int, limit: int) -> list:
 def main() -> int:
     sys.path.insert(0, str(HERE))
     sys.path.insert(0, str(ROOT))
-    from bench_common import machine
+    from bench_common import best_time, machine
 
     from pbdyn.planning import native
     from pbdyn.planning.local_primitives import LocalPrimitives
@@ -86,7 +86,7 @@ def main() -> int:
         inputs = native.probe_inputs(d, 2000)
         for name, build in (("library", lambda: native.build_with_library(lib, inputs, 20.0, 0.5)),
                             ("package", lambda: native.build_with_package(inputs, 20.0, 0.5))):
-            best = min(_timed(build) for _ in range(args.rounds))
+            best = best_time(build, args.rounds)
             print(f"{d}D ruckig build through the {name}: {best / 2000 * 1e6:.2f} us")
     views = record_views(args.setups, args.views)
     planners: dict = {}
@@ -121,12 +121,6 @@ def main() -> int:
         py = np.median(np.array(times["python"])[mask]) * 1e6
         print(f"  {label:<22} n={int(mask.sum()) // args.rounds:5d}: {nat:7.1f} / {py:7.1f}  ({py / nat:.2f}x)")
     return 0
-
-
-def _timed(fn) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
 
 
 if __name__ == "__main__":

@@ -11,10 +11,11 @@ gave (candidate_kernels.sampled_peaks; best of 3 each).
 A step's floor is its time with planning reduced to ruckig's own computation: step wall - planning wall + the
 library's time for that step's builds (steps under --heavy builds: their builds x the median time per build of the
 heavy steps); a second floor adds the sampling and peaks, a third the plan's fixed cost (what a one-build step's
-planning costs beyond its build and sampling), which the median step pays too. A step's wall time is all of its
-tick's work that it caused or shared (pbdyn.sim.lockstep._share_rest), so the steps account for the loop's time. The planner's choice needs those builds and samples: a
-candidate is accepted or rebuilt on its trajectory's sampled limit peaks, and rejected on its samples' clearance. If the 99th percentile of the floors exceeds 3x the median step, no change that keeps every
-choice can bring the step-time ratio under 3 (issue "Throughput", its target).
+planning costs beyond its build and sampling), which the median step pays too. A step's wall time is all of its tick's
+work that it caused or shared (pbdyn.sim.lockstep._share_rest), so the steps account for the loop's time. The
+planner's choice needs those builds and samples: a candidate is accepted or rebuilt on its trajectory's sampled limit
+peaks, and rejected on its samples' clearance. If the 99th percentile of the floors exceeds 3x the median step, no
+change that keeps every choice can bring the step-time ratio under 3 (issue "Throughput", its target).
 
     .venv/bin/python tools/bench/bench_step_floor.py [--setups 9] [--heavy 20]
 """
@@ -140,7 +141,7 @@ def ruckig_inputs(flown, view) -> tuple:
 def main() -> int:
     sys.path.insert(0, str(HERE))
     sys.path.insert(0, str(ROOT))
-    from bench_common import machine
+    from bench_common import best_time, machine
 
     from pbdyn.experiments.tasks import settle_heap
     from pbdyn.limits import MAX_PLAN_HORIZON_S
@@ -173,28 +174,24 @@ def main() -> int:
             builds.append(nb)
             keys.append((i, k))
     step, plan, builds = np.array(step), np.array(plan), np.array(builds)
-    heavy = {keys[j] for j in np.flatnonzero(builds >= args.heavy)}
-    _, rec2, _ = fly(setups, keep=heavy)
-    ruck = {}
-    per_build = []
+    heavy = {keys[j]: j for j in np.flatnonzero(builds >= args.heavy).tolist()}   # (trial, step) -> row
+    _, rec2, _ = fly(setups, keep=set(heavy))
+    ruck = {}                                              # row -> (ruckig time, sampling time, builds) (s)
     for key, (flown, view) in rec2.views.items():
         inputs, jerk, min_dur, n_python = ruckig_inputs(flown, view)
         n_native = rec2.calls[key[0]][key[1]][1]
         if n_python != n_native or inputs[0].shape[0] != n_native:
             raise SystemExit(f"step {key}: replay built {inputs[0].shape[0]} ({n_python}), the flight {n_native}")
-        best = min(_timed(lambda: native.build_with_library(lib, inputs, jerk, min_dur)) for _ in range(3))
+        best = best_time(lambda: native.build_with_library(lib, inputs, jerk, min_dur), 3)
         prof, dur, res = native.build_with_library(lib, inputs, jerk, min_dur)
         ok = ((res == 0) | (res == 1)) & (dur <= MAX_PLAN_HORIZON_S)
         prof, dur = np.ascontiguousarray(prof[ok]), np.ascontiguousarray(dur[ok])
-        sampled_peaks(prof, dur, view.dt, sq_order)
-        samp = min(_timed(lambda: sampled_peaks(prof, dur, view.dt, sq_order)) for _ in range(3))
-        ruck[key] = (best, samp)
-        per_build.append((best / n_native, samp / n_native))
-    c_build, c_samp = (float(x) for x in np.median(np.array(per_build), axis=0)) if per_build else (0.0, 0.0)
-    index = {key: j for j, key in enumerate(keys)}
+        ruck[heavy[key]] = (best, best_time(lambda: sampled_peaks(prof, dur, view.dt, sq_order), 3), n_native)
+    per_build = np.array([(t / n, u / n) for t, u, n in ruck.values()]).reshape(-1, 2)
+    c_build, c_samp = (float(x) for x in np.median(per_build, axis=0)) if len(ruck) else (0.0, 0.0)
     lib_time, samp_time = builds * c_build, builds * c_samp
-    for key, (t, u) in ruck.items():
-        lib_time[index[key]], samp_time[index[key]] = t, u
+    for j, (t, u, _) in ruck.items():
+        lib_time[j], samp_time[j] = t, u
     floor = step - plan + lib_time
     floor_s = floor + samp_time
     med = float(np.median(step))
@@ -206,7 +203,8 @@ def main() -> int:
     print(f"step wall: median {med * 1e6:.0f} us, p99 {p99 * 1e6:.0f} us, p99/median {p99 / med:.2f}")
     print(f"builds per step: median {np.median(builds):.0f}, p90 {np.percentile(builds, 90):.0f}, "
           f"p99 {np.percentile(builds, 99):.0f}; slowest 1% of steps: median {np.median(builds[top]):.0f} builds, "
-          f"planning {np.median(plan[top]) * 1e6:.0f} us, the rest of the step {np.median((step - plan)[top]) * 1e6:.0f} us")
+          f"planning {np.median(plan[top]) * 1e6:.0f} us, "
+          f"the rest of the step {np.median((step - plan)[top]) * 1e6:.0f} us")
     print(f"floor (planning = ruckig alone): p99 {f99 * 1e6:.0f} us = {f99 / med:.2f}x today's median step "
           f"({f99 / float(np.median(floor)):.2f}x the floors' median); target 3x")
     fs99 = float(np.percentile(floor_s, 99))
@@ -219,14 +217,9 @@ def main() -> int:
     print(f"the loop's time outside the trials' setups and steps (their results, the lockstep set-up): {glue:.2f} s, "
           f"{glue / (glue + step.sum()) * 100:.1f}% of the steps' time")
     print(f"loop time in the slowest 1% of steps {step[top].sum() / step.sum() * 100:.1f}%, in steps over 3x the "
-          f"median {step[step > 3 * med].sum() / step.sum() * 100:.1f}% ({(step > 3 * med).mean() * 100:.1f}% of steps)")
+          f"median {step[step > 3 * med].sum() / step.sum() * 100:.1f}% "
+          f"({(step > 3 * med).mean() * 100:.1f}% of steps)")
     return 0
-
-
-def _timed(fn) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
 
 
 if __name__ == "__main__":

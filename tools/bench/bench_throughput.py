@@ -3,16 +3,17 @@ this checkout (lockstep groups, as `pbdyn batch` flies them now), measured inter
 the step-time distribution and the projected time of one planner pair's full controlled study on 2 cores.
 
 Workloads: "quickstart" (scenarios/quickstart.toml, every planner entry, all 72 start/goal pairs, maps
-0..--quick-maps-1) and "controlled" (one planner pair of scenarios/datasets/controlled_2d.toml, default
-LookAhead + local primitives, all 72 pairs x 3 MAV speeds on the first --maps-per-setup replicates of every one of
-the 27 setups: 5,832 trials with 1 replicate). Each code version runs in its own long-lived process (BLAS threads 1,
-PYTHONHASHSEED 0) fed one map at a time, old and new alternating; CPU time is the process time of the flying itself
-(rollouts are built before timing; each worker first flies the first map untimed: imports, and numba compiling or
-loading its code; then, where the code has it, it settles its heap as pbdyn batch's workers do after their first
-group: pbdyn.experiments.tasks.settle_heap). Every row (wall times excluded) is compared old vs new: the code change must
-not change a result. A step's time counts all of its work: lockstep's step walls account for their ticks' time
-(pbdyn.sim.lockstep._share_rest); one trial at a time, the trial's time outside its step splits (views, the
-planner call's wrapper, bookkeeping, its first sensing and its result) is spread evenly over its steps. The projection is trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
+0..--quick-maps-1) and "controlled" (one planner pair of scenarios/datasets/controlled_2d.toml, default LookAhead +
+local primitives, all 72 pairs x 3 MAV speeds on the first --maps-per-setup replicates of every one of the 27 setups:
+5,832 trials with 1 replicate). Each code version runs in its own long-lived process (BLAS threads 1, PYTHONHASHSEED
+0) fed one map at a time, old and new alternating; CPU time is the process time of the flying itself (rollouts are
+built before timing; each worker first flies the first map untimed: imports, and numba compiling or loading its code;
+then, where the code has it, it settles its heap as pbdyn batch's workers do after their first group:
+pbdyn.experiments.tasks.settle_heap). Every row (wall times excluded) is compared old vs new: the code change must not
+change a result. A step's time counts all of its work: lockstep's step walls account for their ticks' time
+(pbdyn.sim.lockstep._share_rest); one trial at a time, the trial's time outside its step splits (views, the planner
+call's wrapper, bookkeeping, its first sensing and its result) is spread evenly over its steps. The projection is
+trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
 
     .venv/bin/python tools/bench/bench_throughput.py [--ref REV] [--maps-per-setup 1] [--quick-maps 3]
 """
