@@ -1,9 +1,11 @@
 """Join results stores of one experiment into one (`pbdyn merge`): the shards of `pbdyn batch --shard I/N`, e.g. the
 tasks of a SLURM array, or stores flown on different machines.
 
-Every input must hold the same scenario (canonical JSON) and schema-compatible tables. Trials are keyed by their
-config hash, so a trial held by several inputs is stored once (the first input's row; a duplicate whose outcome or
-planner fingerprint differs is counted as a conflict and reported). Maps are joined by map id, a row with metrics
+Every input must hold the same scenario (canonical JSON) and schema-compatible tables, and every planner label and
+map must have been flown with one code: a planner label whose rows carry two planner fingerprints, or a map whose
+rows or metrics carry two world fingerprints, across the inputs (and an existing output) is refused before anything
+is written. Trials are keyed by their config hash, so a trial held by several inputs is stored once (the first
+input's row; a duplicate whose outcome differs is counted as a conflict and reported). Maps are joined by map id, a row with metrics
 winning over one without. A new output store is written beside its final name and renamed into place only when
 complete; into an existing store (same scenario) each input's rows are added in one transaction.
 """
@@ -11,6 +13,7 @@ complete; into an existing store (same scenario) each input's rows are added in 
 from __future__ import annotations
 
 import os
+import signal
 import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,19 +69,98 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         if have is not None and have != scenario:
             raise ConfigError("out", "holds another scenario than the stores to merge (use a new --out file)",
                               str(out))
+    check_same_code(([(out_path, "out")] if existed else []) + [(p, "RESULTS") for p in inputs])
+    from pbdyn.experiments.runner import BatchInterrupted, _stop_on_signals
+
+    if existed:
         target = out_path
     else:
-        target = out_path.with_name(f".{out_path.name}.merging-{os.getpid()}")
+        remove_stale_temps(out_path)
+        target = out_path.with_name(f"{TEMP_PREFIX.format(name=out_path.name)}{os.getpid()}")
         _remove(target)
+    with _stop_on_signals():       # SIGTERM and SIGINT unwind through the clean-up below
+        try:
+            summary = _merge_into(target, scenario, inputs)
+            if not existed:
+                os.replace(target, out_path)
+            return summary
+        except BatchInterrupted as exc:
+            raise BatchInterrupted(exc.signum, f"merge stopped by {signal.Signals(exc.signum).name}: "
+                                   + (f"{out_path.name} not written" if not existed else
+                                      f"the input being added to {out_path.name} was rolled back")) from None
+        finally:
+            if not existed:
+                _remove(target)
+
+
+TEMP_PREFIX = ".{name}.merging-"
+"""A new output store is written as TEMP_PREFIX + the merging process' id beside its final name."""
+
+
+def remove_stale_temps(out: Path) -> list[Path]:
+    """Delete the temporary stores (and their -wal/-shm/-journal files) that merges into ``out`` left behind when
+    they were killed (SIGKILL, power loss): those whose process no longer runs. Returns the temp stores removed."""
+    prefix = TEMP_PREFIX.format(name=out.name)
+    gone = []
     try:
-        summary = _merge_into(target, scenario, inputs)
-        if not existed:
-            os.replace(target, out_path)
-        return summary
-    except BaseException:
-        if not existed:
-            _remove(target)
-        raise
+        names = [p.name for p in out.parent.iterdir() if p.name.startswith(prefix)]
+    except OSError:
+        return gone
+    for name in names:
+        pid = name[len(prefix):].split("-")[0]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue
+        base = out.parent / (prefix + pid)
+        _remove(base)
+        gone.append(base)
+    return gone
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:          # another user's process
+        return True
+    return True
+
+
+def check_same_code(stores: list[tuple]) -> None:
+    """ConfigError unless every (path, field) store flew each planner label with one planner fingerprint and each
+    map in one world (world fingerprint): a merged store never holds two versions of a planner or a world under
+    one key. Rows without a recorded fingerprint (older schemas) are not compared."""
+    planners: dict[str, dict[str, Path]] = {}
+    worlds: dict[str, dict[str, Path]] = {}
+    index: dict[str, int] = {}
+    for path, field in stores:
+        st = ResultsStore.open(path, field=field)
+        try:
+            for label, fp, _ in st.fingerprint_counts():
+                if fp:
+                    planners.setdefault(label, {}).setdefault(fp, Path(path))
+            for map_id, fps in st.world_fingerprints().items():
+                for fp in fps:
+                    if fp:
+                        worlds.setdefault(map_id, {}).setdefault(fp, Path(path))
+            index.update(st.map_indices())
+        finally:
+            st.conn.close()
+    for label, fps in sorted(planners.items(), key=lambda kv: str(kv[0])):
+        if len(fps) > 1:
+            (f1, p1), (f2, p2) = list(fps.items())[:2]
+            raise ConfigError("RESULTS", f"planner {label} was flown with code {f1} in {p1.name} and {f2} in "
+                              f"{p2.name}; merged, one label would hold two planners (re-fly one store with `pbdyn "
+                              "batch --rerun-changed`)", show_value=False)
+    for map_id, fps in sorted(worlds.items(), key=lambda kv: (index.get(kv[0], -1), kv[0])):
+        if len(fps) > 1:
+            (f1, p1), (f2, p2) = list(fps.items())[:2]
+            raise ConfigError("RESULTS", f"map {index.get(map_id, '?')} ({map_id}) was flown in world {f1} in "
+                              f"{p1.name} and in world {f2} in {p2.name} (its code or files changed); merged, one "
+                              "map would hold two worlds (re-fly one store with `pbdyn batch --rerun-changed`)",
+                              show_value=False)
 
 
 def _remove(path: Path) -> None:
@@ -101,7 +183,8 @@ def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
             try:
                 src_cols = {r[1] for r in conn.execute(f"PRAGMA {alias}.table_info(trials)")}
                 cols = ["trial_key"] + [n for n, _ in TRIAL_COLUMNS if n in src_cols and n in have_cols] + \
-                    ["error", "result_json", "finished"]
+                    ["error", "result_json", "finished"] + (["world_fingerprint"] if "world_fingerprint" in src_cols
+                                                            else [])
                 dup, bad = conn.execute(
                     f"SELECT COUNT(*), COALESCE(SUM(t.outcome IS NOT s.outcome OR "
                     f"{_same('planner_fingerprint', src_cols)}), 0) FROM {alias}.trials s "

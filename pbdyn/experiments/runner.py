@@ -7,9 +7,12 @@ PyBullet client) or to a Dask cluster through its concurrent.futures executor, a
 store: rows are inserted with INSERT OR IGNORE and committed at least once a second, so killing the coordinator or
 a worker loses no committed trial and a re-run completes the rest. A trial that raises becomes an "error" row.
 
-Every row records its planner pair's fingerprint (pbdyn.planning.registry.pair_fingerprint). A store holding rows
-flown with other planner code stops the batch before anything runs, unless ``rerun_changed`` re-flies exactly those
-rows; ``retry_errors`` re-flies the "error" rows. Re-flown rows replace the old ones row by row (INSERT OR
+Every row records its planner pair's fingerprint (pbdyn.planning.registry.pair_fingerprint) and its world's (the
+first digits of its map's rollout key, which covers an imported world's URDFs, meshes and motion modules). A store
+holding rows flown with other planner code, or in a world whose code or files changed, stops the batch before
+anything runs, naming what changed, unless ``rerun_changed`` re-flies exactly those rows (a changed world's maps:
+their old rows and metrics are deleted and the maps flown and measured again); ``retry_errors`` re-flies the
+"error" rows. Re-flown rows replace the old ones row by row (INSERT OR
 REPLACE). SIGTERM and SIGINT stop the batch: rows that have arrived are committed, the worker processes are
 terminated, and BatchInterrupted (a KeyboardInterrupt; exit status 128 + signal number) is raised.
 """
@@ -36,7 +39,7 @@ from pathlib import Path
 from pbdyn import __version__
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, PbdynError, one_line
-from pbdyn.experiments.store import ResultsStore, check_store_path, store_error
+from pbdyn.experiments.store import WORLD_FINGERPRINT_CHARS, ResultsStore, check_store_path, store_error
 from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialGroupTask, TrialTask, enumerate_trials,
                                      run_map_task, run_trial_group_task, run_trial_task, trial_spec, worker_init)
 from pbdyn.world.rollout import default_horizon, rollout_file
@@ -54,8 +57,8 @@ class BatchOptions:
     a dask.distributed Client; limit: fly only the first N trials of the enumeration; extend: accept a scenario
     that adds grid values, planners, MAV speeds or maps to the one in the store; metrics: compute each map's
     metrics (METRIC_SET); progress: a progress line on stderr; rerun_changed: re-fly stored rows whose planner
-    fingerprint differs from the current code's (else such rows stop the batch); retry_errors: re-fly stored
-    "error" rows."""
+    fingerprint differs from the current code's, and the maps whose world changed (else such rows stop the batch);
+    retry_errors: re-fly stored "error" rows."""
 
     workers: int | None = None
     scheduler: object = None
@@ -496,6 +499,8 @@ class _Plan:
     metric_maps: list
     stored: bool          # the store holds trials: pending trials are looked up in it
     stale: dict           # label -> current fingerprint of entries whose rows must be re-flown (rerun_changed)
+    worlds: dict = None   # map_id -> world fingerprint (rollout key prefix) of every map of the run's range
+    stale_maps: frozenset = frozenset()   # maps whose stored rows were flown in another world (rerun_changed)
 
 
 def shard_range(trials, total: int, shard: tuple[int, int] | None) -> tuple[int, int, range]:
@@ -528,9 +533,10 @@ def parse_shard(text) -> tuple[int, int]:
 
 
 def _pending(trials, start: int, stop: int, states_of, stale: dict,
-             retry_errors: bool) -> Iterator[tuple[tuple, bool]]:
+             retry_errors: bool, stale_maps: frozenset = frozenset()) -> Iterator[tuple[tuple, bool]]:
     """(trial, replaces a stored row) for every trial start..stop-1 that is not stored, or is stored and must be
-    re-flown; ``states_of(keys)`` reads the stored states of a chunk of keys (None: nothing stored)."""
+    re-flown (its planner code or its map's world changed); ``states_of(keys)`` reads the stored states of a chunk
+    of keys (None: nothing stored)."""
     it = trials.iter_range(start, stop)
     while True:
         chunk = list(itertools.islice(it, 500))
@@ -539,7 +545,9 @@ def _pending(trials, start: int, stop: int, states_of, stale: dict,
         states = states_of([t[0] for t in chunk]) if states_of is not None else {}
         for t in chunk:
             st = states.get(t[0])
-            if st is None:
+            if t[1].map_id in stale_maps:
+                yield t, st is not None
+            elif st is None:
                 yield t, False
             else:
                 label, fp, outcome = st
@@ -553,8 +561,10 @@ def _read_plan(out: Path, scenario: Scenario, trials, total: int, options: Batch
     start, stop, map_idx = shard_range(trials, total, options.shard)
     total = stop - start
     per_map_maps = [trials.maps[i] for i in map_idx]
+    worlds = world_fingerprints(scenario, per_map_maps)
     if not out.exists() or out.stat().st_size == 0:
-        return _Plan(start, total, total, 0, per_map_maps, per_map_maps if options.metrics else [], False, {})
+        return _Plan(start, total, total, 0, per_map_maps, per_map_maps if options.metrics else [], False, {},
+                     worlds)
     store = ResultsStore.open(out, field="out")
     try:
         if store._foreign_tables():
@@ -565,21 +575,64 @@ def _read_plan(out: Path, scenario: Scenario, trials, total: int, options: Batch
             raise ConfigError("; ".join(notes), "planner code changed since these rows were flown; pass "
                               "--rerun-changed to re-fly them (or use a new --out file)", show_value=False)
         check_scenario(store, scenario, options.extend, write=False)
+        stale_maps, world_notes = changed_worlds(store, scenario, per_map_maps, worlds)
+        if stale_maps and not options.rerun_changed:
+            raise ConfigError("; ".join(world_notes), "a world's code or files changed since these rows were "
+                              "flown; pass --rerun-changed to re-fly those maps (or use a new --out file)",
+                              show_value=False)
         if not options.rerun_changed:
             stale = {}
         stored = store.count() > 0
         pending = rerun = 0
         maps: dict[str, object] = {}
         for t, rep in _pending(trials, start, stop, store.stored_states if stored else None, stale,
-                               options.retry_errors):
+                               options.retry_errors, stale_maps):
             pending += 1
             rerun += rep
             maps.setdefault(t[1].map_id, t[1])
-        done = store.maps_with_metrics() if options.metrics else set()
+        done = (store.maps_with_metrics() - stale_maps) if options.metrics else set()
         metric_maps = [m for m in per_map_maps if m.map_id not in done] if options.metrics else []
-        return _Plan(start, total, pending, rerun, list(maps.values()), metric_maps, stored, stale)
+        return _Plan(start, total, pending, rerun, list(maps.values()), metric_maps, stored, stale, worlds,
+                     stale_maps)
     finally:
         store.conn.close()
+
+
+def world_fingerprints(scenario: Scenario, maps: list) -> dict[str, str]:
+    """map_id -> world fingerprint of each map: the first WORLD_FINGERPRINT_CHARS hex digits of its rollout key,
+    which covers everything its obstacles' motion depends on (settings, seed, the rollout model's version, an
+    imported world's URDF, mesh and motion-module digests)."""
+    from pbdyn.experiments.store import WORLD_FINGERPRINT_CHARS
+    from pbdyn.world.rollout import rollout_key
+
+    horizon = default_horizon(scenario)
+    return {m.map_id: rollout_key(scenario, m, horizon)[:WORLD_FINGERPRINT_CHARS] for m in maps}
+
+
+def changed_worlds(store: ResultsStore, scenario: Scenario, maps: list,
+                   worlds: dict[str, str]) -> tuple[frozenset, list[str]]:
+    """(map ids of ``maps`` whose stored trials or metrics were made in another world than the current code and
+    files give, notes naming them and what changed). Rows stored before world fingerprints were recorded (schema
+    < 4) are judged by their map's stored rollout key where the store has one."""
+    import json
+
+    from pbdyn.world.rollout import world_changes, world_description
+
+    stored = store.world_fingerprints()
+    changed = []
+    for m in maps:
+        got = stored.get(m.map_id)
+        if got and any(fp and fp != worlds[m.map_id] for fp in got):
+            changed.append((m, sum(got.values())))
+    if not changed:
+        return frozenset(), []
+    old = store.get_meta("world")
+    what = world_changes(json.loads(old), world_description(scenario), scenario) if old else []
+    because = f" ({'; '.join(what)} changed)" if what else ""
+    shown = ", ".join(f"{m.index} ({m.map_id}, {n} trials)" for m, n in changed[:5])
+    more = f" and {len(changed) - 5} more" if len(changed) > 5 else ""
+    return frozenset(m.map_id for m, _ in changed), [
+        f"the world of map(s) {shown}{more} differs from the one their stored rows were flown in{because}"]
 
 
 def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions(),
@@ -645,13 +698,18 @@ def _rollout_files(scenario: Scenario, maps: list, out: Path) -> dict[str, tuple
 
 def _run(store: ResultsStore, scenario: Scenario, trials, plan: _Plan, files: dict, workers: int,
          options: BatchOptions, command: str, t0: float) -> BatchSummary:
+    from pbdyn.world.rollout import world_description
+
     check_scenario(store, scenario, options.extend)
+    if plan.stale_maps:          # rows of another world go before any row of the current one is added
+        store.drop_maps(plan.stale_maps)
+    store.set_meta("world", canonical_json(world_description(scenario)))
     run_id = store.start_run(__version__, canonical_json(scenario.to_dict()), command,
                              "dask" if options.scheduler is not None else str(workers))
     ran = errors = maps_done = 0
     if plan.pending or plan.metric_maps:
         items = _pending(trials, plan.start, plan.start + plan.total, store.stored_states if plan.stored else None,
-                         plan.stale, options.retry_errors)
+                         plan.stale, options.retry_errors, plan.stale_maps)
         ran, errors, maps_done = _execute(store, scenario, items, plan, files, workers, options)
     store.end_run(run_id)
     return BatchSummary(plan.total, plan.total - plan.pending, ran, errors, maps_done, time.perf_counter() - t0,
@@ -689,8 +747,15 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
 
     streamed: dict = {}       # key -> (replaces, taken) of every trial of the lockstep groups in flight
 
+    def world_of(row: dict) -> str | None:
+        mid = row.get("map_id")
+        fp = (plan.worlds or {}).get(mid)
+        if fp is None and mid in files:
+            fp = files[mid][0][:WORLD_FINGERPRINT_CHARS]
+        return fp
+
     def store_row(key: str, row: dict, err, replace_row: bool) -> None:
-        store.add_trials([(key, row, err)], replace=replace_row)
+        store.add_trials([(key, row, err)], replace=replace_row, world=world_of(row))
         counts["ran"] += 1
         counts["errors"] += err is not None
         progress.step()

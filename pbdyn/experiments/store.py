@@ -19,7 +19,9 @@ disk I/O errors, locked past the timeout, a full disk) become one-line ConfigErr
 are not UTF-8 or not JSON) likewise.
 
 Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_delay_s, max_speed_mps,
-max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.runner.check_scenario). Older stores are read as they are (a column they lack reads as
+max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.runner.check_scenario); 4 added
+trials.world_fingerprint (the first 16 hex digits of the row's map rollout key, which covers the world's code and
+files: pbdyn.world.rollout.rollout_key) and the meta key "world" (pbdyn.world.rollout.world_description). Older stores are read as they are (a column they lack reads as
 NULL) and upgraded in place when `pbdyn batch` writes to them (ResultsStore.create adds the missing columns); a
 store from a newer schema is refused.
 """
@@ -39,7 +41,10 @@ from pathlib import Path
 from pbdyn.errors import ConfigError, check_path_length
 from pbdyn.sim.result import TrialResult
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
+
+WORLD_FINGERPRINT_CHARS = 16
+"""A row's world fingerprint: this many leading hex digits of its map's rollout key."""
 
 _SQL_TYPES = {bool: "INTEGER", int: "INTEGER", float: "REAL", str: "TEXT"}
 
@@ -70,7 +75,7 @@ CREATE TABLE IF NOT EXISTS maps (map_id TEXT PRIMARY KEY, map_index INTEGER, map
     seed INTEGER, rollout_key TEXT, dataset TEXT, mean_obstacle_speed REAL, mean_obstacle_radius REAL,
     metrics_json TEXT, metric_times_json TEXT, backend TEXT);
 CREATE TABLE IF NOT EXISTS trials (trial_key TEXT PRIMARY KEY, {", ".join(_column_sql(*c) for c in TRIAL_COLUMNS)},
-    error TEXT, result_json TEXT NOT NULL, finished REAL);
+    error TEXT, result_json TEXT NOT NULL, finished REAL, world_fingerprint TEXT);
 CREATE INDEX IF NOT EXISTS trials_map ON trials (map_id);
 """
 
@@ -188,7 +193,7 @@ class ResultsStore:
             conn.executescript(_SCHEMA)
             have = store._trial_table_columns()
             with conn:   # upgrade an older store in one transaction: add the columns it lacks, then the version
-                for name, sql_type in TRIAL_COLUMNS:
+                for name, sql_type in (*TRIAL_COLUMNS, ("world_fingerprint", "TEXT")):
                     if name not in have:
                         conn.execute(f"ALTER TABLE trials ADD COLUMN {_column_sql(name, sql_type)}")
                 conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
@@ -333,17 +338,54 @@ class ResultsStore:
         return {r[0] for r in self.conn.execute("SELECT map_id FROM maps WHERE metrics_json IS NOT NULL")}
 
     @_guarded
-    def add_trials(self, rows: Iterable[tuple[str, dict, str | None]], replace: bool = False) -> int:
+    def add_trials(self, rows: Iterable[tuple[str, dict, str | None]], replace: bool = False,
+                   world: str | None = None) -> int:
         """Insert (trial_key, TrialResult dict, error message or None) rows; keys already stored are kept
-        (INSERT OR IGNORE), or with ``replace`` replaced row by row (INSERT OR REPLACE: re-flown trials). No
+        (INSERT OR IGNORE), or with ``replace`` replaced row by row (INSERT OR REPLACE: re-flown trials).
+        ``world``: the rows' world fingerprint (WORLD_FINGERPRINT_CHARS hex digits of their map's rollout key). No
         commit (the coordinator batches commits). Returns the number of rows given."""
         names = [n for n, _ in TRIAL_COLUMNS]
         sql = (f"INSERT OR {'REPLACE' if replace else 'IGNORE'} INTO trials (trial_key, {', '.join(names)}, error, "
-               f"result_json, finished) VALUES ({', '.join('?' * (len(names) + 4))})")
+               f"result_json, finished, world_fingerprint) VALUES ({', '.join('?' * (len(names) + 5))})")
         batch = [(key, *[_cell(res.get(n), n in _JSON_COLUMNS) for n in names], err,
-                  json.dumps(res, sort_keys=True), time.time()) for key, res, err in rows]
+                  json.dumps(res, sort_keys=True), time.time(), world) for key, res, err in rows]
         self.conn.executemany(sql, batch)
         return len(batch)
+
+    @_guarded
+    def world_fingerprints(self) -> dict[str, dict[str, int]]:
+        """map_id -> {world fingerprint: stored trials} of every map with trials or a maps row: the trials' recorded
+        fingerprints ("" where a row predates schema 4) and the maps row's rollout key (cut to
+        WORLD_FINGERPRINT_CHARS; counted 0 trials). Counted in SQL: no trial key is read."""
+        out: dict[str, dict[str, int]] = {}
+        fp = "world_fingerprint" if "world_fingerprint" in self._columns() else "NULL"
+        for map_id, f, n in self.conn.execute(f"SELECT map_id, {fp}, COUNT(*) FROM trials GROUP BY 1, 2"):
+            out.setdefault(map_id, {})[f or ""] = int(n)
+        for map_id, key in self.conn.execute("SELECT map_id, rollout_key FROM maps WHERE rollout_key IS NOT NULL"):
+            out.setdefault(map_id, {}).setdefault(key[:WORLD_FINGERPRINT_CHARS], 0)
+        return out
+
+    @_guarded
+    def map_indices(self) -> dict[str, int]:
+        """map_id -> map index of every map with trials or a maps row."""
+        out = {r[0]: int(r[1]) for r in self.conn.execute("SELECT map_id, map_index FROM maps "
+                                                          "WHERE map_index IS NOT NULL")}
+        out.update({r[0]: int(r[1]) for r in self.conn.execute("SELECT map_id, MIN(map_index) FROM trials "
+                                                               "WHERE map_index IS NOT NULL GROUP BY map_id")})
+        return out
+
+    @_guarded
+    def drop_maps(self, map_ids: Iterable[str]) -> int:
+        """Delete every trial row and the maps row of ``map_ids`` (their world changed: `pbdyn batch
+        --rerun-changed` flies them again); no commit. Returns the number of trial rows deleted."""
+        ids = list(map_ids)
+        n = 0
+        for i in range(0, len(ids), 500):
+            chunk = ids[i:i + 500]
+            marks = ", ".join("?" * len(chunk))
+            n += self.conn.execute(f"DELETE FROM trials WHERE map_id IN ({marks})", chunk).rowcount
+            self.conn.execute(f"DELETE FROM maps WHERE map_id IN ({marks})", chunk)
+        return n
 
     @_guarded
     def add_map(self, row: dict) -> None:

@@ -406,15 +406,38 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
             "metrics_json": metrics, "metric_times_json": times, "backend": backend}
 
 
+PARENT_POLL_S = 0.5
+"""How often a pool worker checks that the coordinator that started it is still alive."""
+
+
+def watch_parent(interval: float = PARENT_POLL_S) -> None:
+    """Exit this worker process (status 1, at once) when the process that started it is gone: a coordinator killed
+    by SIGKILL cannot stop its workers, which would otherwise keep flying trials nobody stores. A daemon thread
+    polls the parent's pid every ``interval`` s."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(interval)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="pbdyn-parent-watch", daemon=True).start()
+
+
 def worker_init(queue=None) -> None:
     """Process-pool worker start: ignore SIGINT (a Ctrl-C reaches the whole process group; the coordinator stops
-    the workers itself), limit BLAS/OpenMP threads, and keep ``queue`` (a multiprocessing queue of the coordinator)
-    for the rows of lockstep groups, sent as each trial ends; after its first trial group the worker settles its heap
-    (settle_heap)."""
+    the workers itself), limit BLAS/OpenMP threads, exit when the coordinator is gone (watch_parent), and keep
+    ``queue`` (a multiprocessing queue of the coordinator) for the rows of lockstep groups, sent as each trial ends;
+    after its first trial group the worker settles its heap (settle_heap)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _limit_threads()
+    watch_parent()
     _CACHE["settle"] = True            # settle_heap after the first trial group
     if queue is not None:
         queue.cancel_join_thread()   # rows also travel with each task's result: never hang at exit on a full pipe

@@ -160,6 +160,39 @@ def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
 
 
+def world_description(scenario: Scenario) -> dict:
+    """What a scenario's worlds are made of beyond its settings: the rollout model's version and, for an imported
+    world, each body's URDF and mesh digests and its motion module's source digest (bodies_fingerprint). Stored
+    with a results store (meta "world") so that a changed world can be named (world_changes)."""
+    out: dict = {"rollout_model": ROLLOUT_MODEL_VERSION}
+    if scenario.is_world:
+        out["bodies"] = bodies_fingerprint(scenario)
+    return out
+
+
+def world_changes(old: dict, new: dict, scenario: Scenario | None = None) -> list[str]:
+    """What differs between two world_description()s, in words ("bodies[2] (crate): motion module
+    my_motions"): the rollout model, a body's URDF or meshes, a body's motion module, bodies added or removed."""
+    out = []
+    if old.get("rollout_model") != new.get("rollout_model"):
+        out.append(f"pbdyn's rollout model ({old.get('rollout_model')} -> {new.get('rollout_model')})")
+    ob, nb = old.get("bodies") or [], new.get("bodies") or []
+    if len(ob) != len(nb):
+        out.append(f"the number of bodies ({len(ob)} -> {len(nb)})")
+    for i, (a, b) in enumerate(zip(ob, nb)):
+        name = b.get("name", "")
+        where = scenario.bodies[i] if scenario is not None and i < len(scenario.bodies) else None
+        if a.get("urdf_sha256") != b.get("urdf_sha256"):
+            out.append(f"bodies[{i}] ({name}): its URDF or meshes" + (f" ({where.urdf})" if where else ""))
+        if a.get("function_sha256") != b.get("function_sha256"):
+            out.append(f"bodies[{i}] ({name}): its motion module ({b.get('motion')})")
+        rest = sorted(k for k in set(a) | set(b) if k not in ("urdf_sha256", "function_sha256")
+                      and a.get(k) != b.get(k))
+        if rest:
+            out.append(f"bodies[{i}] ({name}): {', '.join(rest)}")
+    return out
+
+
 METRICS_HORIZON = limits.METRICS_HORIZON_S
 """Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s)."""
 
