@@ -301,3 +301,19 @@ def test_workers_exit_when_their_coordinator_is_killed(tmp_path):
     for k in left:
         os.kill(k, signal.SIGKILL)
     assert not left, f"{len(left)} of {len(kids)} child processes still ran 10 s after the coordinator's SIGKILL"
+
+
+def test_evaluate_refuses_a_store_holding_two_worlds_under_one_map(world):
+    tmp_path, sc, env = world
+    out = tmp_path / "w.sqlite"
+    assert batch([str(sc), "--out", str(out), "--workers", "1", "--limit", "4"], env).returncode == 0
+    res = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), "--bootstrap", "10", "--json"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    with sqlite3.connect(out) as c:            # rows of one map made in another world (a hand-joined store)
+        c.execute("UPDATE trials SET world_fingerprint = '0123456789abcdef' WHERE rowid IN "
+                  "(SELECT rowid FROM trials LIMIT 2)")
+    res = subprocess.run(pbdyn_cmd() + ["evaluate", str(out), "--bootstrap", "10", "--json"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 2 and res.stdout == ""
+    assert res.stderr.count("\n") == 1 and "map 0" in res.stderr and "two worlds" in res.stderr

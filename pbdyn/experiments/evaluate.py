@@ -25,13 +25,17 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
     """(trials, maps, controlled dataset name) from one or more stores: the first store's scenario is the
     reference (controlled) set, the others are compared with it (e.g. the uncontrolled sets). Map ids are prefixed
     with their store's scenario name so that maps of different stores never collide. Stores of different profiles
-    ("physical", "thesis_program") are refused: their rows are never pooled. ``pool``: every map belongs to one
+    ("physical", "thesis_program") are refused: their rows are never pooled; so is a store holding one planner label
+    flown with two codes or one map flown in two worlds (pbdyn.experiments.merge.check_same_code). ``pool``: every map belongs to one
     dataset, POOLED (a heterogeneous set; map ids keep their store's prefix)."""
     trials: list[dict] = []
     maps: dict[str, dict] = {}
     names: list[str] = []
     profiles: dict[str, str] = {}
+    from pbdyn.experiments.merge import check_same_code
+
     for path in paths:
+        check_same_code([(path, "RESULTS")])      # one planner per label, one world per map
         store = ResultsStore.open(path)
         try:
             rows, store_maps, raw = store.results(), store.maps(), store.get_meta("scenario")
