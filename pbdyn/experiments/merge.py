@@ -76,7 +76,7 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         target = out_path
     else:
         remove_stale_temps(out_path)
-        target = out_path.with_name(f"{TEMP_PREFIX.format(name=out_path.name)}{os.getpid()}")
+        target = out_path.with_name(f"{temp_prefix(out_path)}{os.getpid()}")
         _remove(target)
     with _stop_on_signals():       # SIGTERM and SIGINT unwind through the clean-up below
         try:
@@ -93,14 +93,23 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
                 _remove(target)
 
 
-TEMP_PREFIX = ".{name}.merging-"
-"""A new output store is written as TEMP_PREFIX + the merging process' id beside its final name."""
+def temp_prefix(out: Path) -> str:
+    """A new output store is written beside its final name as this prefix + the merging process' id:
+    ".NAME.merging-" (a name of over 150 bytes is cut and tagged with its digest, so the temp name stays within
+    the file system's limit)."""
+    name = out.name
+    if len(os.fsencode(name)) > 150:
+        import hashlib
+
+        name = os.fsencode(name)[:100].decode("utf-8", "ignore") + "~" + \
+            hashlib.sha256(os.fsencode(out.name)).hexdigest()[:8]
+    return f".{name}.merging-"
 
 
 def remove_stale_temps(out: Path) -> list[Path]:
     """Delete the temporary stores (and their -wal/-shm/-journal files) that merges into ``out`` left behind when
     they were killed (SIGKILL, power loss): those whose process no longer runs. Returns the temp stores removed."""
-    prefix = TEMP_PREFIX.format(name=out.name)
+    prefix = temp_prefix(out)
     gone = []
     try:
         names = [p.name for p in out.parent.iterdir() if p.name.startswith(prefix)]
@@ -179,7 +188,7 @@ def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
         have_cols = store._trial_table_columns()
         for i, path in enumerate(inputs):
             alias = f"src{i}"
-            conn.execute(f"ATTACH DATABASE ? AS {alias}", (str(Path(path).absolute()),))
+            conn.execute(f"ATTACH DATABASE ? AS {alias}", (f"{Path(path).absolute().as_uri()}?mode=ro",))
             try:
                 src_cols = {r[1] for r in conn.execute(f"PRAGMA {alias}.table_info(trials)")}
                 cols = ["trial_key"] + [n for n, _ in TRIAL_COLUMNS if n in src_cols and n in have_cols] + \

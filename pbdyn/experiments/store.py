@@ -1,4 +1,5 @@
-"""The results store: one SQLite file (WAL mode) written by the batch coordinator only (DESIGN.md data flow).
+"""The results store: one SQLite file written by the batch coordinator only (DESIGN.md data flow); WAL mode while
+a writer has it open, a rollback journal at rest (so readers create no side files and read it in read-only folders).
 
 Tables:
     meta   (key, value)       schema version, the resolved scenario (canonical JSON) and its name
@@ -38,7 +39,7 @@ import typing
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from pbdyn.errors import ConfigError, check_path_length
+from pbdyn.errors import NAME_MAX, ConfigError, check_path_length
 from pbdyn.sim.result import TrialResult
 
 SCHEMA_VERSION = 4
@@ -134,12 +135,48 @@ def _quick_check(conn: sqlite3.Connection) -> None:
         raise sqlite3.DatabaseError(f"quick_check: {row[0] if row else 'no answer'}")
 
 
+def _connect_read_only(p: Path, field: str, shown) -> sqlite3.Connection:
+    """A read-only connection to the store file ``p``, checked with quick_check. In a folder this user cannot write
+    (read-only media, another user's folder) SQLite cannot create the -shm file it reads a WAL-mode file through:
+    the file is then opened immutable -- unless a -wal journal beside it holds changes the file lacks (ConfigError
+    naming ``field``: reading the file alone would miss them)."""
+    uri = p.absolute().as_uri()
+    conn = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=LOCK_TIMEOUT_S)
+    try:
+        _quick_check(conn)
+        return conn
+    except sqlite3.OperationalError as exc:
+        conn.close()
+        if "unable to open" not in str(exc) or os.access(p.absolute().parent, os.W_OK):
+            raise
+    wal = Path(f"{p}-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        raise ConfigError(field, "is in a folder this user cannot write, beside a -wal journal with changes not yet "
+                          "in the file (SQLite reads them only where it can create a -shm file); open it once where "
+                          "its folder is writable, or copy it with its -wal file to a writable folder", str(shown))
+    conn = sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, timeout=LOCK_TIMEOUT_S)
+    try:
+        _quick_check(conn)
+    except BaseException:
+        conn.close()
+        raise
+    return conn
+
+
+SIDE_FILE = "-journal"
+"""The longest suffix SQLite appends to a store's name for its side files (-journal, -wal, -shm)."""
+
+
 def check_store_path(path, field: str = "out") -> Path:
     """``path`` as a Path a store can be written at: not a folder, its folder an existing or creatable folder (no
     file on the way), names within the file system's limits; ConfigError naming ``field`` otherwise. Creates
     nothing."""
     p = Path(path)
     check_path_length(field, p)
+    if len(os.fsencode(p.name)) + len(SIDE_FILE) > NAME_MAX:
+        raise ConfigError(field, f"has a name of {len(os.fsencode(p.name))} bytes; SQLite writes {p.name[:20]}..."
+                          f"{SIDE_FILE} beside it, so a store's name may have at most {NAME_MAX - len(SIDE_FILE)}",
+                          str(path))
     if p.is_dir():
         raise ConfigError(field, "is a folder; give a file name for the results store", str(path))
     parent = p.absolute().parent
@@ -159,10 +196,11 @@ def check_store_path(path, field: str = "out") -> Path:
 class ResultsStore:
     """A results store (see the module docstring). Open with ResultsStore.create or ResultsStore.open."""
 
-    def __init__(self, path: Path, conn: sqlite3.Connection, field: str = "RESULTS"):
+    def __init__(self, path: Path, conn: sqlite3.Connection, field: str = "RESULTS", writable: bool = False):
         self.path = path
         self.conn = conn
         self.field = field
+        self.writable = writable
 
     # ------------------------------------------------------------------------------------------- opening
     @classmethod
@@ -177,10 +215,10 @@ class ResultsStore:
         existed = p.exists()
         conn = None
         try:
-            conn = sqlite3.connect(str(p), timeout=LOCK_TIMEOUT_S)
+            conn = sqlite3.connect(p.absolute().as_uri(), uri=True, timeout=LOCK_TIMEOUT_S)
             if existed:
                 _quick_check(conn)
-            store = cls(p, conn, field)
+            store = cls(p, conn, field, writable=True)
             version = store._schema_version()
             if version is not None and version > SCHEMA_VERSION:
                 raise ConfigError(field, f"was written by schema version {version}; this pbdyn reads versions up "
@@ -220,8 +258,7 @@ class ResultsStore:
             raise ConfigError(field, "file not found", str(path))
         conn = None
         try:
-            conn = sqlite3.connect(f"{p.absolute().as_uri()}?mode=ro", uri=True, timeout=LOCK_TIMEOUT_S)
-            _quick_check(conn)
+            conn = _connect_read_only(p, field, path)
             store = cls(p, conn, field)
             version = store._schema_version()
         except sqlite3.DatabaseError as exc:
@@ -254,9 +291,16 @@ class ResultsStore:
         return int(row[0]) if row else None
 
     def close(self) -> None:
-        """Commit and close."""
+        """Commit and close. A store opened for writing is left in rollback-journal mode (one file at rest: readers
+        then create no -wal/-shm files beside it, and can read it from a read-only folder); if another connection
+        still has it open, it stays in WAL mode until the last writer closes."""
         try:
             self.conn.commit()
+            if self.writable:
+                try:
+                    self.conn.execute("PRAGMA journal_mode=DELETE")
+                except sqlite3.OperationalError:   # another connection holds it: WAL stays, nothing is lost
+                    pass
         except sqlite3.DatabaseError as exc:
             raise store_error(self.field, exc, self.path) from None
         finally:
