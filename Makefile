@@ -42,4 +42,4 @@ bench: $(NATIVE)
 
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache pbdyn/planning/native/_ruckig_batch.so
+	rm -rf $(VENV) build *.egg-info .pytest_cache pbdyn/planning/native/_ruckig_batch.so*

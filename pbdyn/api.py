@@ -16,6 +16,7 @@ import contextlib
 import dataclasses
 import inspect
 import math
+import os
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -120,7 +121,7 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
         from pbdyn.errors import check_writable_file
 
         check_writable_file("trace", trace)
-    observers = list(observers or [])
+    observers = _observers(observers)
     if gui_snapshot is not None:
         from pbdyn.errors import check_writable_file
         from pbdyn.sim.gui import Snapshot
@@ -137,6 +138,36 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
 
     return fly(spec, get_rollout(sc, ms), gui=gui, trace_path=trace, gui_sleep=sc.world.dt if gui else 0.0,
                trajectory_planner=tobj, gaze_planner=gobj, observers=observers, gui_follow=follow)
+
+
+def _observers(value) -> list:
+    """``observers`` as a list; ConfigError unless it is None or a list/tuple of objects with on_step and on_end."""
+    if value is None:
+        return []
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError("observers", "must be a list of observers (objects with on_step and on_end)", value)
+    for obs in value:
+        if not all(callable(getattr(obs, m, None)) for m in ("on_step", "on_end")):
+            raise ConfigError("observers", "must hold observers (objects with on_step and on_end methods)", obs)
+    return list(value)
+
+
+def _names(value, name: str) -> list[str] | None:
+    """``value`` (None, a name or a list of names) as a list of names; ConfigError naming ``name`` otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        return list(value)
+    raise ConfigError(name, "must be a name or a list of names", value)
+
+
+def _path(value, name: str) -> str | Path:
+    """``value`` if it is a path (str or os.PathLike); ConfigError naming ``name`` otherwise."""
+    if isinstance(value, str) or (isinstance(value, os.PathLike) and isinstance(os.fspath(value), str)):
+        return value
+    raise ConfigError(name, "must be a path (a str or pathlib.Path)", value)
 
 
 def _point(value, name: str):
@@ -156,9 +187,10 @@ def compute_metrics(scenario, map: int = 0, *, metrics=None, dense: bool = False
     from pbdyn.metrics.cached import map_metrics, metric_names, resolve_backend
 
     sc = load_scenario(scenario)
-    if isinstance(metrics, str):
-        metrics = [metrics]
-    names = metric_names(metrics, dense)
+    try:
+        names = metric_names(_names(metrics, "metrics"), dense)
+    except ConfigError as exc:
+        raise exc.renamed("metrics") if exc.field == "metric" else exc from None
     chosen = resolve_backend(sc, backend)
     return map_metrics(sc, _map(sc, map), names, backend=chosen)
 
@@ -223,7 +255,7 @@ def replay(trace: str | Path, out: str | Path, *, fps: float | None = None, ever
     ReplaySummary (path, frames, width, height in px)."""
     from pbdyn.analysis.replay import write_replay
 
-    return write_replay(trace, out, fps=fps, every=every)
+    return write_replay(_path(trace, "trace"), _path(out, "out"), fps=fps, every=every)
 
 
 def merge_results(out: str | Path, inputs):
@@ -231,7 +263,11 @@ def merge_results(out: str | Path, inputs):
     held by several inputs are stored once. Returns a MergeSummary (trials, added, duplicates, conflicts, maps)."""
     from pbdyn.experiments.merge import merge_stores
 
-    return merge_stores(out, [inputs] if isinstance(inputs, (str, Path)) else list(inputs))
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    elif isinstance(inputs, (bytes, Mapping)) or not hasattr(inputs, "__iter__"):
+        raise ConfigError("inputs", "must be a path or a list of paths of results stores", inputs)
+    return merge_stores(_path(out, "out"), [_path(p, "inputs") for p in inputs])
 
 
 class Results:
@@ -281,7 +317,7 @@ def open_results(path: str | Path) -> Iterator[Results]:
     """Open a results store read-only for the ``with`` block: ``with open_results(p) as r: df = r.trials()``."""
     from pbdyn.experiments.store import ResultsStore
 
-    store = ResultsStore.open(path)
+    store = ResultsStore.open(_path(path, "path"))
     try:
         yield Results(store)
     finally:
@@ -307,12 +343,13 @@ def export_results(results: str | Path, path: str | Path, *, format: str | None 
     from pbdyn.experiments.export import export_csv, export_parquet
     from pbdyn.experiments.store import ResultsStore
 
+    results, path = _path(results, "results"), _path(path, "path")
     fmt = format or Path(path).suffix.lstrip(".").lower()
     if fmt not in ("csv", "parquet"):
         raise ConfigError("format", 'must be "csv" or "parquet" (or a path ending in .csv / .parquet)', format or str(path))
-    from pbdyn.errors import check_path_length
+    from pbdyn.errors import check_writable_file
 
-    check_path_length(fmt, path)
+    check_writable_file(fmt, path, make_parents=True)
     store = ResultsStore.open(results)
     try:
         return export_csv(store, path) if fmt == "csv" else export_parquet(store, path)
@@ -328,18 +365,21 @@ def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, po
     of the report with its figures inlined (pbdyn.analysis.html_report)."""
     import tempfile
 
-    from pbdyn.errors import check_path_length, check_writable_file
+    from pbdyn.errors import check_writable_file, check_writable_folder
     from pbdyn.experiments.evaluate import evaluate_stores
 
-    paths = [results] if isinstance(results, (str, Path)) else list(results)
+    if isinstance(results, (str, os.PathLike)):
+        paths = [_path(results, "results")]
+    elif isinstance(results, (list, tuple)) and results:
+        paths = [_path(r, "results") for r in results]
+    else:
+        raise ConfigError("results", "must be a results store's path or a non-empty list of them", results)
     if plots is not None:
-        check_path_length("plots", plots)
-        if Path(plots).exists() and not Path(plots).is_dir():
-            raise ConfigError("plots", "is a file; give a folder for the figures", str(plots))
+        check_writable_folder("plots", plots)
     if html is not None:
         if Path(html).suffix.lower() not in (".html", ".htm"):
             raise ConfigError("html", "must name an .html file", str(html))
-        check_writable_file("html", html)
+        check_writable_file("html", html, make_parents=True)
     with tempfile.TemporaryDirectory(prefix="pbdyn-figures-") as tmp:
         figure_dir = tmp if plots is None and html is not None else plots   # the page needs figures to inline
         report, table, figures = evaluate_stores([str(p) for p in paths], plots=figure_dir, n_boot=n_boot, pool=pool)

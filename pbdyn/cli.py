@@ -13,10 +13,12 @@ import math
 import os
 import sys
 import tempfile
+import traceback
+import warnings
 from pathlib import Path
 
 from pbdyn import api
-from pbdyn.errors import ConfigError, PbdynError, check_writable_file
+from pbdyn.errors import ConfigError, PbdynError, PbdynWarning, check_writable_file
 
 EXIT_USAGE = 2
 
@@ -100,8 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="accept a scenario that adds grid values, planners, MAV speeds or maps to the store's")
     bat.add_argument("--no-metrics", action="store_true", help="skip the maps' difficulty metrics")
     bat.add_argument("--rerun-changed", action="store_true",
-                     help="re-fly the stored trials whose planner code changed since they were flown (else they stop "
-                          "the batch)")
+                     help="re-fly the stored trials whose planner code or world (motion modules, URDFs, meshes) "
+                          "changed since they were flown (else they stop the batch)")
     bat.add_argument("--retry-errors", action="store_true", help="re-fly the stored trials whose outcome is error")
     bat.add_argument("--shard", help="run only shard I of N (I/N, 1 <= I <= N; maps split into N contiguous blocks), "
                      "e.g. one SLURM array task; join the shards' stores with `pbdyn merge`")
@@ -112,7 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("replay", help="draw a trace (pbdyn run --trace) as an animation or a still")
     rep.add_argument("trace", help="trace .npz written by pbdyn run --trace")
     rep.add_argument("--out", required=True, help="output .gif, .mp4 (H.264) or .png (the final state)")
-    rep.add_argument("--fps", type=_positive_float, help="frames per second (default: real time)")
+    rep.add_argument("--fps", type=_positive_float, help="frames per second: 0.1 to 50 for .gif, to 120 for .mp4 "
+                     "(default: real time, within those)")
     rep.add_argument("--every", type=_nonneg_int, default=1, help="one frame every N steps (default 1)")
     rep.add_argument("--json", action="store_true", help="print a JSON summary")
 
@@ -145,10 +148,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--start", "goal": "--goal",
-         "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "backend": "--backend",
-         "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit", "lockstep": "--lockstep",
-         "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot", "gui_snapshot": "--gui-snapshot", "html": "--html", "out": "--out", "plots": "--plots",
-         "csv": "--csv", "parquet": "--parquet", "scenario": "SCENARIO", "results": "RESULTS"}
+         "v_max": "--vmax", "trace": "--trace", "horizon": "--horizon", "metric": "--metric", "metrics": "--metric",
+         "backend": "--backend", "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit",
+         "lockstep": "--lockstep", "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot",
+         "gui_snapshot": "--gui-snapshot", "html": "--html", "out": "--out", "plots": "--plots", "csv": "--csv",
+         "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
@@ -293,8 +297,9 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    target = args.csv or args.parquet
-    n = api.export_results(args.results, target, format="csv" if args.csv else "parquet")
+    fmt = "csv" if args.csv is not None else "parquet"
+    target = args.csv if args.csv is not None else args.parquet
+    n = api.export_results(args.results, target, format=fmt)
     sys.stderr.write(f"pbdyn export: {n} trials -> {target}\n")
     return 0
 
@@ -317,27 +322,47 @@ COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "dem
             "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge, "replay": cmd_replay}
 
 
+def _warning_line(show):
+    """A warnings.showwarning that prints a PbdynWarning as one line ``pbdyn: warning: ...`` on stderr (naming the
+    flag where the library names a parameter) and passes any other warning to ``show``."""
+    def showwarning(message, category, filename, lineno, file=None, line=None):
+        if isinstance(message, PbdynWarning):
+            flag = FLAGS.get(message.field)
+            sys.stderr.write(f"pbdyn: warning: {message.renamed(flag) if flag else message}\n")
+        else:
+            show(message, category, filename, lineno, file, line)
+    return showwarning
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``pbdyn`` console script."""
+    """Entry point of the ``pbdyn`` console script. ``PBDYN_DEBUG=1`` in the environment: an error also prints its
+    full traceback (before its one line), an internal failure its Python traceback."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("MKL_NUM_THREADS", "1")
     parser = build_parser()
     args = parser.parse_args(argv)
+    debug = bool(os.environ.get("PBDYN_DEBUG"))
     try:
-        return COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_line(warnings.showwarning)
+            return COMMANDS[args.command](args)
     except ConfigError as exc:
+        if debug:
+            traceback.print_exc()
         flag = FLAGS.get(exc.field)
         sys.stderr.write(f"pbdyn: error: {exc.renamed(flag) if flag else exc}\n")
         return EXIT_USAGE
     except PbdynError as exc:
+        if debug:
+            traceback.print_exc()
         sys.stderr.write(f"pbdyn: error: {exc}\n")
         return EXIT_USAGE
     except KeyboardInterrupt as exc:   # pbdyn batch: BatchInterrupted (SIGTERM 143, SIGINT 130)
         sys.stderr.write(f"pbdyn: {str(exc) or 'interrupted'}\n")
         return getattr(exc, "exit_status", 130)
     except Exception as exc:  # an internal failure: one line, details only on request
-        if os.environ.get("PBDYN_DEBUG"):
+        if debug:
             raise
         sys.stderr.write(f"pbdyn: internal error: {type(exc).__name__}: {exc} (set PBDYN_DEBUG=1 for details)\n")
         return 1

@@ -13,7 +13,7 @@ import itertools
 import json
 import math
 import tomllib
-from dataclasses import MISSING, asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
 
@@ -239,6 +239,32 @@ BUILTIN_STRUCTURES: dict[str, dict] = {
 
 
 @dataclass(frozen=True)
+class MapEntry:
+    """One map of an explicit map list (``[[obstacles.maps]]``, e.g. written by `pbdyn generate`): its setup values
+    (count, radius m, speed m/s, structure or None) and replicate, which with obstacles.root_seed make its seed
+    exactly as a grid map's (pbdyn.world.maps.MapSpec); ``seed``: the seed recorded with it (checked at load, so a
+    file whose maps would change is refused), ``measured``: values measured when the map was chosen (kept, not
+    used), ``generator``: how it was chosen (kept, not used)."""
+
+    count: int
+    radius: "GridValue"
+    speed: "GridValue"
+    structure: str | None = None
+    replicate: int = 0
+    seed: int | None = None
+    measured: dict = field(default_factory=dict)
+    generator: dict = field(default_factory=dict)
+
+    def setup(self) -> dict:
+        """The setup values, as a grid map's setup (structure only when given)."""
+        out = {"count": self.count, "radius": _json_default(self.radius) if isinstance(self.radius, Range)
+               else self.radius, "speed": _json_default(self.speed) if isinstance(self.speed, Range) else self.speed}
+        if self.structure is not None:
+            out["structure"] = self.structure
+        return out
+
+
+@dataclass(frozen=True)
 class ObstacleConfig:
     """Generated dynamic obstacles. count/radius/speed are grids (tuples); radius/speed entries may be Ranges.
     headings: "uniform" (each obstacle's direction uniformly random) or "even" (the thesis program's: obstacle k of
@@ -266,6 +292,7 @@ class ObstacleConfig:
     structures: tuple[StructureConfig, ...] = ()
     layout: str = "pbdyn"
     wall_turn: str = "specular"
+    maps: tuple[MapEntry, ...] = ()
 
     def structure_of(self, name: str | None) -> StructureConfig | None:
         """The StructureConfig called ``name`` (None for None)."""
@@ -493,13 +520,22 @@ class Scenario:
         d.pop("source", None)
         if not self.bodies:
             d.pop("bodies", None)
-        if not self.obstacles.structure:   # (scenarios without structures resolve as before the fields existed)
-            d["obstacles"].pop("structure", None)
+        if not self.obstacles.structure and not self.obstacles.maps:   # (scenarios without structures resolve
+            d["obstacles"].pop("structure", None)                       # as before the fields existed)
             d["obstacles"].pop("structures", None)
+        if not self.obstacles.maps:
+            d["obstacles"].pop("maps", None)
         return json.loads(json.dumps(d, default=_json_default))
 
     def setups(self) -> list[dict]:
-        """The Cartesian product of the grid fields, in file order (first field slowest)."""
+        """The Cartesian product of the grid fields, in file order (first field slowest); with an explicit map list,
+        each listed map's setup values, in file order, once."""
+        if self.obstacles.maps:
+            out = []
+            for m in self.obstacles.maps:
+                if m.setup() not in out:
+                    out.append(m.setup())
+            return out
         grids = {k: getattr(self.obstacles, k) for k in self.obstacles.grid_order}
         out = []
         for combo in itertools.product(*grids.values()):
@@ -510,8 +546,10 @@ class Scenario:
         """Trials a batch of this scenario flies: maps (setups x maps_per_setup) x ordered start/goal pairs x v_max
         values x planner entries (not limited; see pbdyn.limits)."""
         n = len(self.task.candidates)
-        return (math.prod(len(getattr(self.obstacles, k)) for k in self.obstacles.grid_order)
-                * self.obstacles.maps_per_setup * n * (n - 1) * len(self.drone.v_max) * len(self.planners))
+        maps = len(self.obstacles.maps) or (math.prod(len(getattr(self.obstacles, k))
+                                                      for k in self.obstacles.grid_order)
+                                            * self.obstacles.maps_per_setup)
+        return maps * n * (n - 1) * len(self.drone.v_max) * len(self.planners)
 
     def mav_urdf_path(self) -> Path:
         """Absolute path of the MAV URDF (relative paths: the scenario's folder, then the bundled urdf/)."""
@@ -612,8 +650,15 @@ def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: b
 def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
     keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo", "headings",
-            "structure", "structures", "layout", "wall_turn")
+            "structure", "structures", "layout", "wall_turn", "maps")
     _no_unknown(t, keys, "obstacles")
+    if "maps" in t:
+        return _parse_map_list(t)
+    return _parse_obstacles_grid(t)
+
+
+def _parse_obstacles_grid(t: Mapping) -> ObstacleConfig:
+    """obstacles whose maps are the grid's setups x maps_per_setup replicates."""
     d = _defaults(ObstacleConfig)
     count = _grid_values(t["count"], "obstacles.count", integer=True, lo=0) if "count" in t else d["count"]
     radius = _grid_values(t["radius"], "obstacles.radius") if "radius" in t else d["radius"]
@@ -679,6 +724,78 @@ def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
             raise ConfigError("obstacles.layout", f'"program" {why}', layout)
     return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo, headings, structure,
                           structures, layout, wall_turn)
+
+
+def _parse_map_list(t: Mapping) -> ObstacleConfig:
+    """obstacles with an explicit map list ([[obstacles.maps]]): the grid fields (count, radius, speed, structure,
+    maps_per_setup) are then not used and refused; each map names its own setup values and replicate."""
+    for key in ("count", "radius", "speed", "structure", "maps_per_setup"):
+        if key in t:
+            raise ConfigError(f"obstacles.{key}", "is not used when obstacles.maps lists the maps (each map gives its "
+                              "own values)", t[key])
+    items = t["maps"]
+    if not isinstance(items, list) or not items:
+        raise ConfigError("obstacles.maps", "must be a non-empty array of tables ([[obstacles.maps]])", items,
+                          show_value=not isinstance(items, list))
+    limits.check_limit("obstacles.maps", "maps", len(items), limits.MAX_SETUPS * 10, len(items))
+    base = {k: v for k, v in t.items() if k != "maps"}
+    tables = _table(t, "structures", "obstacles")
+    names: list[str] = []
+    entries = []
+    for i, m in enumerate(items):
+        where = f"obstacles.maps[{i}]"
+        if not isinstance(m, Mapping):
+            raise ConfigError(where, "must be a table", m)
+        _no_unknown(m, ("count", "radius", "speed", "structure", "replicate", "seed", "measured", "generator"), where)
+        for key in ("count", "radius", "speed"):
+            if key not in m:
+                raise ConfigError(f"{where}.{key}", "is required", None, show_value=False)
+        (count,) = _grid_values(m["count"], f"{where}.count", integer=True, lo=0)
+        limits.check_limit(f"{where}.count", "obstacles", count, limits.MAX_OBSTACLES, count)
+        (radius,) = _grid_values(m["radius"], f"{where}.radius")
+        (speed,) = _grid_values(m["speed"], f"{where}.speed", lo=0.0, lo_open=False)
+        structure = m.get("structure")
+        if structure is not None:
+            if not isinstance(structure, str) or (structure not in tables and structure not in BUILTIN_STRUCTURES):
+                raise ConfigError(f"{where}.structure", f"unknown structure (built-in: "
+                                  f"{', '.join(BUILTIN_STRUCTURES)}; or define [obstacles.structures.NAME])", structure)
+            if structure not in names:
+                names.append(structure)
+        replicate = _integer(m, "replicate", where, 0, lo=0)
+        seed = _integer(m, "seed", where, None, lo=0) if "seed" in m else None
+        info = {}
+        for key in ("measured", "generator"):
+            v = m.get(key, {})
+            if not isinstance(v, Mapping):
+                raise ConfigError(f"{where}.{key}", "must be a table", v)
+            info[key] = json.loads(canonical_json(dict(v)))
+        entries.append(MapEntry(count, radius, speed, structure, replicate, seed, info["measured"],
+                                info["generator"]))
+    keys = [canonical_json({"setup": e.setup(), "replicate": e.replicate}) for e in entries]
+    for i, k in enumerate(keys):
+        if keys.index(k) != i:
+            raise ConfigError(f"obstacles.maps[{i}]", f"is the same map as obstacles.maps[{keys.index(k)}] (same "
+                              "setup values and replicate)", dict(items[i]), show_value=False)
+    if names:
+        base["structure"] = names
+    else:
+        base.pop("structures", None) if not tables else None
+    grid = _parse_obstacles_grid(base)
+    out = replace(grid, maps=tuple(entries), structure=(), count=(entries[0].count,), radius=(entries[0].radius,),
+                  speed=(entries[0].speed,), maps_per_setup=1,
+                  grid_order=tuple(k for k in grid.grid_order if k != "structure"))
+    from pbdyn.world.maps import MapSpec
+
+    for i, e in enumerate(entries):
+        if e.seed is not None and MapSpec(i, e.setup(), e.replicate, out.root_seed).seed != e.seed:
+            raise ConfigError(f"obstacles.maps[{i}].seed", "is not the seed its setup values, replicate and "
+                              "obstacles.root_seed give: the map would not be the one recorded (was root_seed or a "
+                              "value edited?)", e.seed)
+        jitter_min = e.radius.min if isinstance(e.radius, Range) else e.radius
+        if jitter_min - out.radius_jitter <= 0:
+            raise ConfigError("obstacles.radius_jitter", f"must be < every listed map's radius ({jitter_min:g})",
+                              out.radius_jitter)
+    return out
 
 
 def _optional_choice(t: Mapping, key: str, where: str, default: str | None, choices: tuple[str, ...]) -> str | None:
@@ -905,6 +1022,38 @@ def _parse_drone(doc: Mapping) -> DroneConfig:
     v_max = _grid_values(t["v_max"], "drone.v_max", allow_range=False) if "v_max" in t else d["v_max"]
     yaw = _number(t, "yaw_rate_limit", "drone", d["yaw_rate_limit"], lo=0.0, lo_open=True)
     return DroneConfig(urdf, radius, a_max, tuple(float(v) for v in v_max), yaw)
+
+
+def check_v_max(value: Any, field: str = "v_max") -> float:
+    """A MAV speed limit (m/s) under the limits of drone.v_max (a finite number > 0, at most limits.MAX_MAGNITUDE);
+    ConfigError naming ``field`` otherwise."""
+    return _check_number(value, field, lo=0.0, lo_open=True)
+
+
+def stopping_distance(v: float, a_max: float, dt: float) -> float:
+    """Distance (m) a MAV flying at ``v`` m/s covers before it is at rest: one step of dt at v (what it senses at t_k
+    changes its motion from t_k+1 on) plus braking at a_max, v^2 / (2 a_max)."""
+    return v * dt + v * v / (2.0 * a_max)
+
+
+def warn_stopping(scenario: "Scenario", speeds, field: str) -> None:
+    """A PbdynWarning naming ``field`` if a MAV at one of ``speeds`` (m/s) cannot stop within the sensor range
+    (stopping_distance > sensor.range): it may not stop for an obstacle it has just seen, and trials tend to end
+    in deadlock or collision."""
+    a_max, dt, rng = scenario.drone.a_max, scenario.world.dt, scenario.sensor.range
+    fast = sorted(v for v in speeds if stopping_distance(v, a_max, dt) > rng)
+    if not fast:
+        return
+    import warnings
+
+    from pbdyn.errors import PbdynWarning
+
+    safe = a_max * (math.sqrt(dt * dt + 2.0 * rng / a_max) - dt)
+    need = stopping_distance(fast[-1], a_max, dt)
+    warnings.warn(PbdynWarning(field, f"at {', '.join(f'{v:g}' for v in fast)} m/s the MAV needs "
+                               f"{'up to ' if len(fast) > 1 else ''}{need:.3g} m to stop (v dt + v^2 / (2 a_max), "
+                               f"a_max = {a_max:g} m/s^2), more than the sensor range of {rng:g} m: it cannot stop "
+                               f"for an obstacle it has just seen (at most {safe:.3g} m/s can)"), stacklevel=3)
 
 
 def _parse_sensor(doc: Mapping, world: WorldConfig) -> SensorConfig:
@@ -1227,6 +1376,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     scenario = Scenario(name, world, obstacles, static, drone, sensor, tracking, task, planners, check, source, bodies,
                         profile)
     _check_urdfs(scenario)
+    warn_stopping(scenario, drone.v_max, "drone.v_max")
     return scenario
 
 

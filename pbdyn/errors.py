@@ -102,6 +102,20 @@ def check_finite_params(params: dict, field: str) -> None:
             raise ConfigError(f"{field}.{key}", "must be finite (no NaN or infinity)", value)
 
 
+class PbdynWarning(UserWarning):
+    """Input pbdyn accepts but that will probably not do what the user wants, naming the field (``field``) like
+    ConfigError; the command line prints it as one line ``pbdyn: warning: ...``."""
+
+    def __init__(self, field: str, problem: str):
+        self.field = field
+        self.problem = problem
+        super().__init__(one_line_text(f"{field}: {problem}"))
+
+    def renamed(self, field: str) -> "PbdynWarning":
+        """The same warning naming ``field`` instead."""
+        return PbdynWarning(field, self.problem)
+
+
 class HorizonError(PbdynError, IndexError):
     """A time was asked of a rollout past its horizon."""
 
@@ -141,6 +155,38 @@ def one_line(exc: BaseException) -> str:
         text = "<unprintable>"
     name = getattr(type(exc), "__name__", "exception")
     return f"{name}: {text}" if text else name
+
+
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def _library_dirs() -> tuple[str, ...]:
+    import sysconfig
+
+    paths = sysconfig.get_paths()
+    dirs = {os.path.abspath(paths[k]) + os.sep for k in ("stdlib", "platstdlib", "purelib", "platlib") if k in paths}
+    return tuple(sorted(dirs))
+
+
+def user_location(exc: BaseException) -> str | None:
+    """"file:line" where user code raised ``exc``: the innermost traceback frame outside the pbdyn package and
+    outside Python's library folders (standard library, site-packages), looked for in ``exc`` and then in the
+    exceptions it was raised from; None if there is no such frame (e.g. pbdyn's own bug)."""
+    import traceback
+
+    libs = _library_dirs()
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        for frame in reversed(traceback.extract_tb(exc.__traceback__)):
+            name = frame.filename
+            if name.startswith("<frozen "):
+                continue
+            path = os.path.abspath(name) if not name.startswith("<") else name
+            if not path.startswith(_PACKAGE_DIR) and not path.startswith(libs):
+                return f"{name}:{frame.lineno}"
+        exc = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
+    return None
 
 
 def import_module(module_name: str, field: str, name: str | None = None):
@@ -202,23 +248,60 @@ def _short(path) -> str:
     return text if len(text) <= 120 else text[:60] + "..." + text[-40:]
 
 
-def check_writable_file(field: str, path) -> Path:
-    """``path`` as a Path whose folder exists and accepts a new file (a temporary file is created and removed
-    there); ConfigError naming ``field`` otherwise."""
-    p = Path(path)
-    check_path_length(field, p)
-    if p.is_dir():
-        raise ConfigError(field, "is a folder; give a file name", str(path))
-    folder = p.absolute().parent
-    if not folder.is_dir():
-        raise ConfigError(field, "folder does not exist", str(p.parent))
+def _check_named(field: str, path, what: str) -> Path:
+    """``path`` as a Path; ConfigError naming ``field`` if it is empty (which would mean the current folder), holds
+    a NUL character, or has a name or length beyond the file system's limits."""
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    if not text.strip():
+        raise ConfigError(field, f"is empty; give a {what}", text)
+    if "\0" in text:
+        raise ConfigError(field, "holds a NUL character", text)
+    check_path_length(field, text)
+    return Path(text)
+
+
+def _check_folder_accepts(field: str, folder: Path, shown, make_parents: bool) -> None:
+    """ConfigError naming ``field`` unless new files can be made in ``folder`` (``make_parents``: or in the folders
+    that would be created down to it): its nearest existing ancestor is a folder where a temporary file can be
+    created (and is removed at once)."""
+    anc = folder
+    while not os.path.lexists(anc):
+        if not make_parents:
+            raise ConfigError(field, f"its folder {folder} does not exist", str(shown))
+        anc = anc.parent
+    if not anc.is_dir():
+        raise ConfigError(field, f"cannot be written: {anc} is a file, not a folder", str(shown))
     try:
-        fd, tmp = tempfile.mkstemp(prefix=".pbdyn-write-test-", dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix=".pbdyn-write-test-", dir=anc)
         os.close(fd)
         os.unlink(tmp)
     except OSError as exc:
-        raise ConfigError(field, f"cannot be written: the folder {folder} does not accept new files "
-                          f"({exc.strerror or exc})", str(path)) from None
+        raise ConfigError(field, f"cannot be written: the folder {anc} does not accept new files "
+                          f"({exc.strerror or exc})", str(shown)) from None
+
+
+def check_writable_file(field: str, path, *, make_parents: bool = False) -> Path:
+    """``path`` as a Path a new file can be written at, checked before any work and creating nothing; ConfigError
+    naming ``field`` if it is empty, ends in a path separator, names a folder, has too long a name, or its folder is
+    missing (``make_parents``: the folders to create are blocked by a file), or does not accept new files (a
+    read-only folder or file system), or the file exists and is not writable."""
+    p = _check_named(field, path, "file name")
+    if os.fsdecode(os.fspath(path)).endswith(("/", os.sep)) or p.is_dir():
+        raise ConfigError(field, "is a folder; give a file name", str(path))
+    _check_folder_accepts(field, p.absolute().parent, path, make_parents)
     if p.exists() and not os.access(p, os.W_OK):
         raise ConfigError(field, "exists and is not writable", str(path))
+    return p
+
+
+def check_writable_folder(field: str, path) -> Path:
+    """``path`` as a Path of a folder files can be written into (it, and the folders above it, are created by the
+    writer when missing), checked before any work and creating nothing; ConfigError naming ``field`` if it is
+    empty, too long, a file, blocked by a file on the way, or in a folder that does not accept new files."""
+    p = _check_named(field, path, "folder")
+    if os.path.lexists(p) and not p.is_dir():
+        raise ConfigError(field, "is a file; give a folder", str(path))
+    _check_folder_accepts(field, p.absolute(), path, make_parents=True)
     return p

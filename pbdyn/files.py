@@ -4,17 +4,42 @@ the user's umask)."""
 
 from __future__ import annotations
 
+import errno
 import os
-import tempfile
+import secrets
 from collections.abc import Callable
 from pathlib import Path
 
 
-def user_umask() -> int:
-    """The process' umask (read without changing it for longer than the call)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def create_temp(folder: str | Path, prefix: str = "", suffix: str = "") -> tuple[int, str]:
+    """tempfile.mkstemp(suffix, prefix, folder) -- (open descriptor, absolute path) of a new file -- except that the
+    file gets what any new file gets, 0o666 minus the umask (applied by the system), not 0o600: it is an output."""
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        name = os.path.abspath(os.path.join(folder, f"{prefix}{secrets.token_hex(4)}{suffix}"))
+        try:
+            return os.open(name, flags, 0o666), name
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary file name", str(folder))
+
+
+NAME_MAX = 255
+"""Longest file name, in bytes (ext4, XFS, APFS, NTFS)."""
+_RANDOM_CHARS = 8
+"""Characters create_temp puts between a prefix and a suffix."""
+
+
+def temp_name_parts(path: Path) -> tuple[str, str]:
+    """(prefix, suffix) of the temporary file written for ``path``: ".{stem}-" and its suffix, the stem shortened
+    (whole characters) so that the temporary name stays within NAME_MAX bytes even when the target's name is at the
+    limit; a suffix longer than 16 bytes is left out."""
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= 16 else ""
+    stem = path.name[:len(path.name) - len(suffix)] if suffix else path.name
+    budget = NAME_MAX - 2 - _RANDOM_CHARS - len(os.fsencode(suffix))
+    while len(os.fsencode(stem)) > budget:
+        stem = stem[:-1]
+    return f".{stem}-", suffix
 
 
 def atomic_write(path: str | Path, write: Callable[[str], None], *, make_parents: bool = False) -> Path:
@@ -23,11 +48,11 @@ def atomic_write(path: str | Path, write: Callable[[str], None], *, make_parents
     path = Path(path)
     if make_parents:
         path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    prefix, suffix = temp_name_parts(path)
+    fd, tmp = create_temp(path.parent, prefix, suffix)
     os.close(fd)
     try:
         write(tmp)
-        os.chmod(tmp, 0o666 & ~user_umask())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -37,7 +37,6 @@ import json
 import math
 import os
 import re
-import shutil
 import sys
 import tomllib
 from dataclasses import dataclass, field
@@ -590,6 +589,24 @@ class Outcome:
     out_exists: bool
     warnings: list[str] = field(default_factory=list)
     timed_out: bool = False
+    exception: BaseException | None = None
+
+
+def shown_warnings(caught) -> list[str]:
+    """The recorded warnings a user would see (Python's default filters hide _SAFE_WARNINGS), one line each."""
+    return [f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught
+            if not issubclass(w.category, _SAFE_WARNINGS)]
+
+
+def exit2_problem(stdout: str, stderr: str) -> str | None:
+    """What is wrong with an exit-2 run's streams (stderr: one "pbdyn: error:" line, documented warning lines may
+    precede it; stdout: empty), or None."""
+    lines = [line for line in stderr.splitlines() if not line.startswith("pbdyn: warning: ")]
+    if len(lines) != 1 or not lines[0].startswith("pbdyn: error:"):
+        return f"exit 2 but stderr is not one 'pbdyn: error:' line: {stderr[:400]!r}"
+    if stdout:
+        return f"exit 2 with output on stdout: {stdout[:200]!r}"
+    return None
 
 
 def _strict_json(text: str):
@@ -598,14 +615,22 @@ def _strict_json(text: str):
     return json.loads(text, parse_constant=bad_constant)
 
 
-def verdict(case: Case, out: Outcome, time_bound_s: float) -> str | None:
-    """None if the case kept the CLI contract, else what broke."""
+def basic_problem(out: Outcome, time_bound_s: float) -> str | None:
+    """What breaks the contract whatever the exit: too slow, a warning, a traceback; or None."""
     if out.timed_out or out.seconds > time_bound_s:
         return f"took {out.seconds:.1f} s (bound {time_bound_s:g} s)"
     if out.warnings:
         return f"warning: {out.warnings[0]}"
     if "Traceback" in out.stderr:
         return "traceback on stderr"
+    return None
+
+
+def verdict(case: Case, out: Outcome, time_bound_s: float) -> str | None:
+    """None if the case kept the CLI contract, else what broke."""
+    problem = basic_problem(out, time_bound_s)
+    if problem:
+        return problem
     if out.code == 0:
         if case.command == "rollout":
             if not out.out_exists:
@@ -618,12 +643,10 @@ def verdict(case: Case, out: Outcome, time_bound_s: float) -> str | None:
         if re.search(r"\bWarning\b", out.stderr):
             return f"exit 0 with a warning on stderr: {out.stderr.strip()[:300]!r}"
         return None
-    if out.code == 2:
-        lines = out.stderr.splitlines()
-        if len(lines) != 1 or not lines[0].startswith("pbdyn: error:"):
-            return f"exit 2 but stderr is not one 'pbdyn: error:' line: {out.stderr[:400]!r}"
-        if out.stdout:
-            return f"exit 2 with output on stdout: {out.stdout[:200]!r}"
+    if out.code == 2:   # a documented warning (e.g. a MAV speed that cannot stop in time) may precede the error
+        problem = exit2_problem(out.stdout, out.stderr)
+        if problem:
+            return problem
         if out.out_exists:
             return "exit 2 but the --out file exists"
         if out.leftovers:
@@ -753,8 +776,7 @@ def run_in_process(case: Case, folder: Path, *, timeout_s: float = 60.0, memory_
             else:
                 os.environ["PBDYN_CACHE"] = old_cache
     seconds = time.monotonic() - t0
-    shown = [f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught
-             if not issubclass(w.category, _SAFE_WARNINGS)]
+    shown = shown_warnings(caught)
     leftovers = sorted(set(os.listdir(folder)) - expected_files(case) - {"out.npz"})
     return Outcome(code, out.getvalue(), err.getvalue(), seconds, leftovers, (folder / "out.npz").exists(), shown,
                    bool(fired))

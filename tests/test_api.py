@@ -69,7 +69,7 @@ def test_library_errors_name_parameters_and_the_cli_names_flags(tmp_path):
         assert err.value.field == field
     with pytest.raises(pbdyn.ConfigError) as err:
         pbdyn.compute_metrics("quickstart", metrics=["nope"])
-    assert err.value.field == "metric"
+    assert err.value.field == "metrics"
     cli = subprocess.run(pbdyn_cmd() + ["run", "quickstart", "--vmax", "4", "--start", "0,0"], capture_output=True,
                          text=True, cwd=tmp_path)
     assert cli.returncode == 2 and cli.stderr.startswith("pbdyn: error: --start:") and cli.stderr.count("\n") == 1

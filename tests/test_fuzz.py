@@ -1,12 +1,13 @@
 """Fuzzing the CLI contract (DESIGN.md "Command line"): mutated scenarios, world files and URDFs (tests/fuzz_cases.py).
 
 Oracle, for ``pbdyn run --json``, ``pbdyn metrics --json --metric density`` and ``pbdyn rollout --out F.npz``:
-exit 0 with a valid result (stdout is one strict JSON document -- no NaN -- and no warning on stderr; the rollout
-file exists), or exit 2 with exactly one stderr line starting "pbdyn: error:", nothing on stdout and no file left
-behind (the --out file must not exist). Never another exit status, a traceback, a Python warning (numpy's
-RuntimeWarnings included), more than 60 s per case, or more than 4 GiB of address space (subprocess cases: an
-RLIMIT_AS on the child; in-process cases: RLIMIT_AS = this process's size + 4 GiB while the case runs) -- a
-MemoryError or a kill is a failure.
+exit 0 with a valid result (stdout is one strict JSON document -- no NaN -- and no warning on stderr other than
+pbdyn's own one-line "pbdyn: warning:"; the rollout file exists), or exit 2 with exactly one stderr line starting
+"pbdyn: error:" (after any "pbdyn: warning:" lines), nothing on stdout and no file left behind (the --out file
+must not exist). Never another exit status, a traceback, a Python warning (numpy's RuntimeWarnings included),
+more than 60 s per case, or more than 4 GiB of address space (subprocess cases: an RLIMIT_AS on the child;
+in-process cases: RLIMIT_AS = this process's size + 4 GiB while the case runs) -- a MemoryError or a kill is a
+failure.
 
 Default run: cases 0..N_IN_PROCESS-1 in this process (pbdyn.cli.main with captured streams, every warning
 recorded, an interval timer bounding each case), and N_SUBPROCESS cases as real ``python -m pbdyn.cli`` children.

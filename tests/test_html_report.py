@@ -72,7 +72,8 @@ def test_the_html_report_renders_in_a_real_browser(store, tmp_path):
 
 
 def test_bad_html_paths_are_one_line_errors(store, tmp_path):
-    for target in (tmp_path / "report.txt", tmp_path / "no" / "report.html"):
+    (tmp_path / "afile").write_text("a file where a folder should be")
+    for target in (tmp_path / "report.txt", tmp_path / "afile" / "report.html"):   # a missing folder is created
         res = subprocess.run(pbdyn_cmd() + ["evaluate", str(store), "--html", str(target)], capture_output=True,
                              text=True, timeout=300)
         assert res.returncode == 2 and "--html" in res.stderr and len(res.stderr.strip().splitlines()) == 1

@@ -5,9 +5,10 @@ Every import in every pbdyn module is checked with ``ast`` - module level, insid
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
 Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, files (atomic writes),
-limits (resource limits), urdf (URDF validation), resources, config | world | perception | planning | metrics (beside perception and
-planning: it sees rollouts only) | sim | analysis | experiments (evaluate feeds stored results to analysis) | api
-(the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py, which re-exports the api.
+limits (resource limits), urdf (URDF validation), resources, jit (numba's njit, its cache never in the way), config |
+world | perception | planning | metrics (beside perception and planning: it sees rollouts only) | sim | analysis |
+experiments (evaluate feeds stored results to analysis) | api (the one door) | cli, gym, __main__, and the package
+root pbdyn/__init__.py, which re-exports the api.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "config")
+_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "jit", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
@@ -31,6 +32,7 @@ RULES: dict[str, tuple[str, ...]] = {
     "limits": ("usercode", "errors"),
     "urdf": ("usercode", "errors"),
     "resources": ("usercode", "errors"),
+    "jit": (),
     "config": ("usercode", "errors", "files", "limits", "urdf", "resources"),
     "world": _BASE,
     "perception": _BASE + ("world",),

@@ -229,8 +229,14 @@ def test_a_planner_that_exits_ends_the_run_with_one_line(tmp_path):
     path.write_text((ROOT / "scenarios" / "quickstart.toml").read_text().replace("time_limit = 40.0",
                                                                                 "time_limit = 2.0"))
     code, out, err = cli_in_process(["run", path, "--json", "--planner", f"{M}:ExitingPlanner"])
+    import inspect
+
+    from tests.usercode_motions import ExitingPlanner
+
+    where = f"{inspect.getsourcefile(ExitingPlanner)}:{inspect.getsourcelines(ExitingPlanner.plan)[1] + 1}"
     assert code == 2 and out == "" and err.splitlines() == [
-        f"pbdyn: error: --planner: the planner pair {M}:ExitingPlanner + lookahead raised SystemExit: 7 at t = 0 s"]
+        f"pbdyn: error: --planner: the planner pair {M}:ExitingPlanner + lookahead raised SystemExit: 7 at t = 0 s "
+        f"(at {where})"]
 
 
 def test_one_line_and_shorten():

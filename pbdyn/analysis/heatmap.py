@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pbdyn.errors import ConfigError
+from pbdyn.errors import ConfigError, check_writable_file
 from pbdyn.files import atomic_write
 
 from pbdyn.metrics.catalog import DENSE, PER_POINT, SPARSE
@@ -199,10 +199,9 @@ def heatmap_metrics(requested: list[str] | None, dense: bool) -> list[str]:
 
 
 def check_figure_path(out: str | Path, field: str = "plot") -> Path:
-    """``out`` as a Path ending in .png, .pdf or .svg in an existing folder; ConfigError naming ``field``."""
+    """``out`` as a Path ending in .png, .pdf or .svg that can be written in an existing folder
+    (pbdyn.errors.check_writable_file); ConfigError naming ``field``."""
     p = Path(out)
     if p.suffix.lower() not in FIGURE_FORMATS:
         raise ConfigError(field, f"must end in {', '.join(FIGURE_FORMATS)}", str(out))
-    if not p.parent.is_dir():
-        raise ConfigError(field, "its folder does not exist", str(out))
-    return p
+    return check_writable_file(field, out)

@@ -137,5 +137,5 @@ def render_html(report: dict, table_text: str, figures: list[Path], *, stores: l
 
 
 def write_html(out: str | Path, page: str) -> Path:
-    """Write ``page`` to ``out`` atomically (pbdyn.files.atomic_write)."""
-    return atomic_write(out, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"))
+    """Write ``page`` to ``out`` atomically (pbdyn.files.atomic_write), creating its folder as --plots does."""
+    return atomic_write(out, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"), make_parents=True)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pbdyn.errors import ConfigError
-from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore, check_store_path, store_error
+from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore, check_store_path, read_only_uri, store_error
 
 _MAP_COLUMNS = ("map_id", "map_index", "map_key", "setup_json", "seed", "rollout_key", "dataset",
                 "mean_obstacle_speed", "mean_obstacle_radius", "metrics_json", "metric_times_json", "backend")
@@ -188,7 +188,7 @@ def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
         have_cols = store._trial_table_columns()
         for i, path in enumerate(inputs):
             alias = f"src{i}"
-            conn.execute(f"ATTACH DATABASE ? AS {alias}", (f"{Path(path).absolute().as_uri()}?mode=ro",))
+            conn.execute(f"ATTACH DATABASE ? AS {alias}", (read_only_uri(Path(path)),))
             try:
                 src_cols = {r[1] for r in conn.execute(f"PRAGMA {alias}.table_info(trials)")}
                 cols = ["trial_key"] + [n for n, _ in TRIAL_COLUMNS if n in src_cols and n in have_cols] + \

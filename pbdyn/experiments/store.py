@@ -135,32 +135,21 @@ def _quick_check(conn: sqlite3.Connection) -> None:
         raise sqlite3.DatabaseError(f"quick_check: {row[0] if row else 'no answer'}")
 
 
-def _connect_read_only(p: Path, field: str, shown) -> sqlite3.Connection:
-    """A read-only connection to the store file ``p``, checked with quick_check. In a folder this user cannot write
-    (read-only media, another user's folder) SQLite cannot create the -shm file it reads a WAL-mode file through:
-    the file is then opened immutable -- unless a -wal journal beside it holds changes the file lacks (ConfigError
-    naming ``field``: reading the file alone would miss them)."""
-    uri = p.absolute().as_uri()
-    conn = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=LOCK_TIMEOUT_S)
-    try:
-        _quick_check(conn)
-        return conn
-    except sqlite3.OperationalError as exc:
-        conn.close()
-        if "unable to open" not in str(exc) or os.access(p.absolute().parent, os.W_OK):
-            raise
-    wal = Path(f"{p}-wal")
-    if wal.exists() and wal.stat().st_size > 0:
-        raise ConfigError(field, "is in a folder this user cannot write, beside a -wal journal with changes not yet "
-                          "in the file (SQLite reads them only where it can create a -shm file); open it once where "
-                          "its folder is writable, or copy it with its -wal file to a writable folder", str(shown))
-    conn = sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, timeout=LOCK_TIMEOUT_S)
-    try:
-        _quick_check(conn)
-    except BaseException:
-        conn.close()
-        raise
-    return conn
+def read_only_uri(p: Path, field: str = "RESULTS", shown=None) -> str:
+    """The SQLite URI that opens the store file ``p`` read-only: mode=ro; in a folder this user cannot write
+    (read-only media, another user's folder) and without a -shm file -- which SQLite would have to create to read a
+    WAL-mode file -- mode=ro&immutable=1, unless a -wal or -journal file beside it holds changes the file lacks
+    (ConfigError naming ``field``: reading the file alone would miss them)."""
+    uri = f"{p.absolute().as_uri()}?mode=ro"
+    if os.access(p.absolute().parent, os.W_OK) or os.path.exists(f"{p}-shm"):
+        return uri
+    for side in ("-wal", "-journal"):
+        if os.path.exists(f"{p}{side}") and os.path.getsize(f"{p}{side}") > 0:
+            raise ConfigError(field, f"is in a folder this user cannot write, beside a {side} file with changes not "
+                              f"yet in the store file (SQLite needs a writable folder to apply them); open it once "
+                              f"where its folder is writable, or copy it with its {side} file to a writable folder",
+                              str(p if shown is None else shown))
+    return uri + "&immutable=1"
 
 
 SIDE_FILE = "-journal"
@@ -258,7 +247,8 @@ class ResultsStore:
             raise ConfigError(field, "file not found", str(path))
         conn = None
         try:
-            conn = _connect_read_only(p, field, path)
+            conn = sqlite3.connect(read_only_uri(p, field, path), uri=True, timeout=LOCK_TIMEOUT_S)
+            _quick_check(conn)
             store = cls(p, conn, field)
             version = store._schema_version()
         except sqlite3.DatabaseError as exc:

@@ -10,6 +10,7 @@ rollout and PyBullet world for the next trial of the same map, and one PyBullet 
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import io
 import json
@@ -271,9 +272,25 @@ def _world(task: TrialTask, spec, ro):
             from pbdyn.world.bullet import new_client
 
             _CACHE["client"] = new_client()    # one client per worker, reset for every map
+            atexit.register(close_worker_world)
         world = make_world(spec, ro, client=_CACHE["client"])
         _CACHE["world"] = (key, world)
     return world
+
+
+def close_worker_world() -> None:
+    """Close this worker's world and disconnect its PyBullet client (registered with atexit when the client is made:
+    a client left to BulletClient.__del__ at interpreter shutdown ends the worker with a traceback on stderr)."""
+    _, world = _CACHE["world"]
+    client = _CACHE["client"]
+    _CACHE["world"], _CACHE["client"] = (None, None), None
+    if world is not None:
+        world.close()
+    if client is not None:
+        from pbdyn.world.bullet import stdout_to_stderr
+
+        with stdout_to_stderr():
+            client.disconnect()
 
 
 def error_row(task: TrialTask, message: str) -> dict:
@@ -375,8 +392,11 @@ def settle_heap() -> None:
 
 
 def _error_message(exc: BaseException) -> str:
-    """An error row's message: the exception in one line and where it was raised."""
+    """An error row's message: the exception in one line and where it was raised (a plug-in's error already names
+    the user's file and line)."""
     msg = one_line(exc)
+    if getattr(exc, "location", None):
+        return msg
     tb = traceback.extract_tb(exc.__traceback__)
     if tb:
         msg += f" (at {os.path.basename(tb[-1].filename)}:{tb[-1].lineno})"

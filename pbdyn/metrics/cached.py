@@ -5,12 +5,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import time
 from pathlib import Path
 
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError
+from pbdyn.files import create_temp
 from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, METRIC_TABLE, NAMES, SPARSE
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
@@ -34,7 +34,7 @@ def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
 
 def _write_json_atomic(path: Path, doc: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".metric-", suffix=".json", dir=path.parent)
+    fd, tmp = create_temp(path.parent, ".metric-", ".json")
     try:
         with os.fdopen(fd, "w") as fh:
             json.dump(doc, fh, sort_keys=True)

@@ -21,9 +21,9 @@ from __future__ import annotations
 import time as _time
 
 import numpy as np
-from numba import njit
 
 from pbdyn.errors import ConfigError, check_positive
+from pbdyn.jit import njit
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.sampling import grid_samples, outside_geometry, step_window
 from pbdyn.world.maps import stable_hash64

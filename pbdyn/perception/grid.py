@@ -11,7 +11,8 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from numba import njit
+
+from pbdyn.jit import njit
 
 UNKNOWN = np.int8(-1)
 FREE = np.int8(0)

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from pbdyn.config import SensorConfig
 from pbdyn.errors import ConfigError
+from pbdyn.jit import njit
 from pbdyn.perception.grid import OccupancyGrid
 from pbdyn.perception.marching import (NONE, OBSTACLE, STATIC, WALL, march, march_distances, program_march_distances,
                                       static_bounds)

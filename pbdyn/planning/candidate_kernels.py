@@ -15,9 +15,10 @@ import warnings
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import types
 from numba.core.extending import intrinsic
 
+from pbdyn.jit import njit
 from pbdyn.planning.ruckig_sampling import sample_profiles
 
 

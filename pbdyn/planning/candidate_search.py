@@ -18,8 +18,8 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from numba import njit
 
+from pbdyn.jit import njit
 from pbdyn.perception.grid import OCCUPIED, OccupancyGrid, _point_collides
 from pbdyn.planning.candidate_kernels import _call_ruckig_build, _dot, _fma, _sq, peak_one
 from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, sample_into

@@ -24,8 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 import ruckig
-from numba import njit
 
+from pbdyn.jit import njit
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_DISTANCE_M, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.candidate_kernels import numpy_orders, sampled_peaks, world_and_screen

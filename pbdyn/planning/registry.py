@@ -8,7 +8,7 @@ import importlib
 import inspect
 from pathlib import Path
 
-from pbdyn.errors import ConfigError, check_finite_params, import_object, one_line
+from pbdyn.errors import ConfigError, check_finite_params, import_object, one_line, user_location
 from pbdyn.planning.gaze import FullRange, LookAhead, LookGoal, LookGoalUnexplored, Rotating
 from pbdyn.planning.gaze_finean import Finean
 from pbdyn.planning.gaze_owl import Owl
@@ -68,7 +68,8 @@ def resolve_gaze_planner(name: str, field: str = "gaze") -> type:
 def build_planner(cls: type, context: PlannerContext, params: dict | None, field: str):
     """Instantiate ``cls(context, **params)``; unknown or invalid params raise ConfigError naming ``field``: an
     unknown key, a non-finite float (NaN, +-inf, also inside lists, tuples and tables; named ``field``.<key>), or
-    any exception the constructor raises (built-in planners check their own ranges)."""
+    any exception the constructor raises (built-in planners check their own ranges; a plug-in's is located at the
+    file:line of its code, pbdyn.errors.user_location)."""
     params = dict(params or {})
     name = getattr(cls, "__name__", repr(cls))
     try:
@@ -86,7 +87,11 @@ def build_planner(cls: type, context: PlannerContext, params: dict | None, field
     except ConfigError:
         raise
     except Exception as exc:  # any failure of a planner's constructor (built-in or user code) is a bad entry
-        raise ConfigError(field, f"invalid parameters for {name} ({one_line(exc)})", params) from None
+        where = user_location(exc)
+        err = ConfigError(field, f"invalid parameters for {name} ({one_line(exc)})"
+                          + (f" (at {where})" if where else ""), params)
+        err.location = where
+        raise err from exc
 
 
 @functools.lru_cache(maxsize=256)

@@ -15,7 +15,8 @@ p[8], velocities v[8], accelerations a[8], then the brake pre-phase: duration, t
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from pbdyn.jit import njit
 
 PROFILE_WIDTH = 49
 _T, _J, _P, _V, _A = 0, 7, 14, 22, 30

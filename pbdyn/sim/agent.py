@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pbdyn.errors import ConfigError, one_line
+from pbdyn.errors import ConfigError, one_line, user_location
 from pbdyn.world.maps import PROGRAM_PX_PER_M
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
@@ -132,8 +132,9 @@ class Agent:
         next state from the plan in execution or, without one, a braking step. What the planners print goes to
         stderr (Python-level writes; pbdyn.usercode.user_stdout). A planner's exit or other BaseException
         (SystemExit, GeneratorExit; not KeyboardInterrupt), and any exception of a plug-in pair, becomes a ConfigError
-        naming the pair and the time, so it ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2, one
-        line); a built-in pair's exceptions keep their type and traceback (pbdyn's own bug)."""
+        naming the pair, the time and the file:line in the user's code that raised (pbdyn.errors.user_location), so
+        it ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2, one line); a built-in pair's
+        exceptions keep their type and traceback (pbdyn's own bug)."""
         with user_stdout():
             try:
                 return self._act(view)
@@ -142,13 +143,19 @@ class Agent:
             except Exception as exc:
                 if not self._plugin:   # a built-in planner's failure is pbdyn's own bug: keep it as it is
                     raise
-                entry = self.spec.planner
-                raise ConfigError("planner", f"the plug-in planner pair {entry.trajectory} + {entry.gaze} raised "
-                                  f"{one_line(exc)} at t = {view.t:g} s", None, show_value=False) from exc
+                raise self._user_error("plug-in planner pair", exc, view.t) from exc
             except BaseException as exc:
-                entry = self.spec.planner
-                raise ConfigError("planner", f"the planner pair {entry.trajectory} + {entry.gaze} raised "
-                                  f"{one_line(exc)} at t = {view.t:g} s", None, show_value=False) from None
+                raise self._user_error("planner pair", exc, view.t) from exc
+
+    def _user_error(self, what: str, exc: BaseException, t: float) -> ConfigError:
+        """The ConfigError of a planner call that raised ``exc`` at time ``t``: it names the pair, the exception and
+        where the user's code raised it (``location``: "file:line", None if not in user code)."""
+        entry = self.spec.planner
+        where = user_location(exc)
+        err = ConfigError("planner", f"the {what} {entry.trajectory} + {entry.gaze} raised {one_line(exc)} at "
+                          f"t = {t:g} s" + (f" (at {where})" if where else ""), None, show_value=False)
+        err.location = where
+        return err
 
     def _act(self, view: View) -> Decision:
         c3 = time.perf_counter()

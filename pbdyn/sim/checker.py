@@ -72,11 +72,18 @@ def check_planner(planner, scenario: Scenario, *, maps=3, pairs: int = 4, gaze: 
     from pbdyn.world.rollout import get_rollout
 
     all_maps = enumerate_maps(scenario)
-    indices = list(range(min(int(maps), len(all_maps)))) if isinstance(maps, int) else list(maps)
+    if isinstance(maps, int) and not isinstance(maps, bool):
+        if maps < 1:
+            raise ConfigError("maps", "must be a number of maps >= 1 or a list of map indices", maps)
+        indices = list(range(min(maps, len(all_maps))))
+    elif isinstance(maps, (list, tuple, range)) and len(maps) > 0:
+        indices = list(maps)
+    else:
+        raise ConfigError("maps", "must be a number of maps >= 1 or a non-empty list of map indices", maps)
     for i in indices:
-        if not isinstance(i, int) or not 0 <= i < len(all_maps):
+        if not isinstance(i, int) or isinstance(i, bool) or not 0 <= i < len(all_maps):
             raise ConfigError("maps", f"must be map indices in 0..{len(all_maps) - 1}", i)
-    if not isinstance(pairs, int) or pairs < 1:
+    if not isinstance(pairs, int) or isinstance(pairs, bool) or pairs < 1:
         raise ConfigError("pairs", "must be an integer >= 1", pairs)
     named = isinstance(planner, str)
     name = planner if named else plugin_name(planner)

@@ -17,8 +17,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from pbdyn.jit import njit
 from pbdyn.planning.trajectory import Trajectory
 
 START_TOL = 1e-6   # m and m/s: sample 0 against the MAV's current state

@@ -9,7 +9,6 @@ once when the trial has ended normally (not when it raised).
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,7 +16,9 @@ from typing import Protocol
 
 import numpy as np
 
+from pbdyn.files import create_temp
 from pbdyn.sim.env import SENSE_SPLITS
+from pbdyn.world.shapes import still_body_outlines
 
 SPLITS = SENSE_SPLITS + ("wall_planning_s", "wall_gaze_s", "wall_collision_s")
 """Wall-time splits of one step: (1) world, (2) rays, (3) tracking, (4) planning, (5) gaze, (6)-(7) collision."""
@@ -133,7 +134,8 @@ class TraceObserver:
                  "static_radius": np.array([b.radius for b in static], dtype=float),
                  "static_size": np.array([np.asarray(b.size if b.size else (0.0,) * d, float)[:d]
                                           for b in static]).reshape(len(static), d),
-                 "static_yaw": np.array([b.yaw for b in static], dtype=float)}
+                 "static_yaw": np.array([b.yaw for b in static], dtype=float),
+                 **still_body_outlines(env.rollout.bodies, d, sc.world.flight_height)}
         save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome, extra)
 
 
@@ -144,8 +146,10 @@ def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | 
     final_p/v/a [d], final_yaw, outcome; ``extra`` arrays (run_trial: the obstacles' true positions obstacle_p
     [S + 1, N, d] at trial steps 0..S and radii obstacle_r [N], start_step (the rollout step of the trial's t = 0,
     pbdyn.sim.start), dt, arena_lo/arena_hi [d], start/goal [d], goal_radius, mav_radius, fov_deg, range_m,
-    vfov_deg (NaN in 2D), reason, label (scenario, map, planner pair, v_max), and the static bodies static_kind
-    [B], static_center/static_size [B, d], static_radius/static_yaw [B]: what pbdyn replay draws)."""
+    vfov_deg (NaN in 2D), reason, label (scenario, map, planner pair, v_max), the static bodies static_kind
+    [B], static_center/static_size [B, d], static_radius/static_yaw [B], and an imported world's still bodies
+    static_outline [P, V, 2] (2D: cut by the flight plane; 3D: top view) and in 3D static_outline_side [P, V, 2]
+    (x-z), NaN-padded polygons (pbdyn.world.shapes.still_body_outlines): what pbdyn replay draws)."""
     kmax = max([0] + [x.shape[0] for x in trace.planned if x is not None])
     d = p.shape[0]
     plans = np.full((len(trace.t), max(kmax, 1), d), np.nan)
@@ -166,7 +170,7 @@ def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | 
     }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".trace-", suffix=".npz", dir=path.parent)
+    fd, tmp = create_temp(path.parent, ".trace-", ".npz")
     try:
         with os.fdopen(fd, "wb") as fh:
             np.savez_compressed(fh, **arrays)

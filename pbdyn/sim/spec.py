@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 from functools import cached_property
 
-from pbdyn.config import PlannerEntry, Scenario, canonical_json, later_fields
+from pbdyn.config import PlannerEntry, Scenario, canonical_json, check_v_max, later_fields, warn_stopping
 from pbdyn.errors import ConfigError
 from pbdyn.planning.registry import resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.world.imported import bodies_fingerprint
@@ -72,7 +72,7 @@ def _scenario_part(scenario: Scenario) -> dict:
     if got is not None and got[0] is scenario:
         return got[1]
     sc = scenario.to_dict()
-    skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures"}
+    skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures", "maps"}
     if sc["obstacles"]["motion"] != "rvo":
         skip.add("rvo")
     skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
@@ -112,12 +112,27 @@ def _parse_point(text: str | None, field_name: str, dims: int) -> tuple[float, .
     return vals
 
 
+def _given_point(value, field_name: str, dims: int) -> tuple[float, ...]:
+    """A start or goal given as "x,y[,z]" or a sequence of numbers; ConfigError naming ``field_name`` unless it has
+    ``dims`` finite coordinates."""
+    if isinstance(value, str):
+        return _parse_point(value, field_name, dims)
+    try:
+        vals = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise ConfigError(field_name, "must be a sequence of numbers like (4, 25)", value) from None
+    if len(vals) != dims or not all(math.isfinite(v) for v in vals):
+        raise ConfigError(field_name, f"must have {dims} finite coordinates", value)
+    return vals
+
+
 def make_trial_spec(scenario: Scenario, map_spec: MapSpec, *, planner: str | None = None, gaze: str | None = None,
                     v_max: float | None = None, start: str | tuple | None = None,
                     goal: str | tuple | None = None) -> TrialSpec:
     """Resolve CLI-style choices into a TrialSpec (defaults: first planner entry, first v_max, first candidate as
     start, last candidate as goal). ``planner`` picks an entry by label or trajectory name, or names a trajectory
-    planner; ``gaze`` overrides the entry's gaze planner."""
+    planner; ``gaze`` overrides the entry's gaze planner. A ``v_max`` outside the scenario's grid that cannot stop
+    within the sensor range is a PbdynWarning (pbdyn.config.warn_stopping)."""
     entries = scenario.planners
     entry = entries[0]
     if planner is not None:
@@ -134,19 +149,21 @@ def make_trial_spec(scenario: Scenario, map_spec: MapSpec, *, planner: str | Non
     if v_max is None:
         v = scenario.drone.v_max[0]
     else:
-        if not isinstance(v_max, (int, float)) or not math.isfinite(v_max) or v_max <= 0:
+        if isinstance(v_max, bool) or not isinstance(v_max, (int, float)) or not math.isfinite(v_max) or v_max <= 0:
             raise ConfigError("v_max", "must be a positive number", v_max)
-        v = float(v_max)
+        v = check_v_max(v_max, "v_max")
     dims = scenario.world.dims
     cands = scenario.task.candidates
-    s = _parse_point(start, "start", dims) if isinstance(start, str) else (tuple(start) if start else cands[0])
-    g = _parse_point(goal, "goal", dims) if isinstance(goal, str) else (tuple(goal) if goal else cands[-1])
+    s = cands[0] if start is None else _given_point(start, "start", dims)
+    g = cands[-1] if goal is None else _given_point(goal, "goal", dims)
     r = scenario.drone.radius
     for name, pt in (("start", s), ("goal", g)):
         for k, x in enumerate(pt):
             if not r <= x <= scenario.world.size[k] - r:
                 raise ConfigError(name, f"must lie inside the arena with the MAV's radius ({r:g} m) to spare",
                                   ",".join(f"{c:g}" for c in pt))
+    if v not in scenario.drone.v_max:    # the scenario's own speeds were checked when it was loaded
+        warn_stopping(scenario, (v,), "v_max")
     return TrialSpec(scenario, map_spec, entry, v, tuple(map(float, s)), tuple(map(float, g)))
 
 

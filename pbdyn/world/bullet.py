@@ -34,10 +34,10 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from pbdyn import resources
 from pbdyn.errors import ConfigError, check_positive
+from pbdyn.jit import njit
 from pbdyn.urdf import check_urdf
 from pbdyn.usercode import flush_c_stdout as _flush_c_stdout
 from pbdyn.usercode import stdout_fd_to as _stdout_to
@@ -201,8 +201,18 @@ def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], posit
 
 
 # --------------------------------------------------------------------------------------------- the world
+def check_display() -> None:
+    """ConfigError naming ``gui`` if PyBullet's GUI has no display to open a window on (X11 systems without DISPLAY,
+    where PyBullet would end the process itself)."""
+    if sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")) and not os.environ.get("DISPLAY"):
+        raise ConfigError("gui", "needs a display and DISPLAY is not set (--gui-snapshot FILE.png renders the final "
+                          "state without one)", show_value=False)
+
+
 def new_client(gui: bool = False):
-    """A new BulletClient (DIRECT, or GUI), its banner silenced; the caller disconnects it."""
+    """A new BulletClient (DIRECT, or GUI: check_display first), its banner silenced; the caller disconnects it."""
+    if gui:
+        check_display()
     with silenced_stdout():
         return bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
 

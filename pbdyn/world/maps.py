@@ -88,7 +88,8 @@ class MapSpec:
 
 
 class MapSequence(Sequence):
-    """Every map of a scenario, lazily: setups in file order (first grid field slowest), replicates fastest.
+    """Every map of a scenario, lazily: setups in file order (first grid field slowest), replicates fastest; or the
+    maps of an explicit list (obstacles.maps), in file order.
 
     ``len``, indexing (index arithmetic: no other map is built), slices (lists) and iteration; the same MapSpecs,
     in the same order, as building the whole list."""
@@ -98,9 +99,10 @@ class MapSequence(Sequence):
         self._reps = int(scenario.obstacles.maps_per_setup)
         self._root_seed = scenario.obstacles.root_seed
         self._n_setups = math.prod(len(v) for _, v in self._grids)
+        self._listed = tuple(scenario.obstacles.maps)     # an explicit map list replaces the grid
 
     def __len__(self) -> int:
-        return self._n_setups * self._reps
+        return len(self._listed) if self._listed else self._n_setups * self._reps
 
     @staticmethod
     def _setup(keys, combo) -> dict:
@@ -118,10 +120,16 @@ class MapSequence(Sequence):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         i = sequence_index(index, len(self), "map")
+        if self._listed:
+            m = self._listed[i]
+            return MapSpec(i, m.setup(), m.replicate, self._root_seed)
         s, rep = divmod(i, self._reps)
         return MapSpec(i, self.setup(s), rep, self._root_seed)
 
     def __iter__(self) -> Iterator[MapSpec]:
+        if self._listed:
+            yield from (self[i] for i in range(len(self._listed)))
+            return
         keys = [k for k, _ in self._grids]
         i = 0
         for combo in itertools.product(*(v for _, v in self._grids)):

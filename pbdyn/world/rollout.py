@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 from pbdyn import limits
 from pbdyn.config import LATER_FIELDS, Scenario, canonical_json, later_fields, rollout_span_s
 from pbdyn.errors import ConfigError, HorizonError
+from pbdyn.files import create_temp
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
@@ -109,7 +109,7 @@ class Rollout:
         """Write the rollout to an .npz file atomically (temp file + os.replace)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".rollout-", suffix=".npz", dir=path.parent)
+        fd, tmp = create_temp(path.parent, ".rollout-", ".npz")
         try:
             with os.fdopen(fd, "wb") as fh:
                 np.savez(fh, **self.to_arrays())

@@ -270,6 +270,91 @@ def bounds_of(prims: Sequence[Primitive]) -> tuple[np.ndarray, np.ndarray]:
     return np.min(los, axis=0), np.max(his, axis=0)
 
 
+# ------------------------------------------------------------------------------------------------ outlines
+OUTLINE_SEGMENTS = 48
+"""Points per circle in the outlines of spheres and cylinders."""
+
+
+def _convex_points(prim: Primitive) -> np.ndarray:
+    """Points [K, 3] in the base frame whose convex hull is the primitive (not a sphere): a box's corners, a
+    cylinder's two rims, a mesh's vertices (PyBullet collides a mesh as its convex hull)."""
+    rot, t = prim.pose[:3, :3], prim.pose[:3, 3]
+    if prim.kind == "box":
+        local = np.array(list(itertools.product((-0.5, 0.5), repeat=3))) * np.asarray(prim.size)
+    elif prim.kind == "cylinder":
+        th = np.linspace(0.0, 2.0 * math.pi, OUTLINE_SEGMENTS, endpoint=False)
+        ring = np.stack([prim.radius * np.cos(th), prim.radius * np.sin(th), np.zeros_like(th)], axis=1)
+        local = np.concatenate([ring + [0.0, 0.0, z] for z in (-0.5 * prim.length, 0.5 * prim.length)])
+    else:
+        local = np.asarray(_mesh_scene(prim.mesh, prim.mesh_scale).vertices, dtype=float)
+    return local @ rot.T + t
+
+
+def _hull(points: np.ndarray) -> np.ndarray | None:
+    """The convex hull's vertices of points [K, 2] or [K, 3] (2D: counter-clockwise); None if they span no area
+    (volume)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):
+        return None
+
+
+def body_outlines(field: ShapeField, b: int, axes: tuple[int, int], cut_z: float | None = None,
+                  step: int = 0) -> list[np.ndarray]:
+    """Outlines [V, 2] (world, m) of body b's collision elements at ``step`` in the plane of world ``axes`` ((0, 1):
+    x-y, (0, 2): x-z): each element's projection, or with ``cut_z`` its cut by the plane z = cut_z (axes x-y;
+    elements that do not reach the plane give none)."""
+    rot, pos = field.rot[step, b], field.bodies.position[step, b]
+    ax = list(axes)
+    out = []
+    for prim in field.prims[b]:
+        if prim.kind == "sphere":
+            c, r = pos + rot @ prim.pose[:3, 3], prim.radius
+            if cut_z is not None:
+                if abs(cut_z - c[2]) >= r:
+                    continue
+                r = math.sqrt(r * r - (cut_z - c[2]) ** 2)
+            th = np.linspace(0.0, 2.0 * math.pi, OUTLINE_SEGMENTS, endpoint=False)
+            out.append(np.c_[c[ax[0]] + r * np.cos(th), c[ax[1]] + r * np.sin(th)])
+            continue
+        pts = _convex_points(prim) @ rot.T + pos
+        if len(pts) > 64:                                  # a mesh: its hull's vertices suffice
+            hull = _hull(pts)
+            pts = pts if hull is None else hull
+        if cut_z is not None:      # the cut of a convex hull: where its points' connecting segments cross the plane
+            lo, hi = pts[pts[:, 2] <= cut_z], pts[pts[:, 2] >= cut_z]
+            if not len(lo) or not len(hi):
+                continue
+            a, d = lo[:, None, :], hi[None, :, :] - lo[:, None, :]
+            s = np.divide(cut_z - a[..., 2], d[..., 2], out=np.zeros(d.shape[:2]), where=d[..., 2] > 0)
+            pts = (a + s[..., None] * d).reshape(-1, 3)
+        poly = _hull(pts[:, ax])
+        if poly is not None:
+            out.append(poly)
+    return out
+
+
+def still_body_outlines(bodies, dims: int, flight_height: float) -> dict[str, np.ndarray]:
+    """The outlines of an imported world's still (static) bodies, NaN-padded to one array [P, V, 2] (m) per view:
+    "static_outline" -- 2D: their cut by the flight plane z = flight_height, 3D: their top view (x-y projection) --
+    and in 3D "static_outline_side" (x-z projection). Empty arrays [0, 0, 2] when there is none."""
+    field = None if bodies is None or bool(np.all(bodies.moving)) else bodies.field()
+    views = {"static_outline": ((0, 1), flight_height if dims == 2 else None)}
+    if dims == 3:
+        views["static_outline_side"] = ((0, 2), None)
+    out = {}
+    for key, (axes, cut) in views.items():
+        polys = [] if field is None else [poly for b in field.indices("static")
+                                          for poly in body_outlines(field, b, axes, cut)]
+        arr = np.full((len(polys), max([0] + [len(p) for p in polys]), 2), np.nan)
+        for i, poly in enumerate(polys):
+            arr[i, :len(poly)] = poly
+        out[key] = arr
+    return out
+
+
 # ------------------------------------------------------------------------------------------------ fields
 class ShapeField:
     """Signed distances to the imported bodies of a rollout at its steps.

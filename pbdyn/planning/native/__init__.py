@@ -7,15 +7,21 @@ ruckig version and gives, on a fixed probe of planner-like inputs, the very dura
 package gives (bit for bit), ruckig_build_address() hands its entry point to the compiled candidate search
 (candidate_search.search); otherwise None, and the planners use the Python package: the same
 trajectories, slower. PBDYN_NATIVE=0 in the environment turns the library off.
+
+The build records the library's sha256 beside it (``_ruckig_batch.so.sha256``) after probing it in a subprocess; a
+library whose bytes do not match that record (truncated, corrupted, replaced, or built without one) is never loaded,
+since loading a damaged shared library can end the process with a signal. A library that is present but not used
+is reported in one line on stderr, once per process tree (PBDYN_NATIVE_REPORTED passes the line to child processes).
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+import hashlib
 import importlib.metadata
 import os
-import warnings
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +30,45 @@ from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row
 
 _P = ctypes.c_void_p
 LIBRARY = Path(__file__).resolve().parent / "_ruckig_batch.so"   # built by pbdyn.planning.native.build
+_REPORTED = "PBDYN_NATIVE_REPORTED"
+
+
+def checksum_path(path: Path) -> Path:
+    """Where the build records the sha256 of the library at ``path``."""
+    return path.with_name(path.name + ".sha256")
+
+
+def write_checksum(path: Path) -> None:
+    """Record the sha256 of the library at ``path`` beside it (atomically; sha256sum's format)."""
+    record = checksum_path(path)
+    tmp = record.with_name(record.name + ".tmp")
+    tmp.write_text(f"{hashlib.sha256(path.read_bytes()).hexdigest()}  {path.name}\n")
+    os.replace(tmp, record)
+
+
+def integrity_problem(path: Path) -> str | None:
+    """Why the library at ``path`` must not be loaded (it does not match the sha256 its build recorded, or there
+    is no record), or None."""
+    try:
+        recorded = checksum_path(path).read_text().split()[0]
+    except (OSError, UnicodeDecodeError, IndexError):
+        return "has no valid checksum record beside it (rebuild it with `python -m pbdyn.planning.native.build`)"
+    try:
+        actual = hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if actual != recorded:
+        return ("does not match the checksum its build recorded (truncated or corrupted; rebuild it with "
+                "`python -m pbdyn.planning.native.build`)")
+    return None
+
+
+def _report(problem: str) -> None:
+    """One line on stderr: the library is not used, and why (not repeated by child processes)."""
+    line = f"pbdyn: {LIBRARY} {problem}; planners use the ruckig Python package"
+    if os.environ.get(_REPORTED) != line:
+        print(line, file=sys.stderr, flush=True)
+        os.environ[_REPORTED] = line
 
 
 def _load(path) -> ctypes.CDLL:
@@ -121,26 +166,27 @@ def agrees(lib: ctypes.CDLL, n: int = 300) -> bool:
 
 @functools.cache
 def ruckig_build_address() -> int | None:
-    """The address of the library's pbdyn_ruckig_build if it is present, current and agrees with the ruckig
-    package (module doc); None otherwise (a present but unusable library gets a one-time warning)."""
+    """The address of the library's pbdyn_ruckig_build if it is present, intact, current and agrees with the
+    ruckig package (module doc); None otherwise (a present but unusable library is reported once: _report)."""
     if os.environ.get("PBDYN_NATIVE", "1") == "0" or not LIBRARY.is_file():
+        return None
+    problem = integrity_problem(LIBRARY)
+    if problem is not None:
+        _report(problem)
         return None
     try:
         lib = _load(LIBRARY)
         built_for = lib.pbdyn_ruckig_version().decode()
-    except (OSError, AttributeError) as exc:
-        warnings.warn(f"pbdyn: cannot load {LIBRARY.name} ({exc}); planners use the ruckig Python package",
-                      RuntimeWarning, stacklevel=2)
+    except (OSError, AttributeError, UnicodeDecodeError) as exc:
+        _report(f"cannot be loaded ({exc})")
         return None
     installed = importlib.metadata.version("ruckig")
     if built_for != installed:
-        warnings.warn(f"pbdyn: {LIBRARY.name} was built for ruckig {built_for}, ruckig {installed} is installed; "
-                      "rebuild it with `python -m pbdyn.planning.native.build` (planners use the Python package)",
-                      RuntimeWarning, stacklevel=2)
+        _report(f"was built for ruckig {built_for}, ruckig {installed} is installed (rebuild it with "
+                "`python -m pbdyn.planning.native.build`)")
         return None
     if not agrees(lib):
-        warnings.warn(f"pbdyn: {LIBRARY.name} differs from the ruckig Python package on this machine; planners use "
-                      "the Python package", RuntimeWarning, stacklevel=2)
+        _report("differs from the ruckig Python package on this machine")
         return None
     _KEEP.append(lib)
     return ctypes.cast(lib.pbdyn_ruckig_build, ctypes.c_void_p).value

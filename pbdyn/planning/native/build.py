@@ -3,9 +3,10 @@
 ``python -m pbdyn.planning.native.build`` downloads the installed ruckig version's source distribution from the
 package index (or takes ``--sdist PATH``), compiles its trajectory calculator with this module's ruckig_batch.cpp
 into one shared library next to this file (C++20 compiler: $CXX, else c++ / g++ / clang++; flags as ruckig's
-release build, -O3 -DNDEBUG), and replaces an earlier build atomically. `make` runs it; without a compiler or the
-network the planners keep to the ruckig Python package (same results, slower). Exit status 0 on success, 1 with a
-one-line reason otherwise.
+release build, -O3 -DNDEBUG), runs it once on the probe inputs in a child process, and replaces an earlier build
+atomically, recording its sha256 beside it (the planners load only a library that matches that record). `make`
+runs it; without a compiler or the network the planners keep to the ruckig Python package (same results, slower).
+Exit status 0 on success, 1 with a one-line reason otherwise.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from pbdyn.planning.native import LIBRARY
+from pbdyn.planning.native import LIBRARY, write_checksum
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "ruckig_batch.cpp"
@@ -93,15 +94,30 @@ def build(sdist: Path | None = None, output: Path = LIBRARY) -> Path:
         if done.returncode != 0:
             first = next((ln for ln in done.stderr.splitlines() if "error" in ln), done.stderr.strip()[:200])
             raise BuildError(f"{Path(cxx).name} failed: {first}")
+        probe(staged)
         final_tmp = output.with_name(output.name + ".tmp")
         try:
             output.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(staged, final_tmp)
             os.replace(final_tmp, output)
+            write_checksum(output)
         except OSError as exc:
             final_tmp.unlink(missing_ok=True)
             raise BuildError(f"cannot write {output} ({exc.strerror})") from exc
     return output
+
+
+def probe(path: Path) -> None:
+    """Load the library at ``path`` and run it on the probe inputs in a child process (a broken library may end
+    its process with a signal); BuildError if that child does not finish cleanly."""
+    code = ("import sys; from pathlib import Path; from pbdyn.planning import native; "
+            "native.agrees(native._load(Path(sys.argv[1])))")
+    paths = (str(HERE.parents[2]), os.environ.get("PYTHONPATH"))     # the child imports this pbdyn
+    env = dict(os.environ, PBDYN_NATIVE="0", PYTHONPATH=os.pathsep.join(p for p in paths if p))
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, env=env)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or [f"exit status {done.returncode}"])[-1]
+        raise BuildError(f"the built library failed its probe run ({last})")
 
 
 def main(argv: list[str] | None = None) -> int:
