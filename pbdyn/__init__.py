@@ -1,7 +1,7 @@
 """pbdyn: a PyBullet testbed for MAV dynamic obstacle avoidance and environment difficulty.
 
 The public Python API (pbdyn.api, README "Python API"): load_scenario, rollout, run_trial, compute_metrics,
-run_batch, merge_results, open_results, check_planner; the errors they raise (ConfigError, PbdynError) and the
+run_batch, merge_results, open_results, generate_maps, check_planner; the errors they raise (ConfigError, PbdynError) and the
 warning they give (PbdynWarning); TrialResult and Outcome.
 Names are imported on first use, so ``import pbdyn`` stays fast.
 """
@@ -9,7 +9,7 @@ Names are imported on first use, so ``import pbdyn`` stays fast.
 __version__ = "0.1.0"
 
 _API = ("load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_heatmaps", "metric_backend", "run_batch", "merge_results",
-        "replay", "open_results",
+        "replay", "open_results", "generate_maps",
         "Results", "export_results", "evaluate", "check_planner", "run_demo")
 _OTHER = {"ConfigError": "pbdyn.errors", "PbdynError": "pbdyn.errors", "PbdynWarning": "pbdyn.errors",
           "TrialResult": "pbdyn.sim.result",

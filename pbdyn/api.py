@@ -32,6 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover - the heavy modules load on first use
     from pbdyn.world.rollout import Rollout
 
 __all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_heatmaps", "metric_backend", "run_batch", "merge_results", "replay", "open_results",
+           "generate_maps",
            "Results", "export_results", "evaluate", "check_planner", "run_demo"]
 
 
@@ -256,6 +257,61 @@ def replay(trace: str | Path, out: str | Path, *, fps: float | None = None, ever
     from pbdyn.analysis.replay import write_replay
 
     return write_replay(_path(trace, "trace"), _path(out, "out"), fps=fps, every=every)
+
+
+def generate_maps(out: str | Path | None, *, metric: str, target: float, tolerance: float, count: int = 20,
+                  family: str = "uniform", dims: int = 2, scenario=None, fixed: Mapping | None = None,
+                  seed: int = 0, workers: int | None = None, progress: bool = False):
+    """`pbdyn generate --metric`: ``count`` maps of generator ``family`` (a built-in structure) in ``dims`` D whose
+    measured ``metric`` lies within ``tolerance`` of ``target`` (thesis 5-2-2; pbdyn.experiments.generate), written
+    to ``out`` (a scenario .toml whose maps 0..count-1 are the found maps; None: not written). ``scenario``: the
+    base whose world, MAV, sensor, task and planners the file takes (a path, bundled name or dict shaped like the
+    TOML file; default pbdyn's defaults, 50 m arena); ``fixed``: setup values held fixed, e.g. {"count": 10};
+    ``seed``: the file's obstacles.root_seed and the search's seed. Returns a GeneratedMaps (maps, document,
+    candidates, reachable, coefficients, wall_time_s). Unreachable targets raise ConfigError naming the range."""
+    import tomllib
+
+    from pbdyn.errors import check_writable_file
+    from pbdyn.experiments.generate import MetricTarget, generate_by_metric, write_scenario
+
+    if out is not None:
+        out = _path(out, "out")
+        if Path(out).suffix.lower() != ".toml":
+            raise ConfigError("out", "must name a .toml scenario file", str(out))
+        check_writable_file("out", out, make_parents=True)
+    base: dict = {}
+    if scenario is not None:
+        if isinstance(scenario, Mapping):
+            base = dict(scenario)
+        elif isinstance(scenario, (str, os.PathLike)):
+            from pbdyn import resources
+
+            sc = load_scenario(scenario)           # validates it first
+            base = tomllib.loads(resources.find_scenario(scenario).read_text(encoding="utf-8"))
+            if sc.is_world:
+                raise ConfigError("scenario", "is an imported world; generate needs a scenario with generated "
+                                  "obstacles", str(scenario))
+        else:
+            raise ConfigError("scenario", "must be a path, a bundled scenario name or a dict", scenario)
+        base.pop("name", None)
+    workers = _workers(workers)
+    req = MetricTarget(metric, target, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
+    result = generate_by_metric(req, workers=workers, progress=progress)
+    if out is not None:
+        header = (f"pbdyn generate: {len(result.maps)} maps of family {family!r} ({dims}D) with {metric} within "
+                  f"{tolerance:g} of {target:g}\n(map i of this file is the i-th [[obstacles.maps]] entry; "
+                  "measured values as found when it was chosen)")
+        write_scenario(out, result.document, header)
+    return result
+
+
+def _workers(workers) -> int:
+    """``workers`` (None: the CPU count) as an int >= 1; ConfigError naming it otherwise."""
+    if workers is None:
+        return max(1, os.cpu_count() or 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError("workers", "must be an integer >= 1", workers)
+    return workers
 
 
 def merge_results(out: str | Path, inputs):

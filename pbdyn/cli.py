@@ -51,6 +51,23 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _positive_int(text: str) -> int:
+    v = _nonneg_int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1 (got {text!r})")
+    return v
+
+
+def _finite_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number (got {text!r})") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be a finite number (got {text!r})")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = _Parser(prog="pbdyn", description="PyBullet testbed for MAV dynamic obstacle avoidance benchmarking.")
@@ -71,6 +88,24 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", help="save per-step MAV state, yaw, tracks and plans to this .npz file")
     run.add_argument("--replay", help="also write the trial's replay (.gif, .mp4 or .png; see pbdyn replay)")
     run.add_argument("--json", action="store_true", help="print the result as one JSON document")
+
+    gen = sub.add_parser("generate", help="maps of a chosen difficulty, written as a scenario file (thesis 5-2-2)")
+    gen.add_argument("--metric", required=True, help="the metric to hit (e.g. survivability)")
+    gen.add_argument("--target", type=_finite_float, required=True, help="the metric's target value (its unit)")
+    gen.add_argument("--tolerance", type=_positive_float, required=True, help="keep maps within +- this of it")
+    gen.add_argument("--count", type=_positive_int, default=20, help="maps to find (default 20)")
+    gen.add_argument("--out", required=True, help="the scenario .toml to write (maps 0..count-1)")
+    gen.add_argument("--family", default="uniform", help="generator family: a built-in structure (uniform, "
+                     "clustered, crossing, walls, mixed, spread, rvo; default uniform)")
+    gen.add_argument("--dims", type=int, choices=(2, 3), default=2, help="2 (default) or 3")
+    gen.add_argument("--scenario", help="base scenario: its world, MAV, sensor, task and planners (default: "
+                     "pbdyn's defaults, 50 m arena)")
+    gen.add_argument("--obstacles", type=_positive_int, help="hold the obstacle count fixed")
+    gen.add_argument("--radius", type=_positive_float, help="hold the obstacle radius (m) fixed")
+    gen.add_argument("--speed", type=_positive_float, help="hold the obstacle speed (m/s) fixed")
+    gen.add_argument("--seed", type=_nonneg_int, default=0, help="the file's root_seed and the search's (default 0)")
+    gen.add_argument("--workers", type=_positive_int, help="processes measuring candidates (default: CPU count)")
+    gen.add_argument("--json", action="store_true", help="print a JSON summary")
 
     ro = sub.add_parser("rollout", help="compute a map's rollout and save it as .npz")
     ro.add_argument("scenario")
@@ -152,7 +187,9 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "backend": "--backend", "workers": "--workers", "scheduler": "--scheduler", "limit": "--limit",
          "lockstep": "--lockstep", "replay": "--replay", "fps": "--fps", "every": "--every", "plot": "--plot",
          "gui_snapshot": "--gui-snapshot", "html": "--html", "out": "--out", "plots": "--plots", "csv": "--csv",
-         "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS"}
+         "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS",
+         "target": "--target", "tolerance": "--tolerance", "count": "--count", "family": "--family", "dims": "--dims",
+         "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
@@ -296,6 +333,24 @@ def cmd_merge(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_generate(args: argparse.Namespace) -> int:
+    fixed = {k: v for k, v in (("count", args.obstacles), ("radius", args.radius), ("speed", args.speed))
+             if v is not None}
+    res = api.generate_maps(args.out, metric=args.metric, target=args.target, tolerance=args.tolerance,
+                            count=args.count, family=args.family, dims=args.dims, scenario=args.scenario, fixed=fixed,
+                            seed=args.seed, workers=args.workers, progress=not args.json)
+    doc = {"out": args.out, **res.summary()}
+    if args.json:
+        sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+    else:
+        lo, hi = res.reachable
+        sys.stdout.write(f"{args.out}: {len(res.maps)} maps of family {args.family} ({args.dims}D) with {args.metric} "
+                         f"{args.target:g} +- {args.tolerance:g} ({min(doc['values']):.3g} to "
+                         f"{max(doc['values']):.3g}); {res.candidates} candidates measured, pilot range {lo:.3g} to "
+                         f"{hi:.3g}; {res.wall_time_s:.1f} s ({doc['seconds_per_map']:.2f} s per map)\n")
+    return 0
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     fmt = "csv" if args.csv is not None else "parquet"
     target = args.csv if args.csv is not None else args.parquet
@@ -319,7 +374,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
-            "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge, "replay": cmd_replay}
+            "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge, "replay": cmd_replay,
+            "generate": cmd_generate}
 
 
 def _warning_line(show):

@@ -244,7 +244,7 @@ class MapEntry:
     (count, radius m, speed m/s, structure or None) and replicate, which with obstacles.root_seed make its seed
     exactly as a grid map's (pbdyn.world.maps.MapSpec); ``seed``: the seed recorded with it (checked at load, so a
     file whose maps would change is refused), ``measured``: values measured when the map was chosen (kept, not
-    used), ``generator``: how it was chosen (kept, not used)."""
+    used)."""
 
     count: int
     radius: "GridValue"
@@ -253,7 +253,6 @@ class MapEntry:
     replicate: int = 0
     seed: int | None = None
     measured: dict = field(default_factory=dict)
-    generator: dict = field(default_factory=dict)
 
     def setup(self) -> dict:
         """The setup values, as a grid map's setup (structure only when given)."""
@@ -746,7 +745,7 @@ def _parse_map_list(t: Mapping) -> ObstacleConfig:
         where = f"obstacles.maps[{i}]"
         if not isinstance(m, Mapping):
             raise ConfigError(where, "must be a table", m)
-        _no_unknown(m, ("count", "radius", "speed", "structure", "replicate", "seed", "measured", "generator"), where)
+        _no_unknown(m, ("count", "radius", "speed", "structure", "replicate", "seed", "measured"), where)
         for key in ("count", "radius", "speed"):
             if key not in m:
                 raise ConfigError(f"{where}.{key}", "is required", None, show_value=False)
@@ -763,14 +762,11 @@ def _parse_map_list(t: Mapping) -> ObstacleConfig:
                 names.append(structure)
         replicate = _integer(m, "replicate", where, 0, lo=0)
         seed = _integer(m, "seed", where, None, lo=0) if "seed" in m else None
-        info = {}
-        for key in ("measured", "generator"):
-            v = m.get(key, {})
-            if not isinstance(v, Mapping):
-                raise ConfigError(f"{where}.{key}", "must be a table", v)
-            info[key] = json.loads(canonical_json(dict(v)))
-        entries.append(MapEntry(count, radius, speed, structure, replicate, seed, info["measured"],
-                                info["generator"]))
+        measured = m.get("measured", {})
+        if not isinstance(measured, Mapping) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in measured.values()):
+            raise ConfigError(f"{where}.measured", "must be a table of finite numbers", measured)
+        entries.append(MapEntry(count, radius, speed, structure, replicate, seed, dict(measured)))
     keys = [canonical_json({"setup": e.setup(), "replicate": e.replicate}) for e in entries]
     for i, k in enumerate(keys):
         if keys.index(k) != i:
