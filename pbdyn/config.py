@@ -428,7 +428,8 @@ class TrackingConfig:
 
 @dataclass(frozen=True)
 class TaskConfig:
-    """Start/goal candidates [[x, y(, z)], ...] (m; () = default_candidates(world)), goal_radius (m), spawn_clearance
+    """Start/goal candidates [[x, y(, z)], ...] (m; () = default_candidates(world)), pairs_flown (the ordered
+    (start, goal) candidate index pairs an experiment flies; () = all), goal_radius (m), spawn_clearance
     (m) around each candidate's MAV disc, deadlock_steps (consecutive planning failures at rest), and the start
     rule (pbdyn.sim.start): start_rule (START_RULES), start_clearance (m between the MAV disc at the start and
     every obstacle; "program": every obstacle centre), start_window_s (s the start must stay clear,
@@ -444,11 +445,18 @@ class TaskConfig:
     start_window_s: float = 1.0
     start_wait_max_s: float = 10.0
     start_yaw_deg: float | None = None
+    pairs_flown: tuple[tuple[int, int], ...] = ()
 
     def pairs(self) -> list[tuple[int, int]]:
         """All ordered (start, goal) index pairs with start != goal (72 for 9 candidates)."""
         n = len(self.candidates)
         return [(i, j) for i in range(n) for j in range(n) if i != j]
+
+    def flown_pairs(self) -> list[tuple[int, int]]:
+        """The ordered (start, goal) index pairs an experiment flies: pairs_flown, or all of pairs() when it is
+        empty. (Maps are built around every candidate either way: the candidates, not the pairs flown, shape
+        them.)"""
+        return [tuple(p) for p in self.pairs_flown] if self.pairs_flown else self.pairs()
 
 
 @dataclass(frozen=True)
@@ -524,6 +532,8 @@ class Scenario:
             d["obstacles"].pop("structures", None)
         if not self.obstacles.maps:
             d["obstacles"].pop("maps", None)
+        if not self.task.pairs_flown:
+            d["task"].pop("pairs_flown", None)
         return json.loads(json.dumps(d, default=_json_default))
 
     def setups(self) -> list[dict]:
@@ -544,11 +554,11 @@ class Scenario:
     def n_trials(self) -> int:
         """Trials a batch of this scenario flies: maps (setups x maps_per_setup) x ordered start/goal pairs x v_max
         values x planner entries (not limited; see pbdyn.limits)."""
-        n = len(self.task.candidates)
+        n_pairs = len(self.task.flown_pairs())
         maps = len(self.obstacles.maps) or (math.prod(len(getattr(self.obstacles, k))
                                                       for k in self.obstacles.grid_order)
                                             * self.obstacles.maps_per_setup)
-        return maps * n * (n - 1) * len(self.drone.v_max) * len(self.planners)
+        return maps * n_pairs * len(self.drone.v_max) * len(self.planners)
 
     def mav_urdf_path(self) -> Path:
         """Absolute path of the MAV URDF (relative paths: the scenario's folder, then the bundled urdf/)."""
@@ -1147,7 +1157,7 @@ def default_candidates(world: WorldConfig) -> tuple[tuple[float, ...], ...]:
 def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskConfig:
     t = _table(doc, "task")
     _no_unknown(t, ("candidates", "goal_radius", "spawn_clearance", "deadlock_steps", "start_rule", "start_clearance",
-                    "start_window_s", "start_wait_max_s", "start_yaw_deg"), "task")
+                    "start_window_s", "start_wait_max_s", "start_yaw_deg", "pairs_flown"), "task")
     d = _defaults(TaskConfig)
     if "candidates" in t:
         raw = t["candidates"]
@@ -1174,7 +1184,27 @@ def _parse_task(doc: Mapping, world: WorldConfig, drone: DroneConfig) -> TaskCon
     wait = _number(t, "start_wait_max_s", "task", d["start_wait_max_s"], lo=0.0, hi=limits.MAX_START_WAIT_S)
     yaw = None if t.get("start_yaw_deg") == "goal" else _number(t, "start_yaw_deg", "task", d["start_yaw_deg"],
                                                                  lo=-360.0, hi=360.0)
-    return TaskConfig(cands, goal_radius, clearance, deadlock, rule, start_clearance, window, wait, yaw)
+    flown = _pairs_flown(t, len(cands))
+    return TaskConfig(cands, goal_radius, clearance, deadlock, rule, start_clearance, window, wait, yaw, flown)
+
+
+def _pairs_flown(t: Mapping, n: int) -> tuple[tuple[int, int], ...]:
+    """task.pairs_flown: distinct [start, goal] index pairs of the n candidates, start != goal (() if absent)."""
+    if "pairs_flown" not in t:
+        return ()
+    raw = t["pairs_flown"]
+    if not isinstance(raw, list) or not raw:
+        raise ConfigError("task.pairs_flown", "must be a non-empty list of [start, goal] candidate index pairs", raw)
+    out = []
+    for k, p in enumerate(raw):
+        ok = isinstance(p, list) and len(p) == 2 and all(isinstance(x, int) and not isinstance(x, bool) for x in p)
+        if not ok or not all(0 <= x < n for x in p) or p[0] == p[1]:
+            raise ConfigError(f"task.pairs_flown[{k}]", f"must be [start, goal]: two different candidate indices in "
+                              f"[0, {n - 1}]", p)
+        out.append((p[0], p[1]))
+    if len(set(out)) != len(out):
+        raise ConfigError("task.pairs_flown", "must list each pair once", raw)
+    return tuple(out)
 
 
 def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:

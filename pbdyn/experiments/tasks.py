@@ -159,8 +159,8 @@ class TrialSequence(Sequence):
         self.cands = tuple(tuple(c) for c in scenario.task.candidates)
         self.speeds = tuple(float(v) for v in scenario.drone.v_max)
         self.entries = tuple(scenario.planners)
-        n = len(self.cands)
-        self.n_pairs = n * (n - 1)
+        self.pairs = tuple(scenario.task.flown_pairs())
+        self.n_pairs = len(self.pairs)
         self.per_map = len(self.entries) * len(self.speeds) * self.n_pairs
         self._keys: _TrialKeys | None = None
 
@@ -168,10 +168,8 @@ class TrialSequence(Sequence):
         return len(self.maps) * self.per_map
 
     def pair(self, p: int) -> tuple[int, int]:
-        """The p-th ordered (start, goal) index pair, as scenario.task.pairs()[p]."""
-        n1 = len(self.cands) - 1
-        i, r = divmod(p, n1)
-        return i, r + (r >= i)
+        """The p-th ordered (start, goal) index pair flown, scenario.task.flown_pairs()[p]."""
+        return self.pairs[p]
 
     def _split(self, idx: int) -> tuple[int, int, int, int]:
         m, rem = divmod(idx, self.per_map)

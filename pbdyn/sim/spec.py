@@ -78,7 +78,7 @@ def _scenario_part(scenario: Scenario) -> dict:
     skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
     obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
     drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}
-    task = {k: v for k, v in sc["task"].items() if k != "candidates"}
+    task = {k: v for k, v in sc["task"].items() if k not in ("candidates", "pairs_flown")}
     later = later_fields("tracking", sc["tracking"])
     tracking = {k: v for k, v in sc["tracking"].items() if k not in later}
     part = {
