@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover - the heavy modules load on first use
     from pbdyn.world.rollout import Rollout
 
 __all__ = ["load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_heatmaps", "metric_backend", "run_batch", "merge_results", "replay", "open_results",
-           "generate_maps",
+           "generate_maps", "calibrate",
            "Results", "export_results", "evaluate", "check_planner", "run_demo"]
 
 
@@ -303,6 +303,26 @@ def generate_maps(out: str | Path | None, *, metric: str, target: float, toleran
                   "measured values as found when it was chosen)")
         write_scenario(out, result.document, header)
     return result
+
+
+def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: int | None = None,
+              progress: bool = False):
+    """`pbdyn calibrate`: fly the reference panel on the scenario's maps (all, or the indices ``maps``) into the
+    results store ``store`` (default: one in the cache, keyed by what is flown; resumable) and return each map's
+    measured difficulty on the anchored scale (pbdyn.experiments.calibrate.MapDifficulty: reference success with a
+    95% interval, difficulty in logits with its interval and percentile among the calibration maps)."""
+    from pbdyn.experiments.calibrate import calibrate as _calibrate
+
+    if maps is not None:
+        maps = [maps] if isinstance(maps, int) and not isinstance(maps, bool) else maps
+        if not isinstance(maps, (list, tuple, range)) or not maps:
+            raise ConfigError("maps", "must be a map index or a non-empty list of them", maps)
+    if store is not None:
+        from pbdyn.experiments.store import check_store_path
+
+        store = check_store_path(_path(store, "store"), "store")
+    return _calibrate(scenario, maps=None if maps is None else list(maps), store=store, workers=_workers(workers),
+                      progress=progress)
 
 
 def _workers(workers) -> int:

@@ -89,6 +89,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--replay", help="also write the trial's replay (.gif, .mp4 or .png; see pbdyn replay)")
     run.add_argument("--json", action="store_true", help="print the result as one JSON document")
 
+    cal = sub.add_parser("calibrate", help="a map's measured difficulty on the anchored scale (the reference panel "
+                         "flies its reference tasks)")
+    cal.add_argument("scenario", help="scenario TOML file or imported world")
+    cal.add_argument("--map", type=_nonneg_int, action="append", help="map index (repeatable; default: every map)")
+    cal.add_argument("--store", help="results store of the flights (default: one in the cache; resumable)")
+    cal.add_argument("--workers", type=_positive_int, help="local processes (default: CPU count)")
+    cal.add_argument("--json", action="store_true", help="print the maps' difficulties as one JSON document")
+
     gen = sub.add_parser("generate", help="maps of a chosen difficulty, written as a scenario file (thesis 5-2-2)")
     gen.add_argument("--metric", required=True, help="the metric to hit (e.g. survivability)")
     gen.add_argument("--target", type=_finite_float, required=True, help="the metric's target value (its unit)")
@@ -189,7 +197,8 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "gui_snapshot": "--gui-snapshot", "html": "--html", "out": "--out", "plots": "--plots", "csv": "--csv",
          "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS",
          "target": "--target", "tolerance": "--tolerance", "count": "--count", "family": "--family", "dims": "--dims",
-         "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed"}
+         "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed",
+         "store": "--store", "maps": "--map"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
@@ -333,6 +342,18 @@ def cmd_merge(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from pbdyn.experiments.calibrate import format_difficulties
+
+    res = api.calibrate(args.scenario, maps=args.map, store=args.store, workers=args.workers,
+                        progress=not args.json)
+    if args.json:
+        sys.stdout.write(json.dumps({"maps": [r.to_dict() for r in res]}, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(format_difficulties(res))
+    return 0
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     fixed = {k: v for k, v in (("count", args.obstacles), ("radius", args.radius), ("speed", args.speed))
              if v is not None}
@@ -375,7 +396,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
             "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge, "replay": cmd_replay,
-            "generate": cmd_generate}
+            "generate": cmd_generate, "calibrate": cmd_calibrate}
 
 
 def _warning_line(show):

@@ -61,3 +61,64 @@ def reference_document(doc: dict, candidates) -> dict:
     out.setdefault("drone", {})["v_max"] = list(PANEL_SPEEDS)
     out.setdefault("task", {})["pairs_flown"] = [list(p) for p in reference_pairs(candidates)]
     return out
+
+
+# ------------------------------------------------------------------------------------------------ the anchored fit
+PRIOR_TRIALS = 1.0
+"""Pseudo-trials per map (half successes, by the average anchored respondent), as pbdyn.analysis.irt.fit_rasch:
+a map every panel trial of which succeeded (or failed) still gets a finite difficulty."""
+BOOTSTRAP = 1000
+"""Resamples of a map's reference tasks behind its 95% intervals (tasks, not trials, are resampled: the panel's
+trials of one task are not independent)."""
+ANCHORS_FILE = "anchors.json"
+"""The shipped calibration (pbdyn/analysis/data/): the respondents' abilities and the calibration maps'
+difficulties and reference successes."""
+
+
+def respondent(label: str, v_max: float) -> str:
+    """A respondent's name: the panel pair's label at one MAV speed, e.g. "lookahead+mpc@4"."""
+    return f"{label}@{float(v_max):g}"
+
+
+def sigmoid(x):
+    """1 / (1 + exp(-x)), elementwise."""
+    import numpy as np
+
+    return 1.0 / (1.0 + np.exp(-np.asarray(x, float)))
+
+
+def difficulty_given_abilities(theta, k, n, *, prior_trials: float = PRIOR_TRIALS):
+    """The maximum-likelihood difficulty b (logits) of a map whose respondents with fixed abilities ``theta`` [J]
+    succeeded ``k`` of ``n`` times (P = sigmoid(theta_j - b)), with ``prior_trials`` pseudo-trials, half
+    successes, at the mean ability. ``k``, ``n``: [J] (a float is returned) or [B, J] (B maps or resamples at once:
+    an array [B]). Newton's method on the concave log-likelihood."""
+    import numpy as np
+
+    theta = np.asarray(theta, float)
+    k = np.asarray(k, float)
+    n = np.asarray(n, float)
+    one = k.ndim == 1
+    k, n = np.atleast_2d(k), np.atleast_2d(n)
+    if prior_trials > 0:
+        theta = np.append(theta, theta.mean())
+        k = np.concatenate([k, np.full((k.shape[0], 1), 0.5 * prior_trials)], axis=1)
+        n = np.concatenate([n, np.full((n.shape[0], 1), float(prior_trials))], axis=1)
+    rate = np.clip(k.sum(axis=1) / np.maximum(n.sum(axis=1), 1e-300), 1e-6, 1 - 1e-6)
+    b = np.log((1.0 - rate) / rate) + theta.mean()
+    for _ in range(200):
+        p = sigmoid(theta[None, :] - b[:, None])
+        grad = np.sum(n * p - k, axis=1)                   # d logL / d b
+        curv = np.sum(n * p * (1.0 - p), axis=1)           # -d2 logL / d b2
+        step = grad / np.maximum(curv, 1e-12)
+        b = b + step
+        if np.all(np.abs(step) < 1e-12):
+            break
+    return float(b[0]) if one else b
+
+
+def ability_given_difficulties(b, k, n, *, prior_trials: float = PRIOR_TRIALS) -> float:
+    """The maximum-likelihood ability (logits) of one respondent that succeeded ``k`` [I] of ``n`` [I] times on
+    maps of fixed difficulties ``b`` [I] (the mirror of difficulty_given_abilities)."""
+    import numpy as np
+
+    return -difficulty_given_abilities(-np.asarray(b, float), k, n, prior_trials=prior_trials)

@@ -121,7 +121,7 @@ def _stop_on_signals() -> Iterator[None]:
 
 # ------------------------------------------------------------------------------------------------ --extend
 _GROWABLE = {("obstacles", "count"), ("obstacles", "radius"), ("obstacles", "speed"), ("drone", "v_max"),
-             ("planners",)}
+             ("planners",), ("obstacles", "maps")}
 
 
 def _diff(old, new, path=()) -> Iterator[tuple[tuple, object, object]]:

@@ -1,0 +1,129 @@
+"""Fit the anchored difficulty scale from the calibration flights and write what pbdyn ships (pbdyn/analysis/data/).
+
+    .venv/bin/pbdyn batch scenarios/calibration/calibration_2d.toml --out results/calibration/calibration_2d.sqlite
+    .venv/bin/python tools/fit_anchors.py --export results/calibration/calibration_2d.sqlite   # outcomes -> data/
+    .venv/bin/python tools/fit_anchors.py                                                     # anchors.json
+
+--export writes the panel's outcomes of a calibration store as a compact CSV (calibration_<dims>d.csv.gz: map,
+family, setup, task, respondent, success), the data the anchors are fitted on and that the tests refit. The fit:
+a 1PL model (pbdyn.analysis.irt.fit_rasch, statsmodels GLM, PRIOR_TRIALS pseudo-trials per map) of the 2D
+calibration set's outcomes, items = maps, respondents = panel pair x MAV speed; the abilities are shipped, which
+fixes the scale's zero (the mean difficulty of the 2D calibration maps) and unit (a logit). The calibration maps'
+difficulties per dims (for percentiles) are then each map's difficulty with the shipped abilities fixed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import gzip
+import io
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from pbdyn.analysis.scale import PRIOR_TRIALS, SCALE_VERSION, difficulty_given_abilities, respondent  # noqa: E402
+from pbdyn.experiments.calibrate import RESPONDENTS  # noqa: E402
+
+DATA = ROOT / "pbdyn" / "analysis" / "data"
+FIELDS = ("map_id", "map_index", "family", "count", "radius", "speed", "start", "goal", "respondent", "success")
+
+
+def export(store: Path) -> Path:
+    """Write the panel's outcomes of ``store`` to DATA/calibration_<dims>d.csv.gz; returns the path."""
+    from pbdyn.experiments.store import ResultsStore
+
+    st = ResultsStore.open(store)
+    try:
+        rows, doc = st.results(), json.loads(st.get_meta("scenario") or "{}")
+        maps = st.maps()
+    finally:
+        st.close()
+    dims = int(doc.get("world", {}).get("dims", 2))
+    out = []
+    for r in rows:
+        name = respondent(r.get("planner_label") or "", r.get("mav_speed") or 0.0)
+        if name not in RESPONDENTS:
+            continue
+        if r.get("outcome") == "error":
+            raise SystemExit(f"{store}: an error row on map {r.get('map_index')}; re-fly it first")
+        family = json.loads(r.get("map_key") or "{}").get("setup", {}).get("structure", "") if r.get("map_key") \
+            else ""
+        out.append((r["map_id"], r["map_index"], family, r["obstacle_count"], r["obstacle_radius"], r["obstacle_speed"],
+                    " ".join(f"{x:g}" for x in r["start"]), " ".join(f"{x:g}" for x in r["goal"]), name,
+                    int(r["outcome"] == "success")))
+    out.sort()
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(FIELDS)
+    w.writerows(out)
+    path = DATA / f"calibration_{dims}d.csv.gz"
+    DATA.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(gzip.compress(buf.getvalue().encode(), mtime=0))
+    del maps
+    return path
+
+
+def read_outcomes(path: Path) -> list[dict]:
+    """The rows of an exported outcomes file."""
+    with gzip.open(path, "rt") as f:
+        return list(csv.DictReader(f))
+
+
+def fit(outcomes_2d: list[dict]) -> dict:
+    """The anchors document from the 2D calibration outcomes (module doc)."""
+    from pbdyn.analysis.irt import fit_rasch
+
+    items = [r["map_id"] for r in outcomes_2d]
+    resp = [r["respondent"] for r in outcomes_2d]
+    y = np.array([int(r["success"]) for r in outcomes_2d], float)
+    res = fit_rasch(items, resp, y, prior_trials=PRIOR_TRIALS)
+    missing = [r for r in RESPONDENTS if r not in res.respondents]
+    if missing:
+        raise SystemExit(f"the calibration outcomes lack {', '.join(missing)}")
+    abilities = {r: round(float(a), 6) for r, a in zip(res.respondents, res.ability)}
+    return {"version": SCALE_VERSION, "abilities": {r: abilities[r] for r in RESPONDENTS},
+            "ability_se": {r: round(float(s), 6) for r, s in zip(res.respondents, res.ability_se)},
+            "source": f"fit_rasch (statsmodels GLM, {PRIOR_TRIALS:g} pseudo-trial per map) on calibration_2d: "
+                      f"{len(res.items)} maps, {int(y.size)} trials",
+            "converged": bool(res.converged)}
+
+
+def map_difficulties(outcomes: list[dict], abilities: dict) -> list[float]:
+    """Each map's difficulty with ``abilities`` fixed, in map order."""
+    theta = np.array([abilities[r] for r in RESPONDENTS])
+    col = {r: j for j, r in enumerate(RESPONDENTS)}
+    per: dict[str, np.ndarray] = {}
+    for r in outcomes:
+        a = per.setdefault(r["map_id"], np.zeros((2, len(RESPONDENTS))))
+        a[0, col[r["respondent"]]] += int(r["success"])
+        a[1, col[r["respondent"]]] += 1
+    return [round(float(difficulty_given_abilities(theta, a[0], a[1])), 6) for _, a in sorted(per.items())]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--export", nargs="+", type=Path, help="calibration stores to export (then stop)")
+    args = ap.parse_args(argv)
+    if args.export:
+        for store in args.export:
+            print(f"wrote {export(store).relative_to(ROOT)}")
+        return 0
+    doc = fit(read_outcomes(DATA / "calibration_2d.csv.gz"))
+    doc["difficulties"] = {}
+    for dims in (2, 3):
+        p = DATA / f"calibration_{dims}d.csv.gz"
+        if p.is_file():
+            doc["difficulties"][str(dims)] = map_difficulties(read_outcomes(p), doc["abilities"])
+    (DATA / "anchors.json").write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+    print(json.dumps(doc["abilities"], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
