@@ -585,6 +585,22 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {o!r}")
 
 
+def stable_hash64(text: str) -> int:
+    """A process-independent 64-bit hash of a string (first 8 bytes of its sha256)."""
+    import hashlib
+
+    return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:8], "big")
+
+
+def map_seed(root_seed: int, key: str) -> int:
+    """A 63-bit integer summarising a map's seed, SeedSequence([root_seed, stable_hash64(key)]) (DESIGN.md "Maps
+    and seeds"; ``key``: the map's canonical JSON of setup values and replicate)."""
+    import numpy as np
+
+    ss = np.random.SeedSequence([root_seed, stable_hash64(key)])
+    return int(ss.generate_state(2, np.uint64)[0] >> np.uint64(1))
+
+
 def canonical_json(obj: Any) -> str:
     """Canonical JSON (sorted keys, no spaces) used for hashes and keys."""
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=_json_default)
@@ -790,10 +806,9 @@ def _parse_map_list(t: Mapping) -> ObstacleConfig:
     out = replace(grid, maps=tuple(entries), structure=(), count=(entries[0].count,), radius=(entries[0].radius,),
                   speed=(entries[0].speed,), maps_per_setup=1,
                   grid_order=tuple(k for k in grid.grid_order if k != "structure"))
-    from pbdyn.world.maps import MapSpec
-
     for i, e in enumerate(entries):
-        if e.seed is not None and MapSpec(i, e.setup(), e.replicate, out.root_seed).seed != e.seed:
+        key = canonical_json({"setup": e.setup(), "replicate": e.replicate})
+        if e.seed is not None and map_seed(out.root_seed, key) != e.seed:
             raise ConfigError(f"obstacles.maps[{i}].seed", "is not the seed its setup values, replicate and "
                               "obstacles.root_seed give: the map would not be the one recorded (was root_seed or a "
                               "value edited?)", e.seed)

@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn.analysis.scale import (ANCHORS_FILE, BOOTSTRAP, PANEL, PANEL_SPEEDS, SCALE_VERSION,
-                                  difficulty_given_abilities, reference_document, respondent, sigmoid)
+                                  ability_given_difficulties, difficulty_given_abilities, reference_document,
+                                  respondent, sigmoid)
 from pbdyn.config import Scenario, canonical_json, parse_scenario
 from pbdyn.errors import ConfigError
 
@@ -102,10 +103,11 @@ def reference_scenario(scenario, maps=None) -> tuple[Scenario, dict[str, int]]:
     id -> the map's index in ``scenario``): its document with the panel, the panel speeds and the reference pairs
     (pbdyn.analysis.scale.reference_document); chosen maps become an explicit map list (the same maps). Relative
     paths resolve against the original file."""
-    from pbdyn import api
+    from pbdyn.config import load_scenario
     from pbdyn.world.maps import enumerate_maps
 
-    sc = api.load_scenario(scenario)
+    sc = scenario if isinstance(scenario, Scenario) else parse_scenario(scenario) if isinstance(scenario, dict) \
+        else load_scenario(scenario) if isinstance(scenario, (str, Path)) else None
     if isinstance(scenario, (str, Path)) and not isinstance(scenario, Scenario):
         from pbdyn import resources
 
@@ -266,4 +268,84 @@ def format_difficulties(res: list[MapDifficulty]) -> str:
         else:
             head += "; no anchored scale is shipped with this pbdyn (reference success only)"
         lines.append(head)
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------------------------ evaluate
+def place_on_scale(trials: list[dict], anchors: Anchors | None, dims: dict | None = None) -> dict:
+    """The anchored section of `pbdyn evaluate`: per dataset (store), its maps' difficulties estimated from the
+    panel respondents it holds (their shipped abilities fixed) and every respondent's ability given those
+    difficulties (logits, standard errors from the likelihood's curvature), or why it cannot be placed (no panel
+    pair at a panel speed). ``trials``: pbdyn.experiments.evaluate.load_results rows (map_id, pair, mav_speed,
+    outcome, dataset); ``dims``: dataset -> dims (for percentiles). Stores placed are on one scale: linked through
+    the fixed abilities, never re-centred."""
+    if anchors is None:
+        return {"anchored": False, "why": "no anchored scale is shipped with this pbdyn"}
+    theta = dict(anchors.abilities)
+    out = {"anchored": True, "scale": f"anchored-{SCALE_VERSION}/{anchors.version}", "datasets": {}}
+    by_set: dict[str, list[dict]] = {}
+    for t in trials:
+        by_set.setdefault(t["dataset"], []).append(t)
+    for name, rows in by_set.items():
+        cells: dict[tuple, list[int]] = {}
+        for t in rows:
+            c = cells.setdefault((t["map_id"], respondent(t.get("pair") or "", t.get("mav_speed") or 0.0)), [0, 0])
+            c[0] += t.get("outcome") == "success"
+            c[1] += 1
+        panel = sorted({r for (_, r) in cells if r in theta})
+        if not panel:
+            out["datasets"][name] = {"placed": False, "why": "no trial of a panel pair (" + ", ".join(
+                e.label for e in PANEL) + ") at a panel speed (" + "/".join(f"{v:g}" for v in PANEL_SPEEDS) +
+                " m/s): its maps and planners cannot be placed on the anchored scale"}
+            continue
+        maps = sorted({m for (m, _) in cells})
+        diff, se = {}, {}
+        for m in maps:
+            got = [(theta[r], *cells[(m, r)]) for r in panel if (m, r) in cells]
+            if not got:
+                continue
+            th, k, n = (np.array(x, float) for x in zip(*got))
+            b = difficulty_given_abilities(th, k, n)
+            p = sigmoid(th - b)
+            diff[m], se[m] = b, float(1.0 / np.sqrt(np.sum(n * p * (1 - p)) + 1e-12))
+        abil = {}
+        for r in sorted({r for (_, r) in cells}):
+            got = [(diff[m], *cells[(m, r)]) for m in maps if (m, r) in cells and m in diff]
+            if not got:
+                continue
+            b, k, n = (np.array(x, float) for x in zip(*got))
+            a = ability_given_difficulties(b, k, n)
+            p = sigmoid(a - b)
+            abil[r] = {"ability": a, "se": float(1.0 / np.sqrt(np.sum(n * p * (1 - p)) + 1e-12)),
+                       "anchor": theta.get(r), "trials": int(n.sum())}
+        vals = np.array(list(diff.values()))
+        d = (dims or {}).get(name, 2)
+        out["datasets"][name] = {
+            "placed": True, "panel_respondents": panel, "maps_placed": len(diff), "maps": len(maps),
+            "difficulty": {m: {"logit": diff[m], "se": se[m], "percentile": anchors.percentile(diff[m], d)}
+                           for m in diff},
+            "difficulty_mean": float(vals.mean()), "difficulty_range": [float(vals.min()), float(vals.max())],
+            "abilities": abil}
+    placed = [n for n, v in out["datasets"].items() if v["placed"]]
+    out["one_scale"] = placed
+    return out
+
+
+def format_scale(section: dict) -> str:
+    """The anchored section as text lines."""
+    if not section.get("anchored"):
+        return f"Anchored scale: {section.get('why')}.\n"
+    lines = [f"Anchored scale ({section['scale']}; zero = mean difficulty of the 2D calibration maps, unit = 1 "
+             "logit; higher = harder). Placed on it (one scale): " + (", ".join(section["one_scale"]) or "none")]
+    for name, d in section["datasets"].items():
+        if not d["placed"]:
+            lines.append(f"  {name}: {d['why']}")
+            continue
+        lo, hi = d["difficulty_range"]
+        lines.append(f"  {name}: {d['maps_placed']} of {d['maps']} maps placed by {len(d['panel_respondents'])} panel "
+                     f"respondent(s); difficulty mean {d['difficulty_mean']:+.2f} logits (range {lo:+.2f} to "
+                     f"{hi:+.2f})")
+        for r, a in d["abilities"].items():
+            anchor = f" (anchor {a['anchor']:+.2f})" if a["anchor"] is not None else ""
+            lines.append(f"    ability {r:<36} {a['ability']:+.2f} +- {a['se']:.2f}{anchor}  ({a['trials']} trials)")
     return "\n".join(lines) + "\n"

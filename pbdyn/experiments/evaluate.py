@@ -81,12 +81,28 @@ def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None,
     from pbdyn.analysis.figure_tables import figure_tables
     from pbdyn.analysis.report import evaluate, format_table
 
+    from pbdyn.experiments.calibrate import format_scale, load_anchors, place_on_scale
+
     trials, maps, controlled = load_results(paths, pool)
     report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
     report["figures"] = figure_tables(trials, maps, report)
+    report["anchored_scale"] = place_on_scale(trials, load_anchors(), _dims(paths, pool))
     figures: list[Path] = []
     if plots is not None:
         from pbdyn.analysis.plots import write_plots
 
         figures = write_plots(trials, maps, report, Path(plots))
-    return report, format_table(report), figures
+    return report, format_table(report) + "\n" + format_scale(report["anchored_scale"]), figures
+
+
+def _dims(paths, pool: bool) -> dict:
+    """dataset name -> dims of each store's scenario (for percentiles on the anchored scale)."""
+    out = {}
+    for path in paths:
+        st = ResultsStore.open(path)
+        try:
+            doc = json.loads(st.get_meta("scenario") or "{}")
+        finally:
+            st.close()
+        out[POOLED if pool else (doc.get("name") or Path(path).stem)] = int(doc.get("world", {}).get("dims", 2))
+    return out

@@ -36,6 +36,7 @@ import numpy as np
 
 from pbdyn.config import BUILTIN_STRUCTURES, Scenario, canonical_json, parse_scenario
 from pbdyn.errors import ConfigError
+from pbdyn.metrics.catalog import INFO, NAMES
 
 FAMILIES = tuple(BUILTIN_STRUCTURES)
 """The generator families: pbdyn's built-in structures (README "Structured worlds")."""
@@ -49,13 +50,8 @@ MAX_CANDIDATES_PER_MAP = 40
 DECIMALS = {"radius": 2, "speed": 2}
 """Radii and speeds of generated maps are rounded to this many decimals (readable files)."""
 
-METRIC_HORIZON_S = {"survivability": 12.0, "survivability_dense": 12.0, "global_survivability": 44.0,
-                    "dynamic_traversability": 10.0}
-"""Seconds of rollout each metric reads (its T_max and start times); the others read t = 0 only."""
-
-METRICS = ("survivability", "survivability_dense", "global_survivability", "density", "traversability",
-           "traversability_dense", "dynamic_traversability", "vo_feasibility", "vo_feasibility_dense", "flux",
-           "static_share")
+METRICS = NAMES
+"""Every map metric can be a target (pbdyn.metrics.catalog)."""
 
 
 @dataclass(frozen=True)
@@ -183,7 +179,7 @@ def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]
     from pbdyn.world.rollout import build_rollout
 
     backend = resolve_backend(scenario, "auto")
-    horizon = METRIC_HORIZON_S.get(metric, 0.0) + scenario.world.dt
+    horizon = INFO[metric].horizon_s + scenario.world.dt
     params = metric_params(scenario, metric, backend)
     out = []
     for i, setup, rep in entries:

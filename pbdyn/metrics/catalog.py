@@ -24,7 +24,8 @@ class MetricInfo:
     computes the table's metrics and the baselines per map). thesis_time_s: the table's compute time per map (s).
     baseline: a closed-form baseline that needs no simulation (pbdyn.metrics.baselines); every metric is judged
     against these (DESIGN.md "Difficulty: what counts as evidence"). per_point: its per-sample values belong to
-    points of the map (the sample grid), so it can be drawn as a heat map (`pbdyn metrics --plot`).
+    points of the map (the sample grid), so it can be drawn as a heat map (`pbdyn metrics --plot`). horizon_s:
+    the seconds of rollout it reads at its default parameters (0: the state at t = 0 only).
     """
 
     name: str
@@ -40,6 +41,7 @@ class MetricInfo:
     thesis_time_s: float | None = None
     baseline: bool = False
     per_point: bool = False
+    horizon_s: float = 0.0
 
 
 _M = "pbdyn.metrics."
@@ -50,17 +52,19 @@ METRIC_TABLE: tuple[MetricInfo, ...] = (
     MetricInfo("traversability_dense", "traversability (dense)", "m", EASIER, "3-2", _M + "traversability",
                sparse="traversability"),
     MetricInfo("dynamic_traversability", "dynamic traversability", "m", EASIER, "3-3", _M + "traversability",
-               table_row=3, thesis_time_s=30.0),
+               table_row=3, thesis_time_s=30.0, horizon_s=10.0),
     MetricInfo("vo_feasibility", "VO feasibility", "1", EASIER, "3-4, 3-5", _M + "vo", dense="vo_feasibility_dense",
                table_row=7, thesis_time_s=7.0, per_point=True),
     MetricInfo("vo_feasibility_dense", "VO feasibility (dense)", "1", EASIER, "3-4, 3-5", _M + "vo",
                sparse="vo_feasibility", table_row=8, thesis_time_s=15.0, per_point=True),
     MetricInfo("survivability", "survivability", "s", EASIER, "3-6", _M + "survivability",
-               dense="survivability_dense", backend=True, table_row=4, thesis_time_s=20.0, per_point=True),
+               dense="survivability_dense", backend=True, table_row=4, thesis_time_s=20.0, per_point=True,
+               horizon_s=12.0),
     MetricInfo("survivability_dense", "survivability (dense)", "s", EASIER, "3-6", _M + "survivability",
-               sparse="survivability", backend=True, table_row=5, thesis_time_s=90.0, per_point=True),
+               sparse="survivability", backend=True, table_row=5, thesis_time_s=90.0, per_point=True,
+               horizon_s=12.0),
     MetricInfo("global_survivability", "global survivability", "s", EASIER, "3-7", _M + "survivability",
-               backend=True, table_row=6, thesis_time_s=20.0),
+               backend=True, table_row=6, thesis_time_s=20.0, horizon_s=44.0),
     MetricInfo("flux", "swept-area rate (baseline)", "1/s", HARDER, "-", _M + "baselines", baseline=True),
     MetricInfo("static_share", "static share (baseline)", "1", HARDER, "-", _M + "baselines", baseline=True),
 )

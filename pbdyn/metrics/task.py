@@ -78,8 +78,17 @@ def corridor_flux(rollout, start, goal, *, start_time: float = 0.0, mav_radius: 
     pts, _ = split_static(rollout, pts, mav_radius)
     if pts.shape[0] == 0:
         return float("nan"), 0
+    return points_flux(rollout, pts, start_time=start_time, mav_radius=mav_radius, horizon=horizon,
+                       radii=radii), int(pts.shape[0])
+
+
+def points_flux(rollout, pts: np.ndarray, *, start_time: float = 0.0, mav_radius: float = 1.0,
+                horizon: float = 12.0, radii: np.ndarray | None = None) -> float:
+    """corridor_flux's closed form (1/s) on given samples [n, d] (m, n > 0): (sample, obstacle) pairs whose straight
+    path over ``horizon`` s from ``start_time`` passes within r_i + r_MAV of the sample, per sample and second."""
+    horizon = positive("horizon", horizon)
     if rollout.n_obstacles == 0:
-        return 0.0, int(pts.shape[0])
+        return 0.0
     k = rollout.step_index(float(start_time))
     p = np.asarray(rollout.positions[k], dtype=float).reshape(rollout.n_obstacles, -1)
     v = np.asarray(rollout.velocities[k], dtype=float).reshape(rollout.n_obstacles, -1)
@@ -92,4 +101,4 @@ def corridor_flux(rollout, start, goal, *, start_time: float = 0.0, mav_radius: 
     tau = np.clip(tau, 0.0, horizon)
     closest = rel - tau[:, :, None] * v[None, :, :]
     hit = np.sum(closest * closest, axis=2) < (r[None, :] + mav_radius) ** 2
-    return float(np.count_nonzero(hit) / (pts.shape[0] * horizon)), int(pts.shape[0])
+    return float(np.count_nonzero(hit) / (pts.shape[0] * horizon))

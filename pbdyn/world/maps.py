@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from pbdyn.config import Range, Scenario, _json_default, canonical_json
+from pbdyn.config import Range, Scenario, _json_default, canonical_json, map_seed, stable_hash64
 from pbdyn.errors import ConfigError
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.structure import (cluster_centres, draw_radii_speeds, proposals, structure_of,
@@ -36,11 +36,6 @@ PROGRAM_SPAWN_PX = 20.0
 PROGRAM_METRICS_START = (4.0, 4.0)
 """Where the program's MAV stood when it computed a map's metrics (its default start, 50 px, 50 px), in pbdyn's frame:
 the obstacles of a metrics map were spawned around it."""
-
-
-def stable_hash64(text: str) -> int:
-    """A process-independent 64-bit hash of a string (first 8 bytes of its sha256)."""
-    return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:8], "big")
 
 
 def sequence_index(index, n: int, what: str) -> int:
@@ -79,8 +74,8 @@ class MapSpec:
 
     @cached_property
     def seed(self) -> int:
-        """A 63-bit integer summarising the map's seed (for the record)."""
-        return int(self.seed_sequence().generate_state(2, np.uint64)[0] >> np.uint64(1))
+        """A 63-bit integer summarising the map's seed (for the record; pbdyn.config.map_seed)."""
+        return map_seed(self.root_seed, self.key)
 
     def rng(self) -> np.random.Generator:
         """The map's Generator."""
