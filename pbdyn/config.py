@@ -786,7 +786,7 @@ def _parse_map_list(t: Mapping) -> ObstacleConfig:
                                   f"{', '.join(BUILTIN_STRUCTURES)}; or define [obstacles.structures.NAME])", structure)
             if structure not in names:
                 names.append(structure)
-        replicate = _integer(m, "replicate", where, 0, lo=0)
+        replicate = _integer(m, "replicate", where, _defaults(MapEntry)["replicate"], lo=0)
         seed = _integer(m, "seed", where, None, lo=0) if "seed" in m else None
         measured = m.get("measured", {})
         if not isinstance(measured, Mapping) or not all(

@@ -42,6 +42,8 @@ COMPUTED = {
     ("sensor", "rays"): "from `resolution_deg`",
     ("task", "start_yaw_deg"): '`"goal"`',
     ("obstacles", "structure"): "none",
+    ("obstacles", "maps"): "none",
+    ("task", "pairs_flown"): "all",
     ("obstacles.structures.name", "headings"): "the scenario's",
     ("obstacles.structures.name", "motion"): "the scenario's",
 }
