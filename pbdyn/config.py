@@ -554,7 +554,8 @@ class Scenario:
     def n_trials(self) -> int:
         """Trials a batch of this scenario flies: maps (setups x maps_per_setup) x ordered start/goal pairs x v_max
         values x planner entries (not limited; see pbdyn.limits)."""
-        n_pairs = len(self.task.flown_pairs())
+        n = len(self.task.candidates)
+        n_pairs = len(self.task.pairs_flown) or n * (n - 1)
         maps = len(self.obstacles.maps) or (math.prod(len(getattr(self.obstacles, k))
                                                       for k in self.obstacles.grid_order)
                                             * self.obstacles.maps_per_setup)

@@ -159,8 +159,9 @@ class TrialSequence(Sequence):
         self.cands = tuple(tuple(c) for c in scenario.task.candidates)
         self.speeds = tuple(float(v) for v in scenario.drone.v_max)
         self.entries = tuple(scenario.planners)
-        self.pairs = tuple(scenario.task.flown_pairs())
-        self.n_pairs = len(self.pairs)
+        self.pairs = tuple(tuple(p) for p in scenario.task.pairs_flown)    # () = every ordered pair, by arithmetic
+        n = len(self.cands)
+        self.n_pairs = len(self.pairs) if self.pairs else n * (n - 1)
         self.per_map = len(self.entries) * len(self.speeds) * self.n_pairs
         self._keys: _TrialKeys | None = None
 
@@ -168,8 +169,13 @@ class TrialSequence(Sequence):
         return len(self.maps) * self.per_map
 
     def pair(self, p: int) -> tuple[int, int]:
-        """The p-th ordered (start, goal) index pair flown, scenario.task.flown_pairs()[p]."""
-        return self.pairs[p]
+        """The p-th ordered (start, goal) index pair flown, scenario.task.flown_pairs()[p] (without building the
+        list of every pair: 10,000 candidates make 99,990,000)."""
+        if self.pairs:
+            return self.pairs[p]
+        n1 = len(self.cands) - 1
+        i, r = divmod(p, n1)
+        return i, r + (r >= i)
 
     def _split(self, idx: int) -> tuple[int, int, int, int]:
         m, rem = divmod(idx, self.per_map)
