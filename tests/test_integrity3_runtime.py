@@ -289,3 +289,12 @@ def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path):
     assert done.returncode == 2 and done.stdout == "", (done.returncode, done.stdout, done.stderr)
     lines = done.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith("pbdyn: error: --gui: ") and "DISPLAY" in lines[0], lines
+
+
+def test_gui_with_an_unreachable_display_is_one_line_and_exit_2(tmp_path):
+    env = _env()
+    env["DISPLAY"] = ":987"                      # no X server: no socket /tmp/.X11-unix/X987
+    done = _python(tmp_path, "-m", "pbdyn", "run", "quickstart", "--gui", env=env, timeout=120)
+    assert done.returncode == 2 and done.stdout == "", (done.returncode, done.stdout, done.stderr)
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and "--gui: cannot reach the X server of DISPLAY=':987'" in lines[0], lines

@@ -204,9 +204,41 @@ def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], posit
 def check_display() -> None:
     """ConfigError naming ``gui`` if PyBullet's GUI has no display to open a window on (X11 systems without DISPLAY,
     where PyBullet would end the process itself)."""
-    if sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")) and not os.environ.get("DISPLAY"):
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return
+    display = os.environ.get("DISPLAY", "")
+    if not display:
         raise ConfigError("gui", "needs a display and DISPLAY is not set (--gui-snapshot FILE.png renders the final "
                           "state without one)", show_value=False)
+    problem = _x_server_problem(display)
+    if problem:
+        raise ConfigError("gui", f"cannot reach the X server of DISPLAY={display!r} ({problem}; --gui-snapshot "
+                          "FILE.png renders the final state without one)", show_value=False)
+
+
+def _x_server_problem(display: str, timeout: float = 2.0) -> str | None:
+    """Why no X server answers at ``display`` ("[host]:N[.S]"), or None: a local display needs its socket
+    /tmp/.X11-unix/XN to accept a connection, a remote one TCP port 6000 + N."""
+    import socket
+
+    host, _, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return "not a display name like :0"
+    if host in ("", "unix"):
+        path = f"/tmp/.X11-unix/X{number}"
+        try:
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+                sock.settimeout(timeout)
+                sock.connect(path)
+        except OSError as exc:
+            return f"{path}: {exc.strerror or exc}"
+        return None
+    try:
+        with socket.create_connection((host, 6000 + int(number)), timeout=timeout):
+            return None
+    except OSError as exc:
+        return f"{host}:{6000 + int(number)}: {exc.strerror or exc}"
 
 
 def new_client(gui: bool = False):
