@@ -31,41 +31,31 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(EXIT_USAGE)
 
 
+def _parsed(text: str, convert, ok, what: str):
+    """``convert(text)`` if it parses and ``ok`` holds for it; argparse's one-line error "must be <what>" else."""
+    try:
+        v = convert(text)
+    except ValueError:
+        v = None
+    if v is None or not ok(v):
+        raise argparse.ArgumentTypeError(f"must be {what} (got {text!r})")
+    return v
+
+
 def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer (got {text!r})") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer (got {text!r})")
-    return v
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive number (got {text!r})") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number (got {text!r})")
-    return v
+    return _parsed(text, int, lambda v: v >= 0, "a non-negative integer")
 
 
 def _positive_int(text: str) -> int:
-    v = _nonneg_int(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1 (got {text!r})")
-    return v
+    return _parsed(text, int, lambda v: v >= 1, "an integer >= 1")
+
+
+def _positive_float(text: str) -> float:
+    return _parsed(text, float, lambda v: math.isfinite(v) and v > 0, "a positive number")
 
 
 def _finite_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number (got {text!r})") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be a finite number (got {text!r})")
-    return v
+    return _parsed(text, float, math.isfinite, "a finite number")
 
 
 def build_parser() -> argparse.ArgumentParser:
