@@ -63,6 +63,16 @@ def _cluttered_view(ctx, planner_t=0.0):
 
 # ---------------------------------------------------------------- closed loop in the trial
 
+def test_mpc_sample_of_pairs_succeeds_in_an_empty_arena_2d():
+    sc = _scenario()
+    rollout = build_rollout(sc, first_map(sc))
+    cands = sc.task.candidates
+    for i, j in demo_pairs(sc, 12):
+        res = fly(sc, rollout, "lookahead+mpc", cands[i], cands[j])
+        assert res.outcome == "success" and res.planning_failures == 0, (cands[i], cands[j], res)
+
+
+@pytest.mark.slow
 def test_mpc_all_72_pairs_succeed_in_an_empty_arena_2d():
     sc = _scenario()
     assert len(sc.task.pairs()) == 72

@@ -405,6 +405,7 @@ def test_side_by_side_needs_two_folders(tmp_path, capsys):
     assert err.count("\n") == 1 and "not a folder" in err and "nope" in err
 
 
+@pytest.mark.slow          # ~50 s: flies a small compare run twice (the store logic has fast tests above)
 def test_a_compare_smoke_run_resumes_and_adds_combos(tmp_path, capsys):
     out = tmp_path / "out"
     common = ["--scale", "compare", "--limit", "2", "--skip-uncontrolled", "--workers", "1", "--bootstrap", "50",
