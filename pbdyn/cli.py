@@ -1,4 +1,4 @@
-"""The ``pbdyn`` command (DESIGN.md "Command line").
+"""The ``pbdyn`` command (docs/design.md "Command line").
 
 Bad input exits with status 2 and one line on stderr naming the problem; ``--json`` prints exactly one JSON
 document on stdout; progress and logs go to stderr.

@@ -1,4 +1,4 @@
-"""Scenario files (TOML) validated into frozen dataclasses (DESIGN.md "Defaults", README "Scenario reference").
+"""Scenario files (TOML) validated into frozen dataclasses (docs/design.md "Defaults", README "Scenario reference").
 
 Every omitted field takes its default, written once: as the dataclass field's default (a ClassVar for a default
 that depends on world.dims or has no field); the parsers read it from there (``_defaults``) and the README's
@@ -27,7 +27,7 @@ BODY_MOTIONS = ("static", "constant_velocity", "waypoints")
 """Built-in motions of an imported body; any other value must be "package.module:function"."""
 COLLISION_CHECKS = ("swept", "sampled")
 PROFILES = ("physical", "thesis_program")
-"""Profiles (DESIGN.md "Profiles"): "physical" enforces the MAV's limits on every plan; "thesis_program" reproduces
+"""Profiles (docs/design.md "Profiles"): "physical" enforces the MAV's limits on every plan; "thesis_program" reproduces
 the thesis' program (README "Profiles")."""
 START_RULES = ("first_clear", "immediate", "program")
 """When and where a trial starts (TaskConfig.start_rule; pbdyn.sim.start)."""
@@ -376,7 +376,7 @@ class SensorConfig:
     model: "raycast" (PyBullet rays, exact hits) or "marching" (the thesis program's sensor: points every
     march_step m along each ray, the first one inside a body is the hit; pbdyn.perception.perceive); rays: with
     "marching", rays per horizontal fan (None: from resolution_deg; the program used 50). obstacles_at: which
-    obstacle poses the scan at t_k sees, "current" (t_k, DESIGN.md step order) or "next" (t_k+1: the thesis
+    obstacle poses the scan at t_k sees, "current" (t_k, docs/design.md step order) or "next" (t_k+1: the thesis
     program moved its obstacles before sensing, so its MAV at t_k saw them one step ahead). march_rule
     ("marching" only): "ray" (points march_step apart along each ray, a fan symmetric about the yaw) or
     "program" (the program's stepping along each ray's dominant axis,
@@ -594,7 +594,7 @@ def stable_hash64(text: str) -> int:
 
 
 def map_seed(root_seed: int, key: str) -> int:
-    """A 63-bit integer summarising a map's seed, SeedSequence([root_seed, stable_hash64(key)]) (DESIGN.md "Maps
+    """A 63-bit integer summarising a map's seed, SeedSequence([root_seed, stable_hash64(key)]) (docs/design.md "Maps
     and seeds"; ``key``: the map's canonical JSON of setup values and replicate)."""
     import numpy as np
 

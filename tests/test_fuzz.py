@@ -1,4 +1,5 @@
-"""Fuzzing the CLI contract (DESIGN.md "Command line"): mutated scenarios, world files and URDFs (tests/fuzz_cases.py).
+"""Fuzzing the CLI contract (docs/design.md "Command line"): mutated scenarios, world files and URDFs
+(tests/fuzz_cases.py).
 
 Oracle, for ``pbdyn run --json``, ``pbdyn metrics --json --metric density`` and ``pbdyn rollout --out F.npz``:
 exit 0 with a valid result (stdout is one strict JSON document -- no NaN -- and no warning on stderr other than

@@ -1,4 +1,4 @@
-"""The one-way data flow (DESIGN.md "The data flow (one direction)", "Package sketch") as import rules.
+"""The one-way data flow (docs/design.md "The data flow (one direction)", "Package sketch") as import rules.
 
 RULES says which pbdyn sub-packages (or top-level modules) each one may import; a unit may always import itself.
 Every import in every pbdyn module is checked with ``ast`` - module level, inside functions (lazy imports),
@@ -130,7 +130,7 @@ def violations(path: Path, source: str | None = None) -> list[str]:
             why = f"{target!r} is not a known pbdyn unit"
         else:
             why = f"{unit} may import only: {', '.join(sorted(RULES[unit])) or 'nothing of pbdyn'}"
-        out.append(f"{rel}:{line}: imports {what} - {why}. The data flows one way (DESIGN.md); move the shared "
+        out.append(f"{rel}:{line}: imports {what} - {why}. The data flows one way (docs/design.md); move the shared "
                    f"code down to a unit both may import, or pass it in as an argument.")
     return out
 

@@ -1,4 +1,4 @@
-"""Profiles (README "Profiles", DESIGN.md "Profiles") and the start rules (pbdyn.sim.start)."""
+"""Profiles (README "Profiles", docs/design.md "Profiles") and the start rules (pbdyn.sim.start)."""
 
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ def _controlled(**obstacles):
 
 
 def _program_spawn(map_id: int, n: int, r_px: float, start_px) -> np.ndarray:
-    """The program's procedure, step by step in its pixels with Python's random (implementation-facts.md): per
+    """The program's procedure, step by step in its pixels with Python's random (docs/thesis-program.md): per
     attempt x, y uniform in [20, 480] px, then the radius uniform in [r - 2, r + 2] px; rejected when within the sum
     of radii of an accepted centre or within 80 px (MAV radius + 7 m) of the start. Rows (x, y, r) px."""
     rnd = random.Random(map_id)

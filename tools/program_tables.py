@@ -12,7 +12,7 @@
    multiple of 45 deg: the MAV on a row, column or diagonal of the goal on the program's pixel grid -- the order of
    each tied pair is that sort's; numpy >= 1.25 (SIMD sorting) orders ties differently.
 
-The tool rebuilds both as the program computed them (implementation-facts.md "Trajectory planners") and prints them;
+The tool rebuilds both as the program computed them (docs/thesis-program.md "Trajectory planners") and prints them;
 pbdyn.planning.local_primitives_minjerk holds its output. It refuses to run under another numpy version.
 """
 

@@ -76,7 +76,7 @@ SCALES = ("quick", "full", "compare")
 GAZES = {"LookAhead": "lookahead", "NoControl": "fullrange", "LookGoal": "lookgoal_unexplored",
          "Rotating": "rotating", "Oxford": "finean", "Owl": "owl"}
 """The program's gaze planner names -> pbdyn's (the same under both profiles; LookGoal is the program's
-look-at-the-first-unexplored-sample rule, implementation-facts.md)."""
+look-at-the-first-unexplored-sample rule, docs/thesis-program.md)."""
 TRAJECTORIES = {"Jerk_Primitive": {"physical": "local_primitives", "thesis_program": "local_primitives_minjerk"},
                 "Primitive": {"physical": "global_primitives", "thesis_program": "global_primitives"},
                 "MPC": {"physical": "mpc", "thesis_program": "mpc"}}

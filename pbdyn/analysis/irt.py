@@ -4,7 +4,7 @@
 
 Items are maps, or tasks (map, start, goal); respondents are planners (pbdyn uses a planner pair at one MAV speed).
 A map's fitted difficulty is the success it allows once the mix of planners that flew it is accounted for, and a
-planner's ability is a score comparable across maps of different difficulty (DESIGN.md "Difficulty: what counts as
+planner's ability is a score comparable across maps of different difficulty (docs/design.md "Difficulty: what counts as
 evidence"). Identification: difficulties are centred to mean 0 over the items, abilities on the same scale.
 
 Two fits, both with a maintained library:

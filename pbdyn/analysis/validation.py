@@ -1,5 +1,5 @@
 """A metric's rank agreement with a target (success rates, or the fitted difficulty), and whether it beats the
-baselines that need no simulation (DESIGN.md "Difficulty: what counts as evidence").
+baselines that need no simulation (docs/design.md "Difficulty: what counts as evidence").
 
 Conventions (those of pbdyn.analysis.report): a metric enters as its difficulty d [maps] (high = hard); the target
 is a rate-like matrix [maps, k] (high = easy: success rates per pair, or minus the fitted difficulty as one column);

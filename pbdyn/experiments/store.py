@@ -1,4 +1,4 @@
-"""The results store: one SQLite file written by the batch coordinator only (DESIGN.md data flow); WAL mode while
+"""The results store: one SQLite file written by the batch coordinator only (docs/design.md data flow); WAL mode while
 a writer has it open, a rollback journal at rest (so readers create no side files and read it in read-only folders).
 
 Tables:

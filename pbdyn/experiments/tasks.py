@@ -1,6 +1,6 @@
 """An experiment's trials and maps as small picklable tasks, and the functions workers run on them.
 
-An experiment = maps x planner pairs x MAV speeds x start/goal pairs (DESIGN.md "Maps and seeds"): the trial key is
+An experiment = maps x planner pairs x MAV speeds x start/goal pairs (docs/design.md "Maps and seeds"): the trial key is
 the trial's config hash (sha256 of its resolved, value-only description), so adding a grid value, a planner, a
 speed or maps never changes an existing key. Workers receive the scenario, the map spec and a rollout reference
 (a file path, or the .npz bytes for cluster workers without the coordinator's disk); they keep the last map's

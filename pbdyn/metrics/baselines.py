@@ -1,4 +1,4 @@
-"""Closed-form difficulty baselines that need no simulation (DESIGN.md "Difficulty: what counts as evidence").
+"""Closed-form difficulty baselines that need no simulation (docs/design.md "Difficulty: what counts as evidence").
 
 A difficulty metric is only useful where it beats these. Both are computed from the map's state at one instant:
 

@@ -23,7 +23,7 @@ class MetricInfo:
     survivability ``backend`` parameter. table_row: its row in thesis table 4-5 (None: not in the table; the batch
     computes the table's metrics and the baselines per map). thesis_time_s: the table's compute time per map (s).
     baseline: a closed-form baseline that needs no simulation (pbdyn.metrics.baselines); every metric is judged
-    against these (DESIGN.md "Difficulty: what counts as evidence"). per_point: its per-sample values belong to
+    against these (docs/design.md "Difficulty: what counts as evidence"). per_point: its per-sample values belong to
     points of the map (the sample grid), so it can be drawn as a heat map (`pbdyn metrics --plot`). horizon_s:
     the seconds of rollout it reads at its default parameters (0: the state at t = 0 only).
     """

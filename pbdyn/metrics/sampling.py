@@ -1,4 +1,4 @@
-"""Sample grids shared by the metrics (implementation-facts.md "Metrics as computed for the thesis' tables")."""
+"""Sample grids shared by the metrics (docs/thesis-program.md "Metrics as computed for the thesis' tables")."""
 
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ diagonals). Which cells are blocked is the ``marking``:
 
 - ``"centre_inside"`` (default): a cell is blocked if its centre lies inside an obstacle (distance < r_i, no MAV
   inflation) or a static body, or outside the arena.
-- ``"program"``: the thesis' own program (implementation-facts.md "Metrics as computed for the thesis' tables";
+- ``"program"``: the thesis' own program (docs/thesis-program.md "Metrics as computed for the thesis' tables";
   read from its public code, smoggy-P/gym-Drone2D-ActivePerception). Its ground-truth grid had the arena's walls
   in the outermost ring of cells; the thesis scenarios (scenarios/thesis) model its arena as the 48 m between those
   cells, so here, as with every marking, the walls lie outside the grid. It marked dynamic obstacles in two

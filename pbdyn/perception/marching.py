@@ -1,4 +1,4 @@
-"""The thesis program's depth sensor as geometry: rays marched in fixed steps (thesis 2-4-2; implementation-facts.md
+"""The thesis program's depth sensor as geometry: rays marched in fixed steps (thesis 2-4-2; docs/thesis-program.md
 "MAV, sensing, tracking": 50 rays across the FOV, ~0.9 m steps, a ray stops at the first obstacle).
 
 Each ray from the sensor position o along a unit direction u is the sequence of march points o + t_k u with

@@ -6,7 +6,7 @@ real). A dynamic obstacle hit by any ray is detected, and its measurement is its
 the cells of samples taken every <= res/4 along it up to its hit (or full range); a ray ending on a static body or
 wall marks the cell just behind its hit point OCCUPIED; dynamic obstacles are tracked, never mapped.
 
-``model="marching"`` is the thesis program's sensor instead (implementation-facts.md "MAV, sensing, tracking";
+``model="marching"`` is the thesis program's sensor instead (docs/thesis-program.md "MAV, sensing, tracking";
 pbdyn.perception.marching): ``rays`` rays over the FOV, each a sequence of points ``march_step`` apart, the first
 point inside an obstacle, static body or beyond a wall is the hit; every obstacle holding it is detected (true
 centre); the cells of the points before it become FREE, a static or wall hit point's cell OCCUPIED. It is computed

@@ -169,7 +169,7 @@ class KalmanTracks:
         return (pos_var > self.drop_pos_var) | outside
 
     def step(self, ids, z) -> None:
-        """One world step (DESIGN.md step 3): predict, update with detections (ids [m], z [m, d]), drop ("program"
+        """One world step (docs/design.md step 3): predict, update with detections (ids [m], z [m, d]), drop ("program"
         rule: predict, drop, update; see the class doc).
 
         Adds dt per track still active afterwards to ``tracked_time_s``.

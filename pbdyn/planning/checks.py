@@ -94,7 +94,7 @@ PROGRAM_PROBE_EXTRA_M = 1.0
 
 
 def program_grid_conflicts(view: View, p: np.ndarray) -> np.ndarray:
-    """The thesis program's static check (its planners' is_free; implementation-facts.md "Collision check"), per
+    """The thesis program's static check (its planners' is_free; docs/thesis-program.md "Collision check"), per
     candidate of positions p [n, K, d] (m): True if, for any sample, one of five probes -- the centre and the
     points MAV radius + 1 m from it along +-x and +-y -- lies outside the program's map (the MAV's grid, whose
     border ring of cells is the program's wall cells) or in an OCCUPIED cell of the MAV's grid. Walls therefore

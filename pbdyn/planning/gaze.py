@@ -128,7 +128,7 @@ class LookGoal(LookAhead):
 
 
 class LookGoalUnexplored(LookAhead):
-    """The thesis program's LookGoal (registry name "lookgoal_unexplored"; implementation-facts.md "Gaze planners").
+    """The thesis program's LookGoal (registry name "lookgoal_unexplored"; docs/thesis-program.md "Gaze planners").
 
     Yaw toward the first future sample of the plan in execution (times after view.t) whose grid cell is still
     UNKNOWN; if every remaining sample is explored, toward the plan's last sample; without a plan (or when that

@@ -1,4 +1,4 @@
-"""Finean et al. gaze planner ("Oxford"; thesis 4-1-2, eq. 4-5 to 4-7; implementation-facts.md "Gaze planners").
+"""Finean et al. gaze planner ("Oxford"; thesis 4-1-2, eq. 4-5 to 4-7; docs/thesis-program.md "Gaze planners").
 
 Two maps over the MAV's occupancy grid cells (2D: pixels, 3D: voxels of the same grid):
 - the age map t_i: seconds since cell i was last observed (initially ``initial_age`` = 5 s). Each call first marks

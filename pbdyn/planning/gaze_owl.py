@@ -1,4 +1,4 @@
-"""Owl gaze planner (Chen et al. 2021, thesis ref. [17]; thesis 4-1-2, eq. 4-8, 4-9; implementation-facts.md).
+"""Owl gaze planner (Chen et al. 2021, thesis ref. [17]; thesis 4-1-2, eq. 4-8, 4-9; docs/thesis-program.md).
 
 Every ``period_s`` (0.8 s) Owl picks, among ``n_rates`` (20) evenly spaced yaw rates in [-limit, +limit], the one
 minimising sum_i lambda_i f_i (eq. 4-8) and holds it until the next decision. A candidate rate w is judged by the
@@ -30,7 +30,7 @@ Exact ties go to the smallest |rate|, then the counter-clockwise one.
 - U: 36 bins at 0, 10, ..., 350 deg, updated at each decision by -(v period_s) . d_i / range plus 0.4 if the bin
   is inside the current FOV (strictly) else -0.05, clipped to [0, 1]; U(theta) = the nearest bin (first on ties);
 - w_k = |v_j| / |p_j - p| of the track of obstacle j = k (the k-th by index, 0 if it has no active track): the
-  program's pairing of the k-th active direction with the k-th tracker (implementation-facts.md, a defect kept
+  program's pairing of the k-th active direction with the k-th tracker (docs/thesis-program.md, a defect kept
   here because this mode reproduces the program);
 - a MAV at rest makes every program cost NaN, and its argmin took the first candidate: +limit.
 """

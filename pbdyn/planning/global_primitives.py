@@ -31,7 +31,7 @@ primitive's acceleration). The planner keeps the plan until replan_check finds t
 latest predictions (within the horizon) or a newly occupied cell (checked when the grid's version changed), or that
 it has run out (thesis 4-1-1 "replanning check", A-2, A-3).
 
-Program mode: the thesis program's "Primitive" planner (implementation-facts.md "Trajectory planners"; the thesis
+Program mode: the thesis program's "Primitive" planner (docs/thesis-program.md "Trajectory planners"; the thesis
 text gives only Algorithm 2 and eq. A-1; details below were read from the program, whose unit was 10 px = 1 m).
 ``accel_grid = "program"``: every node, the root included, gets the same per-axis grid of accelerations, the
 program's np.arange(-a_max, a_max, step) with step = 0.4 v_max - 0.5 m/s^2 for v_max <= 4 m/s and 0.4 m/s^2 above

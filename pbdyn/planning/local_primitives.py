@@ -12,7 +12,7 @@ Norm limits from ruckig's per-axis limits: first build with per-axis (v_max, a_m
 |v| or |a| exceeds the norm limit, or two consecutive samples need more than a_max to connect (the plan contract's
 step bounds, pbdyn.sim.contract), rebuild with the per-axis limits scaled by 0.95 * limit / observed peak (at most
 two rebuilds; the peak does not shrink in proportion to the limit, and the exact ratio tends to land just above it),
-then with the conservative per-axis v_max / sqrt(d), a_max / sqrt(d) (DESIGN.md "Limits are norms");
+then with the conservative per-axis v_max / sqrt(d), a_max / sqrt(d) (docs/design.md "Limits are norms");
 a candidate that still violates, or that ruckig rejects, is skipped.
 """
 

@@ -1,6 +1,6 @@
 """The thesis program's local motion primitives ("Jerk_Primitive"; thesis 4-1-1, appendix A-2, Algorithm 3).
 
-Registry name "local_primitives_minjerk". Every step (implementation-facts.md "Trajectory planners"):
+Registry name "local_primitives_minjerk". Every step (docs/thesis-program.md "Trajectory planners"):
 
 - n_candidates = 72 end points on a circle of radius step_m = 3 m around the MAV at angles 2 pi k / n (eq. A-4;
   3D: on a sphere, pbdyn.planning.local_primitives.sphere_directions);

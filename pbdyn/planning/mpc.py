@@ -30,7 +30,7 @@ brakes) when the solve is not optimal or a slack exceeds max_slack within the fi
 padding (zero normal), so the problem's structure never changes and the solver is built once.
 
 Program prediction (``prediction = "program"``, an interpretation): the thesis program's obstacle predictions
-"drifted quadratically because of an aliasing bug" (implementation-facts.md "MPC"). Its loop over the horizon steps
+"drifted quadratically because of an aliasing bug" (docs/thesis-program.md "MPC"). Its loop over the horizon steps
 added k dt v to an obstacle's position list in place, so the list it started step k from already held step k - 1's
 prediction; step k therefore got p + (1 + 2 + ... + k) dt v = p + k (k + 1) / 2 dt v instead of p + k dt v (A-10).
 That prediction replaces the constant-velocity one for the track rows only (the choice of the M nearest tracks
@@ -40,7 +40,7 @@ also sets max_slack = MAX_PLAN_DISTANCE_M (a slack never fails a plan). Not repr
 were ellipses (tracks as discs of radius + 1 m, occupied cells within 10 m clustered into ellipses) in a nonlinear
 problem solved by a proprietary solver (FORCES Pro), the 5 nearest of tracks and clusters together chosen per step;
 here they are the linearised discs of the M nearest tracks and the n_cells nearest cells (a convex problem). Its
-cost (0.1 |x - goal|^2 plus slack, implementation-facts.md) is not adopted: the generated solver's weights, units
+cost (0.1 |x - goal|^2 plus slack, docs/thesis-program.md) is not adopted: the generated solver's weights, units
 (the program worked in pixels) and any acceleration term are unknown, so w_goal, w_acc and ref_dist keep pbdyn's
 values.
 

@@ -1,4 +1,4 @@
-"""Extension points: trajectory and gaze planners (DESIGN.md "Planner protocols", thesis 2-4-3).
+"""Extension points: trajectory and gaze planners (docs/design.md "Planner protocols", thesis 2-4-3).
 
 User planners only need these methods (duck typing); built-ins are listed in pbdyn.planning.registry.
 A planner class is constructed as ``Class(context, **params)`` where params is the scenario's params table.

@@ -28,7 +28,7 @@ GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange
 
 PLANNER_MODEL_VERSION = "1"
 """Version of the built-in planners' behaviour, recorded in every row's planner_fingerprint: bump it when a
-built-in planner's behaviour changes, so that stores flown with the old code stop `pbdyn batch` (DESIGN.md
+built-in planner's behaviour changes, so that stores flown with the old code stop `pbdyn batch` (docs/design.md
 "Determinism": results never go stale silently)."""
 
 _TRAJECTORY_METHODS = ("replan_check", "plan")

@@ -1,4 +1,4 @@
-"""The trajectory every planner returns (DESIGN.md "Trajectory")."""
+"""The trajectory every planner returns (docs/design.md "Trajectory")."""
 
 from __future__ import annotations
 

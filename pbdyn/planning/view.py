@@ -1,4 +1,4 @@
-"""The read-only snapshot a planner sees each step (DESIGN.md "Planner protocols").
+"""The read-only snapshot a planner sees each step (docs/design.md "Planner protocols").
 
 Planners never see the rollout: only the MAV's own state, its occupancy grid, the active Kalman tracks, the goal
 and the time. Arrays in a View are read-only.

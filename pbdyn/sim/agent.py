@@ -1,4 +1,4 @@
-"""The agent side of a trial (DESIGN.md "One trial step" (4)-(6)): the planner pair, braking and the plan contract.
+"""The agent side of a trial (docs/design.md "One trial step" (4)-(6)): the planner pair, braking and the plan contract.
 
 Each step the agent asks its trajectory planner whether to replan and for a plan, checks every returned plan against
 the plan contract (pbdyn.sim.contract) before it can be executed, asks its gaze planner for a yaw rate, and turns

@@ -1,5 +1,5 @@
 """``check_planner``: fly a planner on a few maps and report every breach of the plan contract (the analogue of
-Gymnasium's ``check_env`` for trajectory planners; DESIGN.md "The plan contract")."""
+Gymnasium's ``check_env`` for trajectory planners; docs/design.md "The plan contract")."""
 
 from __future__ import annotations
 

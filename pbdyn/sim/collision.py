@@ -1,4 +1,4 @@
-"""Collision checks of one trial step t_k -> t_k+1 (DESIGN.md "One trial step", step (7)).
+"""Collision checks of one trial step t_k -> t_k+1 (docs/design.md "One trial step", step (7)).
 
 Swept checks (the default): within a step every motion is taken as linear. Dynamic obstacles: the first contact
 time is solved exactly from the relative motion. Static geometry: conservative advancement against PyBullet's

@@ -1,4 +1,4 @@
-"""The plan contract (DESIGN.md "The plan contract"): what every returned trajectory must satisfy.
+"""The plan contract (docs/design.md "The plan contract"): what every returned trajectory must satisfy.
 
 A plan made at time t (s) with the MAV at (p, v) must have t0 = t, dt = the world step, sample 0 = (p, v) within
 1e-6, |v_k| <= v_max and |a_k| <= a_max at every sample, and consecutive samples reachable with an acceleration of

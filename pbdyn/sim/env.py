@@ -1,4 +1,5 @@
-"""The environment side of a trial (DESIGN.md "One trial step"): world, sensing, tracking, execution, outcome checks.
+"""The environment side of a trial (docs/design.md "One trial step"): world, sensing, tracking, execution, outcome
+checks.
 
 ``TrialEnv`` owns steps (1)-(3), (6) and (7) and makes no decisions: ``reset()`` places the MAV at the start and
 senses at t_0; ``step(action)`` executes the MAV's next state (6), checks it at t_k+1 (7) and, unless the trial

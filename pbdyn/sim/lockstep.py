@@ -1,4 +1,4 @@
-"""Lockstep trials: the trials that share a map, flown together in one PyBullet world (DESIGN.md "sim").
+"""Lockstep trials: the trials that share a map, flown together in one PyBullet world (docs/design.md "One trial step").
 
 Obstacles never react to the MAV, so every trial on a map sees the same obstacle poses at the same rollout step.
 A trial starts at the tick of its start step k0 (the start rule), so at tick T every running trial senses rollout

@@ -1,4 +1,4 @@
-"""The record of one trial (thesis table 2-2, DESIGN.md "Outcomes and the record")."""
+"""The record of one trial (thesis table 2-2, docs/design.md "Outcomes and the record")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """A trial's specification, resolved once: scenario, map, planner pair, MAV speed, start and goal.
 
-The config hash (DESIGN.md "Outcomes and the record") and the per-trial seed are computed once per TrialSpec and
+The config hash (docs/design.md "Outcomes and the record") and the per-trial seed are computed once per TrialSpec and
 cached; everything a trial does is a function of its spec and its map's rollout.
 """
 

@@ -12,7 +12,7 @@ collision says nothing about the planner. Three rules:
   step within ``start_wait_max_s`` is clear, the trial begins at the step whose window keeps the largest gap (the
   earliest of equals) and the row's reason says so.
 - "immediate": t_s = 0 (pbdyn before the start rule existed).
-- "program": the thesis' program (implementation-facts.md "World and obstacles", a defect reproduced by the
+- "program": the thesis' program (docs/thesis-program.md "World and obstacles", a defect reproduced by the
   thesis_program profile): the obstacles are spawned with their centres more than the MAV radius +
   ``start_clearance`` m from the flown start only (not from the other candidates; the program's 8 m test), so the flown layout depends on the start and differs from the
   map the metrics were computed on. Radii and velocities are the map's; only the centres are drawn again (same

@@ -1,4 +1,4 @@
-"""One trial (DESIGN.md "One trial step", thesis Algorithm 1): a short loop over the steppable core.
+"""One trial (docs/design.md "One trial step", thesis Algorithm 1): a short loop over the steppable core.
 
 The environment (pbdyn.sim.env.TrialEnv) owns steps (1)-(3), (6) and (7); the agent (pbdyn.sim.agent.Agent) owns
 steps (4)-(5), braking and the plan contract; observers (pbdyn.sim.observers) record traces and profiles and pace

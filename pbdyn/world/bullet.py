@@ -1,4 +1,4 @@
-"""The PyBullet world: the MAV, dynamic obstacles, static bodies and walls as collision geometry (DESIGN.md).
+"""The PyBullet world: the MAV, dynamic obstacles, static bodies and walls as collision geometry (docs/design.md).
 
 Poses are set, then queried (ray tests, closest points); stepSimulation is never called. One BulletClient per
 world, created in the process that uses it (never fork after creating a world, never share it across threads).

@@ -1,4 +1,4 @@
-"""Map enumeration, seeds and obstacle spawning (DESIGN.md "Maps and seeds", thesis 2-3).
+"""Map enumeration, seeds and obstacle spawning (docs/design.md "Maps and seeds", thesis 2-3).
 
 A map is identified by its setup values (count, radius, speed — each a number or a {min, max} range) and its
 replicate number, never by a position in a list, so adding a grid value adds maps without changing existing ones.
@@ -267,7 +267,7 @@ def program_stream(seed: int) -> np.random.Generator:
 
 def spawn_program(scenario: Scenario, spec: MapSpec,
                   keep_out: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The thesis program's obstacles (obstacles.layout = "program"; implementation-facts.md "World and obstacles"):
+    """The thesis program's obstacles (obstacles.layout = "program"; docs/thesis-program.md "World and obstacles"):
     centres [N, 2] (m), velocities [N, 2] (m/s) and radii [N] (m), drawn as its environment drew them.
 
     Its stream is Python's ``random`` seeded with the map id (here root_seed + the replicate number), the same for

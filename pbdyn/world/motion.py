@@ -38,7 +38,7 @@ def cvm_fold(p0: np.ndarray, v0: np.ndarray, radii: np.ndarray, size: np.ndarray
 def cvm_program_turn(p0: np.ndarray, v0: np.ndarray, radii: np.ndarray, size: np.ndarray,
                      times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Constant-velocity motion as the thesis' program stepped it (obstacles.wall_turn = "program";
-    implementation-facts.md "World and obstacles"): each step it computed the next centre p_k + v_k dt, and an axis
+    docs/thesis-program.md "World and obstacles"): each step it computed the next centre p_k + v_k dt, and an axis
     on which that centre would lie less than r from a wall (below r or above L - r) turned away from that wall
     before the move (its velocity and preferred velocity were one array, so the turn took effect in the same step):
     p_k+1 = p_k + v'_k dt. So an obstacle reverses up to |v| dt before the line r from a wall, from where it stands,

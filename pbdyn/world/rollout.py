@@ -1,4 +1,4 @@
-"""Rollouts: every obstacle's state at every step of a map, computed once and cached (DESIGN.md "The data flow").
+"""Rollouts: every obstacle's state at every step of a map, computed once and cached (docs/design.md "The data flow").
 
 The .npz file holds these arrays (SI units, world frame):
     times [T] (s), positions [T, N, d] (m), velocities [T, N, d] (m/s), radii [N] (m), arena_size [d] (m),

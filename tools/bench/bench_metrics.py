@@ -3,7 +3,7 @@
 Configurations: controlled_2d maps with 10 and with 30 obstacles, controlled_3d maps with 30 obstacles (radius
 1 m, speed 4 m/s, replicates 0..maps-1). Each metric runs ``--repeat`` times on each map (after one warm-up run);
 the table shows the median over all runs in ms, the thesis' table 4-5 time per map, the thesis' public program
-measured on this machine (implementation-facts.md "Measured speed") and the speed-up of the 2D 30-obstacle median
+measured on this machine (docs/thesis-program.md "Measured speed") and the speed-up of the 2D 30-obstacle median
 over table 4-5. The last row times all eight 2D metrics of table 4-5 computed one after the other on one map.
 Survivability-type metrics are timed with every available backend (``bullet`` when pbdyn.metrics.bullet_backend
 imports). Rollouts are built before timing (they are cached and shared with the trials).
@@ -38,7 +38,7 @@ from pbdyn.world.rollout import build_rollout  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "scenarios"
 
-# the thesis' public program measured on this machine, s as "lo-hi" text (implementation-facts.md "Measured speed")
+# the thesis' public program measured on this machine, s as "lo-hi" text (docs/thesis-program.md "Measured speed")
 PROGRAM = {"density": "0.2-0.5", "traversability": "0.2-0.7", "dynamic_traversability": "0.4-0.9",
            "vo_feasibility": "8-22", "vo_feasibility_dense": "33-90", "survivability": "45-62",
            "global_survivability": "115-277"}
@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         line += f"{(f'{thesis_s:g} s' if thesis_s else '-'):>11s}{(program + ' s' if program != '-' else '-'):>10s}"
         print(line + speed)
     print("speed-up: table 4-5 time / median of the 2D n=30 column; 'program': the thesis' public program per map "
-          "on this machine (implementation-facts.md)")
+          "on this machine (docs/thesis-program.md)")
     if not args.no_worlds:
         world_table(args.repeat, backends)
     return 0
