@@ -158,9 +158,17 @@ def test_kill_9_of_a_worker_is_survived(reference, tmp_path):
     proc = subprocess.Popen(pbdyn_cmd() + ["batch", str(sc), "--out", str(out), "--workers", "2"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        _wait_rows(out, 1, proc)
-        kids = [c for c in _children(proc.pid) if "spawn" in Path(f"/proc/{c}/cmdline").read_text()]
+        # Kill a worker while trials are certainly pending: before the first commit (commits come at most a second
+        # apart once results arrive, and the 80 trials take longer than the workers' start). Waiting for a first row
+        # instead raced on fast machines: the pool could finish every trial before the kill, leaving nothing to lose.
+        t0 = time.time()
+        kids: list[int] = []
+        while not kids and time.time() - t0 < 120:
+            assert proc.poll() is None, "the batch ended before the kill"
+            kids = [c for c in _children(proc.pid) if "spawn" in _cmdline(c)]
+            time.sleep(0.02)
         assert kids, "no worker processes found"
+        assert _count(out) == 0
         os.kill(kids[0], signal.SIGKILL)
         _, err = proc.communicate(timeout=300)
     finally:
