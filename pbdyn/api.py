@@ -196,6 +196,24 @@ def compute_metrics(scenario, map: int = 0, *, metrics=None, dense: bool = False
     return map_metrics(sc, _map(sc, map), names, backend=chosen)
 
 
+def predict_success(scenario, map: int = 0, *, backend: str = "auto") -> dict:
+    """The predicted reference success of one map (pbdyn.analysis.predict; README "Difficulty on one scale"):
+    {"success", "ci": [lo, hi] (95%, for one map), "percentile" (share % of the bundled calibration maps easier
+    than it), "features"}, or {"why": ...} when no shipped predictor covers the scenario's dims."""
+    from pbdyn.analysis.predict import load_predictor, map_features, predicted_success
+    from pbdyn.metrics.cached import resolve_backend
+
+    sc = load_scenario(scenario)
+    spec = _map(sc, map)
+    predictor = load_predictor()
+    if predictor is None:
+        return {"why": "no reference-success predictor is shipped with this pbdyn"}
+    if sc.world.dims not in predictor.dims:
+        return predicted_success(predictor, {}, sc.world.dims)
+    return predicted_success(predictor, map_features(sc, spec.index, backend=resolve_backend(sc, backend)),
+                             sc.world.dims)
+
+
 def metric_heatmaps(scenario, map: int = 0, out: str | Path = "heatmap.png", *, metrics=None, dense: bool = False,
                     backend: str = "auto"):
     """`pbdyn metrics --plot`: draw the per-sample values of survivability and VO feasibility (or the requested ones
@@ -259,7 +277,8 @@ def replay(trace: str | Path, out: str | Path, *, fps: float | None = None, ever
     return write_replay(_path(trace, "trace"), _path(out, "out"), fps=fps, every=every)
 
 
-def generate_maps(out: str | Path | None, *, metric: str, target: float, tolerance: float, count: int = 20,
+def generate_maps(out: str | Path | None, *, metric: str | None = None, target: float | None = None,
+                  tolerance: float, success: float | None = None, count: int = 20,
                   family: str = "uniform", dims: int = 2, scenario=None, fixed: Mapping | None = None,
                   seed: int = 0, workers: int | None = None, progress: bool = False):
     """`pbdyn generate --metric`: ``count`` maps of generator ``family`` (a built-in structure) in ``dims`` D whose
@@ -267,12 +286,21 @@ def generate_maps(out: str | Path | None, *, metric: str, target: float, toleran
     to ``out`` (a scenario .toml whose maps 0..count-1 are the found maps; None: not written). ``scenario``: the
     base whose world, MAV, sensor, task and planners the file takes (a path, bundled name or dict shaped like the
     TOML file; default pbdyn's defaults, 50 m arena); ``fixed``: setup values held fixed, e.g. {"count": 10};
-    ``seed``: the file's obstacles.root_seed and the search's seed. Returns a GeneratedMaps (maps, document,
-    candidates, reachable, coefficients, wall_time_s). Unreachable targets raise ConfigError naming the range."""
+    ``seed``: the file's obstacles.root_seed and the search's seed. ``success`` instead of metric/target: maps whose
+    reference success flown by the reference panel lies within ``tolerance`` of it (the predictor proposes,
+    pbdyn.experiments.generate.generate_by_success). Returns a GeneratedMaps (maps, document, candidates,
+    reachable, coefficients, wall_time_s, flown). Unreachable targets raise ConfigError naming the range."""
     import tomllib
 
     from pbdyn.errors import check_writable_file
-    from pbdyn.experiments.generate import MetricTarget, generate_by_metric, write_scenario
+    from pbdyn.experiments.generate import PREDICTED, MetricTarget, generate_by_metric, generate_by_success, write_scenario
+
+    if success is not None:
+        if metric is not None or target is not None:
+            raise ConfigError("success", "cannot be combined with metric/target (two targets)", success)
+    elif metric is None or target is None:
+        raise ConfigError("metric" if metric is None else "target", "is required (or give success)", None,
+                          show_value=False)
 
     if out is not None:
         out = _path(out, "out")
@@ -295,12 +323,17 @@ def generate_maps(out: str | Path | None, *, metric: str, target: float, toleran
             raise ConfigError("scenario", "must be a path, a bundled scenario name or a dict", scenario)
         base.pop("name", None)
     workers = _workers(workers)
-    req = MetricTarget(metric, target, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
-    result = generate_by_metric(req, workers=workers, progress=progress)
+    if success is not None:
+        req = MetricTarget(PREDICTED, success, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
+        result = generate_by_success(req, workers=workers, progress=progress)
+        what = f"reference success (flown by the reference panel) within {tolerance:g} of {success:g}"
+    else:
+        req = MetricTarget(metric, target, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
+        result = generate_by_metric(req, workers=workers, progress=progress)
+        what = f"{metric} within {tolerance:g} of {target:g}"
     if out is not None:
-        header = (f"pbdyn generate: {len(result.maps)} maps of family {family!r} ({dims}D) with {metric} within "
-                  f"{tolerance:g} of {target:g}\n(map i of this file is the i-th [[obstacles.maps]] entry; "
-                  "measured values as found when it was chosen)")
+        header = (f"pbdyn generate: {len(result.maps)} maps of family {family!r} ({dims}D) with {what}\n(map i of "
+                  "this file is the i-th [[obstacles.maps]] entry; measured values as found when it was chosen)")
         write_scenario(out, result.document, header)
     return result
 

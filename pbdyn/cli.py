@@ -88,8 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--json", action="store_true", help="print the maps' difficulties as one JSON document")
 
     gen = sub.add_parser("generate", help="maps of a chosen difficulty, written as a scenario file (thesis 5-2-2)")
-    gen.add_argument("--metric", required=True, help="the metric to hit (e.g. survivability)")
-    gen.add_argument("--target", type=_finite_float, required=True, help="the metric's target value (its unit)")
+    gen.add_argument("--metric", help="the metric to hit (e.g. survivability; with --target)")
+    gen.add_argument("--target", type=_finite_float, help="the metric's target value (its unit)")
+    gen.add_argument("--success", type=_finite_float, help="instead of --metric/--target: the reference panel's "
+                     "success rate to hit (0-1): the predictor proposes, the panel's flights decide")
     gen.add_argument("--tolerance", type=_positive_float, required=True, help="keep maps within +- this of it")
     gen.add_argument("--count", type=_positive_int, default=20, help="maps to find (default 20)")
     gen.add_argument("--out", required=True, help="the scenario .toml to write (maps 0..count-1)")
@@ -255,6 +257,7 @@ def cmd_metrics(args: argparse.Namespace) -> int:
     if scenario.is_world:
         doc["bodies"] = [{"name": b.name, "motion": b.motion} for b in scenario.bodies]
         del doc["setup"], doc["replicate"]
+    doc["predicted_reference_success"] = api.predict_success(scenario, args.map, backend=backend)
     if args.json:
         sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
         return 0
@@ -273,6 +276,9 @@ def cmd_metrics(args: argparse.Namespace) -> int:
         sense = f" [{info.direction}]" if info is not None else ""
         sys.stdout.write(f"{name:>24}: {v['value']:.4f}{err}{unit}{sense}  (n={v['n_samples']}, excluded "
                          f"{v['n_excluded']}, {1000 * v['wall_time_s']:.1f} ms{', cached' if v['cached'] else ''})\n")
+    from pbdyn.analysis.predict import format_prediction
+
+    sys.stdout.write(format_prediction(doc["predicted_reference_success"]))
     return 0
 
 
@@ -347,12 +353,26 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_generate(args: argparse.Namespace) -> int:
     fixed = {k: v for k, v in (("count", args.obstacles), ("radius", args.radius), ("speed", args.speed))
              if v is not None}
-    res = api.generate_maps(args.out, metric=args.metric, target=args.target, tolerance=args.tolerance,
-                            count=args.count, family=args.family, dims=args.dims, scenario=args.scenario, fixed=fixed,
-                            seed=args.seed, workers=args.workers, progress=not args.json)
+    if args.success is not None:
+        if args.metric is not None or args.target is not None:
+            raise ConfigError("--success", "cannot be combined with --metric/--target (two targets)", args.success)
+    elif args.metric is None or args.target is None:
+        raise ConfigError("--metric" if args.metric is None else "--target",
+                          "is required (or ask for a reference success with --success)", None, show_value=False)
+    res = api.generate_maps(args.out, metric=args.metric, target=args.target, success=args.success,
+                            tolerance=args.tolerance, count=args.count, family=args.family, dims=args.dims,
+                            scenario=args.scenario, fixed=fixed, seed=args.seed, workers=args.workers,
+                            progress=not args.json)
     doc = {"out": args.out, **res.summary()}
     if args.json:
         sys.stdout.write(json.dumps(doc, sort_keys=True) + "\n")
+    elif args.success is not None:
+        lo, hi = res.reachable
+        got = doc["measured"]
+        sys.stdout.write(f"{args.out}: {len(res.maps)} maps of family {args.family} ({args.dims}D) with reference "
+                         f"success {args.success:g} +- {args.tolerance:g} as flown ({min(got):.2f} to {max(got):.2f});"
+                         f" {res.flown} candidates flown of {res.candidates} predicted, predicted range {lo:.2f} to "
+                         f"{hi:.2f}; {res.wall_time_s:.1f} s ({doc['seconds_per_map']:.1f} s per map)\n")
     else:
         lo, hi = res.reachable
         sys.stdout.write(f"{args.out}: {len(res.maps)} maps of family {args.family} ({args.dims}D) with {args.metric} "

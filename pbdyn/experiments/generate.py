@@ -52,6 +52,16 @@ DECIMALS = {"radius": 2, "speed": 2}
 
 METRICS = NAMES
 """Every map metric can be a target (pbdyn.metrics.catalog)."""
+PREDICTED = "predicted_reference_success"
+"""The value success mode searches on: the shipped predictor's reference success (pbdyn.analysis.predict)."""
+MEASURED = "reference_success"
+"""The value success mode keeps maps by: the reference panel's measured success (pbdyn calibrate)."""
+PROPOSE_SHARE = 0.5
+"""Success mode flies a candidate only if its predicted success lies within this share of the tolerance."""
+FLY_ROUND = 4
+"""Success mode flies at most this many candidates at once (one batch of 180 trials each)."""
+MAX_FLOWN_PER_MAP = 6
+"""Success mode refuses after flying this many candidates per requested map."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +94,7 @@ class Candidate:
     replicate: int
     value: float = math.nan
     seed: int = 0
+    extra: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -97,19 +108,30 @@ class GeneratedMaps:
     reachable: tuple
     coefficients: tuple
     wall_time_s: float
+    flown: int = 0
 
     def summary(self) -> dict:
-        """JSON-able facts of the run."""
-        return {"maps": len(self.maps), "candidates": self.candidates, "reachable": list(self.reachable),
-                "coefficients": list(self.coefficients), "wall_time_s": self.wall_time_s,
-                "seconds_per_map": self.wall_time_s / max(len(self.maps), 1),
-                "values": [c.value for c in self.maps]}
+        """JSON-able facts of the run (success mode: ``flown`` candidates flown by the panel, ``measured`` their
+        reference successes)."""
+        out = {"maps": len(self.maps), "candidates": self.candidates, "reachable": list(self.reachable),
+               "coefficients": list(self.coefficients), "wall_time_s": self.wall_time_s,
+               "seconds_per_map": self.wall_time_s / max(len(self.maps), 1),
+               "values": [c.value for c in self.maps]}
+        if self.flown:
+            out["flown"] = self.flown
+            out["measured"] = [c.extra.get(MEASURED) for c in self.maps]
+        return out
 
 
 # ------------------------------------------------------------------------------------------------ checking
 def check_target(req: MetricTarget) -> MetricTarget:
     """``req`` with its values checked (ConfigError naming the flag's parameter otherwise)."""
-    if req.metric not in METRICS:
+    if req.metric == PREDICTED:
+        if isinstance(req.target, bool) or not isinstance(req.target, (int, float)) or not 0.0 <= req.target <= 1.0:
+            raise ConfigError("success", "must be a success rate in [0, 1]", req.target)
+        if isinstance(req.tolerance, (int, float)) and not isinstance(req.tolerance, bool) and req.tolerance >= 0.5:
+            raise ConfigError("tolerance", "must be < 0.5 for a success target", req.tolerance)
+    elif req.metric not in METRICS:
         raise ConfigError("metric", f"cannot generate by this metric (one of {', '.join(METRICS)})", req.metric)
     for name in ("target", "tolerance"):
         v = getattr(req, name)
@@ -164,7 +186,7 @@ def _entry(req: MetricTarget, c: Candidate) -> dict:
     if c.seed:
         out["seed"] = c.seed
     if math.isfinite(c.value):
-        out["measured"] = {req.metric: c.value}
+        out["measured"] = {req.metric: c.value, **c.extra}
     return out
 
 
@@ -179,14 +201,37 @@ def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]
     from pbdyn.world.rollout import build_rollout
 
     backend = resolve_backend(scenario, "auto")
+    out = []
+    if metric == PREDICTED:
+        from pbdyn.analysis.predict import MAP_METRICS, ROUTE_HORIZON_S, rollout_features
+
+        predictor = shipped_predictor(scenario.world.dims)
+        horizon = max([INFO[m].horizon_s for m in MAP_METRICS] + [ROUTE_HORIZON_S]) + scenario.world.dt
+        for i, setup, rep in entries:
+            spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed)
+            feats = rollout_features(scenario, build_rollout(scenario, spec, horizon), backend)
+            out.append((i, float(predictor.predict([feats])[0][0]), spec.seed))
+        return out
     horizon = INFO[metric].horizon_s + scenario.world.dt
     params = metric_params(scenario, metric, backend)
-    out = []
     for i, setup, rep in entries:
         spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed)
         ro = build_rollout(scenario, spec, horizon)
         out.append((i, float(compute(ro, metric, **params).value), spec.seed))
     return out
+
+
+def shipped_predictor(dims: int):
+    """The shipped predictor if it covers ``dims``-D maps, else ConfigError naming --success."""
+    from pbdyn.analysis.predict import load_predictor
+
+    predictor = load_predictor()
+    if predictor is None or dims not in predictor.dims:
+        have = "none is shipped" if predictor is None else \
+            f"the shipped one is fitted on {'/'.join(f'{d}D' for d in predictor.dims)} maps"
+        raise ConfigError("success", f"needs the reference-success predictor for {dims}D maps ({have}); use --metric",
+                          dims, show_value=False)
+    return predictor
 
 
 def _measure_task(args):
@@ -345,6 +390,88 @@ def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = 
                          tuple(float(x) for x in fit_linear(measured)), wall)
 
 
+def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool = False) -> GeneratedMaps:
+    """Maps whose reference success, flown by the reference panel (pbdyn calibrate), lies within the tolerance of
+    the target (``req.metric`` = PREDICTED, ``req.target`` = the success rate). The predictor proposes: the search
+    of generate_by_metric runs on the predicted success (the pilot's predicted range is the family's reachable
+    range); candidates predicted within PROPOSE_SHARE of the tolerance are flown, closest first, FLY_ROUND at a
+    time, and kept when their measured success is within the tolerance. The flights are stored in the cache
+    (pbdyn.experiments.calibrate.default_store), so repeating a request reuses them; ConfigError naming "success"
+    when the target is outside the predicted range or after MAX_FLOWN_PER_MAP x count flown candidates."""
+    from pbdyn.experiments.calibrate import calibrate
+    from pbdyn.world.maps import stable_hash64
+
+    req = check_target(replace(req, metric=PREDICTED))
+    t0 = time.perf_counter()
+    doc = scenario_document(req)
+    shipped_predictor(parse_scenario(doc).world.dims)
+    rng = np.random.default_rng([req.seed, stable_hash64(canonical_json(
+        {"success": req.target, "tolerance": req.tolerance, "family": req.family, "dims": req.dims,
+         "fixed": req.fixed, "bounds": req.bounds}))])
+    counter = iter(range(10 ** 9))
+
+    def next_rep() -> int:
+        return next(counter)
+
+    measurer = _Measurer(doc, PREDICTED, workers)
+    shown = _Progress(req.count, progress, "flown")
+    kept: list[Candidate] = []
+    flown = 0
+    try:
+        measured = _pilot(req, rng, next_rep)
+        measurer(req.family, measured)
+        values = np.array([c.value for c in measured])
+        lo, hi = float(values.min()), float(values.max())
+        if req.target + req.tolerance < lo or req.target - req.tolerance > hi:
+            raise ConfigError("success", f"reference success {req.target:g} is outside what family {req.family!r} "
+                              f"reaches in {req.dims}D ({_box_text(req)}): {lo:.2f} to {hi:.2f} predicted on "
+                              f"{len(measured)} pilot maps", req.target, show_value=False)
+        scale = max(req.tolerance * 4.0, 0.05 * (hi - lo))
+        beta = fit_linear(measured, req.target, scale)
+        budget = MAX_FLOWN_PER_MAP * req.count + FLY_ROUND
+        spread = 0.05
+        tried: set[int] = set()
+        while len(kept) < req.count:
+            near = sorted((c for c in measured if c.replicate not in tried and
+                           abs(c.value - req.target) <= PROPOSE_SHARE * req.tolerance),
+                          key=lambda c: (abs(c.value - req.target), c.replicate))
+            if near:
+                if flown >= budget:
+                    raise ConfigError("success", f"only {len(kept)} of {req.count} maps of family {req.family!r} "
+                                      f"flew within {req.tolerance:g} of reference success {req.target:g} after "
+                                      f"{flown} flown candidates (predicted range {lo:.2f} to {hi:.2f}); widen "
+                                      "--tolerance or move the target", req.target, show_value=False)
+                batch = near[:min(FLY_ROUND, req.count - len(kept), budget - flown)]
+                tried.update(c.replicate for c in batch)
+                res = calibrate(scenario_document(req, batch), workers=workers)
+                by_index = {r.map_index: r for r in res}
+                flown += len(batch)
+                for i, c in enumerate(batch):
+                    r = by_index[i]
+                    c.extra = {MEASURED: r.success, f"{MEASURED}_lo": r.success_ci[0],
+                               f"{MEASURED}_hi": r.success_ci[1]}
+                    if abs(r.success - req.target) <= req.tolerance and len(kept) < req.count:
+                        kept.append(c)
+                shown.update(len(kept), flown)
+                continue
+            if len(measured) >= MAX_CANDIDATES_PER_MAP * req.count + len(values):
+                raise ConfigError("success", f"the predictor proposed too few maps of family {req.family!r} near "
+                                  f"reference success {req.target:g} after {len(measured)} candidates (predicted "
+                                  f"range {lo:.2f} to {hi:.2f}); widen --tolerance", req.target, show_value=False)
+            batch = _propose(req, beta, rng, ROUND, next_rep, spread)
+            measurer(req.family, batch)
+            measured += batch
+            beta = fit_linear(measured, req.target, scale)
+            hits = sum(abs(c.value - req.target) <= PROPOSE_SHARE * req.tolerance for c in batch)
+            spread = 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
+    finally:
+        measurer.close()
+        shown.done()
+    wall = time.perf_counter() - t0
+    return GeneratedMaps(tuple(kept), scenario_document(req, kept), len(measured), (lo, hi),
+                         tuple(float(x) for x in fit_linear(measured)), wall, flown)
+
+
 def _box_text(req: MetricTarget) -> str:
     parts = []
     for key, unit in (("count", ""), ("radius", " m"), ("speed", " m/s")):
@@ -359,15 +486,15 @@ def _box_text(req: MetricTarget) -> str:
 class _Progress:
     """A progress line on stderr when it is a terminal: maps kept, candidates measured, seconds per kept map."""
 
-    def __init__(self, total: int, enabled: bool):
-        self.total, self.enabled = total, enabled and sys.stderr.isatty()
+    def __init__(self, total: int, enabled: bool, what: str = "candidates"):
+        self.total, self.enabled, self.what = total, enabled and sys.stderr.isatty(), what
         self.t0 = time.perf_counter()
 
     def update(self, kept: int, tried: int) -> None:
         if self.enabled:
             dt = time.perf_counter() - self.t0
             per = f", {dt / kept:.2f} s per map" if kept else ""
-            sys.stderr.write(f"\rpbdyn generate: {kept}/{self.total} maps, {tried} candidates{per}   ")
+            sys.stderr.write(f"\rpbdyn generate: {kept}/{self.total} maps, {tried} {self.what}{per}   ")
             sys.stderr.flush()
 
     def done(self) -> None:

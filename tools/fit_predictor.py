@@ -1,0 +1,231 @@
+"""The predictor of reference success (pbdyn.analysis.predict): its features, its validation study and its fit.
+
+    .venv/bin/python tools/fit_predictor.py --features   # data/calibration_features.csv from the calibration maps
+    .venv/bin/python tools/fit_predictor.py --study      # leave-one-family-out study of every candidate model
+    .venv/bin/python tools/fit_predictor.py              # fit the chosen model -> data/predictor.json
+
+The calibration maps are those whose panel outcomes were exported by tools/fit_anchors.py --export
+(data/calibration_<dims>d.csv.gz and, for imported worlds, data/calibration_worlds.csv.gz). A map counts once every
+one of its panel trials is in (3 planners x 3 speeds x 20 tasks = 180).
+
+Study: for every candidate feature set (CANDIDATES), each family is held out in turn (the 7 generator families
+of each dims, and the imported worlds as one family), the model is fitted on the rest and predicts the held-out
+maps. Reported: pooled SRCC and mean absolute error (MAE) of predicted vs measured success, and per held-out
+family its SRCC, MAE (95% intervals from resampling the family's maps) and the reliability ceiling of its SRCC
+(sqrt of the split-half reliability of the measured successes), plus the share of maps inside their 95% interval.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import gzip
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from pbdyn.analysis.predict import (FEATURES, PREDICTOR_FILE, fit_predictor, leave_one_group_out,  # noqa: E402
+                                    split_half_reliability)
+
+DATA = ROOT / "pbdyn" / "analysis" / "data"
+FEATURES_FILE = DATA / "calibration_features.csv"
+PANEL_TRIALS = 180
+CANDIDATES = {
+    "constant": (),
+    "closed form (log flux)": ("log_flux",),
+    "closed form (log flux, log density)": ("log_flux", "log_density"),
+    "survivability": ("survivability",),
+    "survivability + static share": ("survivability", "static_share"),
+    "route survivability": ("route_survivability",),
+    "route survivability + detour": ("route_survivability", "route_detour"),
+    "route (survivability, detour, log flux)": ("route_survivability", "route_detour", "log_route_flux"),
+    "all": FEATURES,
+}
+CHOSEN = "route (survivability, detour, log flux)"
+"""The shipped model's feature set, chosen by the study (docs/difficulty-scale.md)."""
+OUTCOME_FILES = {"calibration_2d.csv.gz": "2d", "calibration_3d.csv.gz": "3d", "calibration_worlds.csv.gz": "worlds"}
+
+
+def read_csv_gz(path: Path) -> list[dict]:
+    """Rows of a gzip CSV."""
+    with gzip.open(path, "rt") as f:
+        return list(csv.DictReader(f))
+
+
+def calibration_maps() -> list[dict]:
+    """Every exported calibration map with its complete panel trials: {"map_id", "dims", "family", "k", "n",
+    "tasks": [T, 2] (successes, trials per task), "source"}."""
+    out = []
+    for name, kind in OUTCOME_FILES.items():
+        path = DATA / name
+        if not path.is_file():
+            continue
+        per: dict[str, dict] = {}
+        for r in read_csv_gz(path):
+            m = per.setdefault(r["map_id"], {"map_id": r["map_id"], "family": r["family"] or "imported",
+                                             "dims": 2 if kind == "worlds" else int(kind[0]), "tasks": {},
+                                             "source": name, "map_index": int(r["map_index"])})
+            if kind == "worlds":
+                m["family"] = "imported"
+                m["dims"] = len(r["start"].split())
+            t = m["tasks"].setdefault((r["start"], r["goal"]), [0, 0])
+            t[0] += int(r["success"])
+            t[1] += 1
+        for m in per.values():
+            tasks = np.array([m["tasks"][t] for t in sorted(m["tasks"])], float)
+            m["tasks"] = tasks
+            m["k"], m["n"] = float(tasks[:, 0].sum()), float(tasks[:, 1].sum())
+            if m["n"] == PANEL_TRIALS:
+                out.append(m)
+    return sorted(out, key=lambda m: (m["source"], m["map_index"]))
+
+
+def scenario_of(source: str) -> list[str]:
+    """The scenario file(s) behind an outcomes file."""
+    if source == "calibration_worlds.csv.gz":
+        return sorted(str(p.relative_to(ROOT)) for p in (ROOT / "scenarios/worlds/imported_2d").glob("*.toml"))
+    return [f"scenarios/calibration/{source.split('.')[0]}.toml"]
+
+
+def compute_features(maps: list[dict]) -> Path:
+    """Compute FEATURES of every calibration map (pbdyn.analysis.predict.map_features) into FEATURES_FILE."""
+    from pbdyn.analysis.predict import map_features
+    from pbdyn.config import load_scenario
+    from pbdyn.world.maps import enumerate_maps
+
+    want = {m["map_id"] for m in maps}
+    rows = []
+    seen_sources = sorted({m["source"] for m in maps})
+    for source in seen_sources:
+        for path in scenario_of(source):
+            sc = load_scenario(ROOT / path)
+            for spec in enumerate_maps(sc):
+                if spec.map_id not in want:
+                    continue
+                f = map_features(sc, spec.index)
+                rows.append({"map_id": spec.map_id, "scenario": path, "map_index": spec.index,
+                             **{k: repr(float(f[k])) for k in FEATURES}})
+                print(f"{path} map {spec.index}: " + ", ".join(f"{k} {f[k]:.3f}" for k in FEATURES), flush=True)
+    rows.sort(key=lambda r: (r["scenario"], r["map_index"]))
+    with FEATURES_FILE.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, ["map_id", "scenario", "map_index", *FEATURES], lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+    return FEATURES_FILE
+
+
+def table() -> list[dict]:
+    """The calibration maps joined with their features (maps without features are left out, with a note)."""
+    feats = {}
+    if FEATURES_FILE.is_file():
+        with FEATURES_FILE.open() as fh:
+            feats = {r["map_id"]: r for r in csv.DictReader(fh)}
+    out = []
+    for m in calibration_maps():
+        f = feats.get(m["map_id"])
+        if f is None:
+            print(f"note: no features for {m['map_id']} ({m['source']}); run --features", file=sys.stderr)
+            continue
+        out.append({**m, **{k: float(f[k]) for k in FEATURES}})
+    return out
+
+
+def _boot(values_fn, idx: np.ndarray, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
+    draws = np.array([values_fn(rng.choice(idx, idx.size)) for _ in range(n_boot)])
+    draws = draws[np.isfinite(draws)]
+    return (float(np.quantile(draws, 0.025)), float(np.quantile(draws, 0.975))) if draws.size else (np.nan, np.nan)
+
+
+def study(rows: list[dict], seed: int = 0) -> dict:
+    """The leave-one-family-out study (module doc) of every candidate."""
+    from pbdyn.analysis.srcc import spearman
+
+    fam = [f"{r['dims']}D {r['family']}" if r["family"] != "imported" else "imported worlds" for r in rows]
+    y = np.array([r["k"] / r["n"] for r in rows])
+    fams = sorted(set(fam))
+    rel = {}
+    for g in fams:
+        rng = np.random.default_rng([seed, 1, fams.index(g)])
+        ts = [r["tasks"] for r, h in zip(rows, fam) if h == g]
+        rel[g] = split_half_reliability(ts, rng)
+    res = {"maps": len(rows), "families": {g: fam.count(g) for g in fams}, "reliability": rel, "models": {}}
+    for name, feats in CANDIDATES.items():
+        pred = leave_one_group_out(rows, feats, fam)
+        rng = np.random.default_rng([seed, 2])
+        idx = np.arange(len(rows))
+        pooled = {"srcc": float(spearman(pred, y)), "mae": float(np.mean(np.abs(pred - y))),
+                  "srcc_ci": _boot(lambda i: float(spearman(pred[i], y[i])), idx, rng),
+                  "mae_ci": _boot(lambda i: float(np.mean(np.abs(pred[i] - y[i]))), idx, rng)}
+        per = {}
+        for g in fams:
+            i = np.array([k for k, h in enumerate(fam) if h == g])
+            per[g] = {"srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i]))),
+                      "srcc_ci": _boot(lambda j: float(spearman(pred[j], y[j])), i, rng),
+                      "mae_ci": _boot(lambda j: float(np.mean(np.abs(pred[j] - y[j]))), i, rng)}
+        full = fit_predictor(rows, feats)
+        _, lo, hi = full.predict(rows)
+        res["models"][name] = {"features": list(feats), "pooled": pooled, "per_family": per,
+                               "in_sample_coverage": float(np.mean((y >= lo) & (y <= hi)))}
+    return res
+
+
+def format_study(res: dict) -> str:
+    """The study as markdown tables."""
+    lines = [f"{res['maps']} calibration maps: " + ", ".join(f"{g} {n}" for g, n in res["families"].items()), "",
+             "| model | pooled SRCC [95% CI] | pooled MAE [95% CI] | worst family MAE | 95% interval coverage |",
+             "|---|---|---|---|---|"]
+    for name, m in res["models"].items():
+        p = m["pooled"]
+        worst = max(m["per_family"].items(), key=lambda kv: kv[1]["mae"])
+        lines.append(f"| {name} | {p['srcc']:.3f} [{p['srcc_ci'][0]:.2f}, {p['srcc_ci'][1]:.2f}] | {p['mae']:.3f} "
+                     f"[{p['mae_ci'][0]:.3f}, {p['mae_ci'][1]:.3f}] | {worst[1]['mae']:.3f} ({worst[0]}) | "
+                     f"{m['in_sample_coverage']:.2f} |")
+    lines += ["", f"Per held-out family, model \"{CHOSEN}\":", "",
+              "| held-out family | maps | SRCC [95% CI] | reliability ceiling | MAE [95% CI] |", "|---|---|---|---|---|"]
+    for g, v in res["models"][CHOSEN]["per_family"].items():
+        ceil = float(np.sqrt(max(res["reliability"][g], 0.0)))
+        lines.append(f"| {g} | {res['families'][g]} | {v['srcc']:.2f} [{v['srcc_ci'][0]:.2f}, {v['srcc_ci'][1]:.2f}] | "
+                     f"{ceil:.2f} | {v['mae']:.3f} [{v['mae_ci'][0]:.3f}, {v['mae_ci'][1]:.3f}] |")
+    return "\n".join(lines) + "\n"
+
+
+def fit_chosen(rows: list[dict]) -> dict:
+    """The shipped predictor document: CHOSEN fitted on every calibration map."""
+    dims = sorted({r["dims"] for r in rows})
+    src = f"tools/fit_predictor.py: statsmodels binomial GLM on {len(rows)} calibration maps " \
+          f"({', '.join(sorted({r['source'] for r in rows}))}), features: {CHOSEN}"
+    model = fit_predictor(rows, CANDIDATES[CHOSEN], source=src)
+    doc = model.to_dict()
+    doc["dims"] = dims
+    return doc
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--features", action="store_true", help="compute the calibration maps' features")
+    ap.add_argument("--study", action="store_true", help="run the leave-one-family-out study")
+    ap.add_argument("--json", type=Path, help="with --study: also write the study as JSON here")
+    args = ap.parse_args(argv)
+    if args.features:
+        print(f"wrote {compute_features(calibration_maps()).relative_to(ROOT)}")
+        return 0
+    rows = table()
+    if args.study:
+        res = study(rows)
+        sys.stdout.write(format_study(res))
+        if args.json:
+            args.json.write_text(json.dumps(res, indent=1, sort_keys=True) + "\n")
+        return 0
+    doc = fit_chosen(rows)
+    (DATA / PREDICTOR_FILE).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+    print(json.dumps({k: doc[k] for k in ("features", "coef", "sigma", "dims")}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
