@@ -34,39 +34,52 @@ DATA = ROOT / "pbdyn" / "analysis" / "data"
 FIELDS = ("map_id", "map_index", "family", "count", "radius", "speed", "start", "goal", "respondent", "success")
 
 
-def export(store: Path) -> Path:
-    """Write the panel's outcomes of ``store`` to DATA/calibration_<dims>d.csv.gz; returns the path."""
+def store_outcomes(store: Path) -> tuple[str, list[tuple]]:
+    """(kind, rows) of the panel's outcomes in a calibration store: kind "2d"/"3d" for generated maps, "worlds" for
+    an imported world (its family is the world's name)."""
     from pbdyn.experiments.store import ResultsStore
 
     st = ResultsStore.open(store)
     try:
         rows, doc = st.results(), json.loads(st.get_meta("scenario") or "{}")
-        maps = st.maps()
     finally:
         st.close()
-    dims = int(doc.get("world", {}).get("dims", 2))
+    world = bool(doc.get("bodies"))
+    kind = "worlds" if world else f"{int(doc.get('world', {}).get('dims', 2))}d"
+    name = str(doc.get("name", store.stem)).removesuffix("_reference")
     out = []
     for r in rows:
-        name = respondent(r.get("planner_label") or "", r.get("mav_speed") or 0.0)
-        if name not in RESPONDENTS:
+        who = respondent(r.get("planner_label") or "", r.get("mav_speed") or 0.0)
+        if who not in RESPONDENTS:
             continue
         if r.get("outcome") == "error":
             raise SystemExit(f"{store}: an error row on map {r.get('map_index')}; re-fly it first")
-        family = json.loads(r.get("map_key") or "{}").get("setup", {}).get("structure", "") if r.get("map_key") \
-            else ""
-        out.append((r["map_id"], r["map_index"], family, r["obstacle_count"], r["obstacle_radius"], r["obstacle_speed"],
-                    " ".join(f"{x:g}" for x in r["start"]), " ".join(f"{x:g}" for x in r["goal"]), name,
-                    int(r["outcome"] == "success")))
-    out.sort()
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(FIELDS)
-    w.writerows(out)
-    path = DATA / f"calibration_{dims}d.csv.gz"
-    DATA.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(gzip.compress(buf.getvalue().encode(), mtime=0))
-    del maps
-    return path
+        family = name if world else json.loads(r.get("map_key") or "{}").get("setup", {}).get("structure", "")
+        out.append((r["map_id"], r["map_index"], family, r["obstacle_count"], r["obstacle_radius"],
+                    r["obstacle_speed"], " ".join(f"{x:g}" for x in r["start"]), " ".join(f"{x:g}" for x in r["goal"]),
+                    who, int(r["outcome"] == "success")))
+    return kind, out
+
+
+def export(stores: list[Path]) -> list[Path]:
+    """Write the panel's outcomes of ``stores`` to DATA/calibration_<kind>.csv.gz (one file per kind: 2d, 3d,
+    worlds -- the stores of one kind together); returns the paths written."""
+    per: dict[str, list] = {}
+    for store in stores:
+        kind, rows = store_outcomes(store)
+        per.setdefault(kind, []).extend(rows)
+    paths = []
+    for kind, rows in per.items():
+        rows.sort()
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(FIELDS)
+        w.writerows(rows)
+        path = DATA / f"calibration_{kind}.csv.gz"
+        DATA.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(gzip.compress(buf.getvalue().encode(), mtime=0))
+        paths.append(path)
+    return paths
 
 
 def read_outcomes(path: Path) -> list[dict]:
@@ -111,8 +124,8 @@ def main(argv=None) -> int:
     ap.add_argument("--export", nargs="+", type=Path, help="calibration stores to export (then stop)")
     args = ap.parse_args(argv)
     if args.export:
-        for store in args.export:
-            print(f"wrote {export(store).relative_to(ROOT)}")
+        for path in export(args.export):
+            print(f"wrote {path.relative_to(ROOT)}")
         return 0
     doc = fit(read_outcomes(DATA / "calibration_2d.csv.gz"))
     doc["difficulties"] = {}

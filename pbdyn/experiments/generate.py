@@ -170,7 +170,8 @@ def scenario_document(req: MetricTarget, maps: list[Candidate] = ()) -> dict:
     """The scenario (as a TOML-shaped dict) that lists ``maps``: ``req.base`` with its obstacles' grid fields
     replaced by the explicit list and root_seed = req.seed."""
     doc = copy.deepcopy(req.base)
-    doc.setdefault("name", f"generated_{req.metric}_{req.target:g}")
+    doc.setdefault("name", f"generated_success_{req.target:g}" if req.metric == PREDICTED else
+                   f"generated_{req.metric}_{req.target:g}")
     if req.dims == 3:
         doc.setdefault("world", {})["dims"] = 3
     obst = {k: v for k, v in doc.get("obstacles", {}).items()
