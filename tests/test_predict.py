@@ -170,3 +170,17 @@ def test_success_mode_is_deterministic_and_refuses_unreachable_targets(success_s
         assert res.returncode == 2 and res.stderr.count("\n") == 1 and flag in res.stderr, (args, res.stderr)
     assert not (tmp_path / "x.toml").exists() and not (tmp_path / "y.toml").exists()
     assert not Path(tmp_path / "again.toml.tmp").exists()
+
+
+def test_the_study_picks_the_shipped_feature_set():
+    """The leave-one-family-out study over the shipped calibration data chooses the shipped model."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import fit_predictor as tool
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    rows = tool.table()
+    fam = [r["family"] if r["family"].startswith("imported") else f"{r['dims']}D {r['family']}" for r in rows]
+    y = np.array([r["k"] / r["n"] for r in rows])
+    assert tool.choose({"models": tool._scores(rows, fam, y)}) == tool.CHOSEN
+    assert tuple(load_predictor().features) == tool.CANDIDATES[tool.CHOSEN]

@@ -36,7 +36,7 @@ FIELDS = ("map_id", "map_index", "family", "count", "radius", "speed", "start", 
 
 def store_outcomes(store: Path) -> tuple[str, list[tuple]]:
     """(kind, rows) of the panel's outcomes in a calibration store: kind "2d"/"3d" for generated maps, "worlds" for
-    an imported world (its family is the world's name)."""
+    an imported world (its family is the world's name, its map id prefixed by it: "office_0/<map id>")."""
     from pbdyn.experiments.store import ResultsStore
 
     st = ResultsStore.open(store)
@@ -55,7 +55,7 @@ def store_outcomes(store: Path) -> tuple[str, list[tuple]]:
         if r.get("outcome") == "error":
             raise SystemExit(f"{store}: an error row on map {r.get('map_index')}; re-fly it first")
         family = name if world else json.loads(r.get("map_key") or "{}").get("setup", {}).get("structure", "")
-        out.append((r["map_id"], r["map_index"], family, r["obstacle_count"], r["obstacle_radius"],
+        out.append((f"{name}/{r['map_id']}" if world else r["map_id"], r["map_index"], family, r["obstacle_count"], r["obstacle_radius"],
                     r["obstacle_speed"], " ".join(f"{x:g}" for x in r["start"]), " ".join(f"{x:g}" for x in r["goal"]),
                     who, int(r["outcome"] == "success")))
     return kind, out

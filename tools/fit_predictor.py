@@ -9,7 +9,7 @@ The calibration maps are those whose panel outcomes were exported by tools/fit_a
 one of its panel trials is in (3 planners x 3 speeds x 20 tasks = 180).
 
 Study: for every candidate feature set (CANDIDATES), each family is held out in turn (the 7 generator families
-of each dims, and the imported worlds as one family), the model is fitted on the rest and predicts the held-out
+of each dims, and each kind of imported world: office, orbits, plaza, warehouse), the model is fitted on the rest and predicts the held-out
 maps. Reported: pooled SRCC and mean absolute error (MAE) of predicted vs measured success, and per held-out
 family its SRCC, MAE (95% intervals from resampling the family's maps) and the reliability ceiling of its SRCC
 (sqrt of the split-half reliability of the measured successes), plus the share of maps inside their 95% interval.
@@ -35,19 +35,25 @@ from pbdyn.analysis.predict import (FEATURES, PREDICTOR_FILE, fit_predictor, lea
 DATA = ROOT / "pbdyn" / "analysis" / "data"
 FEATURES_FILE = DATA / "calibration_features.csv"
 PANEL_TRIALS = 180
-CANDIDATES = {
-    "constant": (),
-    "closed form (log flux)": ("log_flux",),
-    "closed form (log flux, log density)": ("log_flux", "log_density"),
-    "survivability": ("survivability",),
-    "survivability + static share": ("survivability", "static_share"),
-    "route survivability": ("route_survivability",),
-    "route survivability + detour": ("route_survivability", "route_detour"),
-    "route (survivability, detour, log flux)": ("route_survivability", "route_detour", "log_route_flux"),
-    "all": FEATURES,
-}
-CHOSEN = "all"
-"""The shipped model's feature set: the study's choice (choose(): docs/difficulty-scale.md)."""
+def _candidates() -> dict[str, tuple]:
+    """Every feature set the study compares, declared before looking at any result: the constant, each feature
+    alone, each pair, the three route metrics together, and all features."""
+    import itertools
+
+    out = {"constant": ()}
+    out.update({f: (f,) for f in FEATURES})
+    out.update({f"{a} + {b}": (a, b) for a, b in itertools.combinations(FEATURES, 2)})
+    out["route_survivability + route_detour + log_route_flux"] = ("route_survivability", "route_detour",
+                                                                 "log_route_flux")
+    out["all"] = FEATURES
+    return out
+
+
+CANDIDATES = _candidates()
+CLOSED_FORMS = ("log_flux", "log_density", "log_flux + log_density")
+"""The candidates that are closed forms of (n, r, v) and the arena (no simulation of the movers)."""
+CHOSEN = "log_flux + static_share"
+"""The shipped model's feature set: what choose() picks on every calibration map (docs/difficulty-scale.md)."""
 MAE_MARGIN = 0.005
 """choose(): a simpler model is preferred while its pooled MAE is within this of the best one's."""
 OUTCOME_FILES = {"calibration_2d.csv.gz": "2d", "calibration_3d.csv.gz": "3d", "calibration_worlds.csv.gz": "worlds"}
@@ -72,8 +78,8 @@ def calibration_maps() -> list[dict]:
             m = per.setdefault(r["map_id"], {"map_id": r["map_id"], "family": r["family"] or "imported",
                                              "dims": 2 if kind == "worlds" else int(kind[0]), "tasks": {},
                                              "source": name, "map_index": int(r["map_index"])})
-            if kind == "worlds":
-                m["family"] = "imported"
+            if kind == "worlds":                     # the world's kind: office_0 -> office
+                m["family"] = "imported " + r["family"].rsplit("_", 1)[0]
                 m["dims"] = len(r["start"].split())
             t = m["tasks"].setdefault((r["start"], r["goal"]), [0, 0])
             t[0] += int(r["success"])
@@ -107,10 +113,11 @@ def compute_features(maps: list[dict]) -> Path:
         for path in scenario_of(source):
             sc = load_scenario(ROOT / path)
             for spec in enumerate_maps(sc):
-                if spec.map_id not in want:
+                key = f"{sc.name}/{spec.map_id}" if sc.is_world else spec.map_id
+                if key not in want:
                     continue
                 f = map_features(sc, spec.index)
-                rows.append({"map_id": spec.map_id, "scenario": path, "map_index": spec.index,
+                rows.append({"map_id": key, "scenario": path, "map_index": spec.index,
                              **{k: repr(float(f[k])) for k in FEATURES}})
                 print(f"{path} map {spec.index}: " + ", ".join(f"{k} {f[k]:.3f}" for k in FEATURES), flush=True)
     rows.sort(key=lambda r: (r["scenario"], r["map_index"]))
@@ -147,7 +154,7 @@ def study(rows: list[dict], seed: int = 0) -> dict:
     """The leave-one-family-out study (module doc) of every candidate."""
     from pbdyn.analysis.srcc import spearman
 
-    fam = [f"{r['dims']}D {r['family']}" if r["family"] != "imported" else "imported worlds" for r in rows]
+    fam = [r["family"] if r["family"].startswith("imported") else f"{r['dims']}D {r['family']}" for r in rows]
     y = np.array([r["k"] / r["n"] for r in rows])
     fams = sorted(set(fam))
     rel = {}
@@ -156,6 +163,7 @@ def study(rows: list[dict], seed: int = 0) -> dict:
         ts = [r["tasks"] for r, h in zip(rows, fam) if h == g]
         rel[g] = split_half_reliability(ts, rng)
     res = {"maps": len(rows), "families": {g: fam.count(g) for g in fams}, "reliability": rel, "models": {}}
+    res["nested"] = nested(rows, fam, y, seed)
     for name, feats in CANDIDATES.items():
         pred = leave_one_group_out(rows, feats, fam)
         rng = np.random.default_rng([seed, 2])
@@ -169,11 +177,59 @@ def study(rows: list[dict], seed: int = 0) -> dict:
             per[g] = {"srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i]))),
                       "srcc_ci": _boot(lambda j: float(spearman(pred[j], y[j])), i, rng),
                       "mae_ci": _boot(lambda j: float(np.mean(np.abs(pred[j] - y[j]))), i, rng)}
+        i = np.array([k for k, h in enumerate(fam) if h.startswith("imported")], dtype=int)
+        if i.size:
+            per["imported worlds (all kinds)"] = {
+                "srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i]))),
+                "srcc_ci": _boot(lambda j: float(spearman(pred[j], y[j])), i, rng),
+                "mae_ci": _boot(lambda j: float(np.mean(np.abs(pred[j] - y[j]))), i, rng)}
         full = fit_predictor(rows, feats)
         _, lo, hi = full.predict(rows)
         res["models"][name] = {"features": list(feats), "pooled": pooled, "per_family": per,
                                "in_sample_coverage": float(np.mean((y >= lo) & (y <= hi)))}
     return res
+
+
+def _scores(rows: list[dict], fam: list[str], y: np.ndarray) -> dict:
+    """Leave-one-family-out pooled SRCC and MAE of every candidate on ``rows``."""
+    from pbdyn.analysis.srcc import spearman
+
+    out = {}
+    for name, feats in CANDIDATES.items():
+        pred = leave_one_group_out(rows, feats, fam)
+        out[name] = {"features": list(feats), "pooled": {"srcc": float(spearman(pred, y)),
+                                                          "mae": float(np.mean(np.abs(pred - y)))}}
+    return out
+
+
+def nested(rows: list[dict], fam: list[str], y: np.ndarray, seed: int = 0) -> dict:
+    """The honest estimate of the whole procedure (choosing the features, then fitting): for each held-out family,
+    choose() runs on a leave-one-family-out study of the other families only, the chosen model is fitted on them
+    and predicts the held-out maps. Returns pooled SRCC/MAE with 95% intervals, per family MAE/SRCC and the
+    choice made in each fold."""
+    from pbdyn.analysis.srcc import spearman
+
+    fam_a = np.asarray(fam)
+    pred = np.full(len(rows), np.nan)
+    picked = {}
+    for g in sorted(set(fam)):
+        train = [i for i, h in enumerate(fam) if h != g]
+        test = [i for i, h in enumerate(fam) if h == g]
+        inner = _scores([rows[i] for i in train], [fam[i] for i in train], y[train])
+        name = choose({"models": inner})
+        picked[g] = name
+        model = fit_predictor([rows[i] for i in train], CANDIDATES[name])
+        pred[test] = model.predict([rows[i] for i in test])[0]
+    rng = np.random.default_rng([seed, 3])
+    idx = np.arange(len(rows))
+    per = {}
+    for g in sorted(set(fam)):
+        i = np.flatnonzero(fam_a == g)
+        per[g] = {"srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i])))}
+    return {"srcc": float(spearman(pred, y)), "mae": float(np.mean(np.abs(pred - y))),
+            "srcc_ci": _boot(lambda i: float(spearman(pred[i], y[i])), idx, rng),
+            "mae_ci": _boot(lambda i: float(np.mean(np.abs(pred[i] - y[i]))), idx, rng),
+            "per_family": per, "picked": picked, "predictions": pred.tolist(), "measured": y.tolist()}
 
 
 def choose(res: dict) -> str:
@@ -188,12 +244,22 @@ def choose(res: dict) -> str:
 
 def format_study(res: dict) -> str:
     """The study as markdown tables."""
+    nest = res["nested"]
     lines = [f"{res['maps']} calibration maps: " + ", ".join(f"{g} {n}" for g, n in res["families"].items()), "",
+             f"Nested (features chosen without the held-out family): pooled SRCC {nest['srcc']:.3f} "
+             f"[{nest['srcc_ci'][0]:.2f}, {nest['srcc_ci'][1]:.2f}], MAE {nest['mae']:.3f} [{nest['mae_ci'][0]:.3f}, "
+             f"{nest['mae_ci'][1]:.3f}]; worst family MAE "
+             + "{1:.3f} ({0})".format(*max(((g, v["mae"]) for g, v in nest["per_family"].items()), key=lambda kv: kv[1]))
+             + "; choices: " + ", ".join(f"{g}: {n}" for g, n in nest["picked"].items()), "",
              "| model | pooled SRCC [95% CI] | pooled MAE [95% CI] | worst family MAE | 95% interval coverage |",
              "|---|---|---|---|---|"]
-    for name, m in res["models"].items():
+    ranked = sorted(res["models"], key=lambda m: res["models"][m]["pooled"]["mae"])
+    show = list(dict.fromkeys(ranked[:8] + ["constant", "survivability", "route_survivability", *CLOSED_FORMS,
+                                            "all"]))
+    for name in show:
+        m = res["models"][name]
         p = m["pooled"]
-        worst = max(m["per_family"].items(), key=lambda kv: kv[1]["mae"])
+        worst = max(((g, v) for g, v in m["per_family"].items() if g in res["families"]), key=lambda kv: kv[1]["mae"])
         lines.append(f"| {name} | {p['srcc']:.3f} [{p['srcc_ci'][0]:.2f}, {p['srcc_ci'][1]:.2f}] | {p['mae']:.3f} "
                      f"[{p['mae_ci'][0]:.3f}, {p['mae_ci'][1]:.3f}] | {worst[1]['mae']:.3f} ({worst[0]}) | "
                      f"{m['in_sample_coverage']:.2f} |")
@@ -201,8 +267,8 @@ def format_study(res: dict) -> str:
               f"Per held-out family, model \"{CHOSEN}\":", "",
               "| held-out family | maps | SRCC [95% CI] | reliability ceiling | MAE [95% CI] |", "|---|---|---|---|---|"]
     for g, v in res["models"][CHOSEN]["per_family"].items():
-        ceil = float(np.sqrt(max(res["reliability"][g], 0.0)))
-        lines.append(f"| {g} | {res['families'][g]} | {v['srcc']:.2f} [{v['srcc_ci'][0]:.2f}, {v['srcc_ci'][1]:.2f}] | "
+        ceil = float(np.sqrt(max(res["reliability"].get(g, np.nan), 0.0))) if g in res["reliability"] else np.nan
+        lines.append(f"| {g} | {res['families'].get(g, sum(n for h, n in res['families'].items() if h.startswith('imported')))} | {v['srcc']:.2f} [{v['srcc_ci'][0]:.2f}, {v['srcc_ci'][1]:.2f}] | "
                      f"{ceil:.2f} | {v['mae']:.3f} [{v['mae_ci'][0]:.3f}, {v['mae_ci'][1]:.3f}] |")
     return "\n".join(lines) + "\n"
 
