@@ -190,7 +190,7 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS",
          "target": "--target", "tolerance": "--tolerance", "count": "--count", "family": "--family", "dims": "--dims",
          "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed",
-         "store": "--store", "maps": "--map"}
+         "store": "--store", "maps": "--map", "success": "--success"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 

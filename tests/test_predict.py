@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 
 import pbdyn
-from pbdyn.analysis.predict import (FEATURES, MAP_METRICS, ROUTE_HORIZON_S, fit_predictor, leave_one_group_out,
-                                    load_predictor, map_features, map_sigma, rollout_features, split_half_reliability)
+from pbdyn.analysis.predict import fit_predictor, leave_one_group_out, load_predictor, map_sigma, split_half_reliability
+from pbdyn.analysis.scale import reference_pairs
+from pbdyn.metrics.features import FEATURES, MAP_METRICS, ROUTE_HORIZON_S, rollout_features
+from pbdyn.metrics.features import map_features as _map_features
 from pbdyn.metrics.catalog import INFO
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout
@@ -23,6 +25,10 @@ from tests.conftest import ROOT, pbdyn_cmd
 
 CAL_2D = ROOT / "scenarios" / "calibration" / "calibration_2d.toml"
 DATA = ROOT / "pbdyn" / "analysis" / "data"
+
+
+def map_features(sc, index):
+    return _map_features(sc, index, reference_pairs(sc.task.candidates))
 
 
 def cli(args, cwd, timeout=900):
@@ -34,7 +40,8 @@ def test_features_from_the_cache_equal_features_from_a_fresh_rollout():
     horizon = max([INFO[m].horizon_s for m in MAP_METRICS] + [ROUTE_HORIZON_S]) + sc.world.dt
     for index in (0, 24):                                     # uniform; walls (route detours around the walls)
         cached = map_features(sc, index)
-        fresh = rollout_features(sc, build_rollout(sc, enumerate_maps(sc)[index], horizon))
+        fresh = rollout_features(sc, build_rollout(sc, enumerate_maps(sc)[index], horizon),
+                                 reference_pairs(sc.task.candidates))
         assert cached == fresh and set(cached) == set(FEATURES)
     walls = map_features(sc, 24)
     assert walls["route_detour"] > 1.05 and walls["static_share"] > 0

@@ -29,8 +29,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pbdyn.analysis.predict import (FEATURES, PREDICTOR_FILE, fit_predictor, leave_one_group_out,  # noqa: E402
+from pbdyn.analysis.predict import (PREDICTOR_FILE, fit_predictor, leave_one_group_out,  # noqa: E402
                                     split_half_reliability)
+from pbdyn.metrics.features import FEATURES  # noqa: E402
 
 DATA = ROOT / "pbdyn" / "analysis" / "data"
 FEATURES_FILE = DATA / "calibration_features.csv"
@@ -101,9 +102,11 @@ def scenario_of(source: str) -> list[str]:
 
 
 def compute_features(maps: list[dict]) -> Path:
-    """Compute FEATURES of every calibration map (pbdyn.analysis.predict.map_features) into FEATURES_FILE."""
-    from pbdyn.analysis.predict import map_features
+    """Compute FEATURES of every calibration map (pbdyn.metrics.features.map_features) into FEATURES_FILE."""
+    from pbdyn.analysis.scale import reference_pairs
     from pbdyn.config import load_scenario
+    from pbdyn.metrics.cached import resolve_backend
+    from pbdyn.metrics.features import map_features
     from pbdyn.world.maps import enumerate_maps
 
     want = {m["map_id"] for m in maps}
@@ -116,7 +119,8 @@ def compute_features(maps: list[dict]) -> Path:
                 key = f"{sc.name}/{spec.map_id}" if sc.is_world else spec.map_id
                 if key not in want:
                     continue
-                f = map_features(sc, spec.index)
+                f = map_features(sc, spec.index, reference_pairs(sc.task.candidates),
+                                 backend=resolve_backend(sc, "auto"))
                 rows.append({"map_id": key, "scenario": path, "map_index": spec.index,
                              **{k: repr(float(f[k])) for k in FEATURES}})
                 print(f"{path} map {spec.index}: " + ", ".join(f"{k} {f[k]:.3f}" for k in FEATURES), flush=True)

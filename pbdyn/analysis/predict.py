@@ -7,16 +7,12 @@ computed in about a second, so `pbdyn metrics` can print it for any map:
     logit P(success of a panel trial on map i) = beta_0 + sum_f beta_f z_f(i)
 
 a binomial GLM (statsmodels; successes of the 180 panel trials per calibration map) on standardised features
-z_f = (x_f - mean_f) / sd_f. Features (FEATURES; each a pbdyn metric or closed form, thesis ch. 3):
-
-- survivability (s, eq. 3-6), log_flux (log of the closed-form flux, 1/s, eq. 3-2 style), log_density,
-  static_share (share of samples inside static geometry, 1);
-- route_detour (1), route_survivability (s), log_route_flux: the task metrics along the static-free route between
-  the map's reference start/goal pairs (pbdyn.metrics.route) -- they see walls, corridors and pillars that the
-  map-wide metrics leave out.
-
-The shipped model (pbdyn/analysis/data/predictor.json) names its features, which were chosen by the
-leave-one-family-out study (tools/fit_predictor.py --study, docs/difficulty-scale.md). Its 95% interval for one
+z_f = (x_f - mean_f) / sd_f. The candidate features (pbdyn.metrics.features, which computes them) are map
+metrics -- survivability (s, thesis eq. 3-6), the log of the closed-form flux (1/s), the log density, the static
+share -- and task metrics along the static-free route between the map's reference start/goal pairs (route detour,
+route survivability, log route flux; pbdyn.metrics.route), which see walls, corridors and pillars. The shipped
+model (pbdyn/analysis/data/predictor.json) names the features the leave-one-family-out study chose
+(tools/fit_predictor.py --study, docs/difficulty-scale.md). Its 95% interval for one
 map combines the coefficients' uncertainty (covariance scaled by the Pearson chi^2 dispersion) with the spread
 of real maps around the model (``sigma``: the map-level standard deviation on the logit scale beyond binomial
 noise, a moment estimate), so it is meant to cover a map's measured reference success, not only its mean.
@@ -33,71 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn.errors import ConfigError
+from pbdyn.metrics.features import FEATURES
 
 PREDICTOR_FILE = "predictor.json"
 PREDICTOR_VERSION = "1"
-FEATURES = ("survivability", "log_flux", "log_density", "static_share", "route_detour", "route_survivability",
-            "log_route_flux")
-"""Every feature the predictor may use (module doc)."""
-MAP_METRICS = ("survivability", "flux", "density", "static_share")
-"""The pbdyn map metrics behind FEATURES (the rest come from pbdyn.metrics.route)."""
-LOG_FLOOR = 1e-4
-"""Flux and density below this are taken as this before the log (a map without movers has flux 0)."""
 Z95 = 1.959963984540054
-ROUTE_HORIZON_S = 12.0
-"""The route metrics' horizon t_max (s; pbdyn.metrics.route.route_metrics' default)."""
-
-
-def features_from(metrics: dict, route: dict) -> dict[str, float]:
-    """FEATURES from map metric values (name -> value or {"value": ...}) and route metric values (same)."""
-    def val(d, k):
-        v = d[k]
-        return float(v["value"] if isinstance(v, dict) else getattr(v, "value", v))
-
-    out = {"survivability": val(metrics, "survivability"),
-           "log_flux": math.log(max(val(metrics, "flux"), LOG_FLOOR)),
-           "log_density": math.log(max(val(metrics, "density"), LOG_FLOOR)),
-           "static_share": val(metrics, "static_share"),
-           "route_detour": val(route, "route_detour"),
-           "route_survivability": val(route, "route_survivability"),
-           "log_route_flux": math.log(max(val(route, "route_flux"), LOG_FLOOR))}
-    return out
-
-
-def map_features(scenario, map_index: int = 0, *, backend: str = "auto") -> dict[str, float]:
-    """FEATURES of map ``map_index`` of ``scenario`` (a Scenario): the map metrics through the metric cache (as
-    `pbdyn metrics` computes them; survivability with ``backend``) and the route metrics (rollout_features)."""
-    from pbdyn.metrics.cached import map_metrics, resolve_backend
-    from pbdyn.world.maps import enumerate_maps
-    from pbdyn.world.rollout import default_horizon, get_rollout
-
-    spec = enumerate_maps(scenario)[map_index]
-    chosen = resolve_backend(scenario, backend)
-    metrics = map_metrics(scenario, spec, list(MAP_METRICS), backend=chosen)
-    return features_from(metrics, route_features(scenario, get_rollout(scenario, spec, default_horizon(scenario)),
-                                                 chosen))
-
-
-def route_features(scenario, rollout, backend: str = "analytic") -> dict:
-    """The route metrics (pbdyn.metrics.route.route_metrics) of one map's rollout over its reference tasks
-    (pbdyn.analysis.scale.reference_pairs of the scenario's start/goal candidates), the scenario's MAV radius."""
-    from pbdyn.analysis.scale import reference_pairs
-    from pbdyn.metrics.route import route_metrics
-
-    return route_metrics(rollout, starts=np.asarray(scenario.task.candidates, float),
-                         pairs=reference_pairs(scenario.task.candidates), mav_radius=scenario.drone.radius,
-                         t_max=ROUTE_HORIZON_S, backend="bullet" if backend == "bullet" else "analytic")
-
-
-def rollout_features(scenario, rollout, backend: str = "analytic") -> dict[str, float]:
-    """FEATURES of one map from its ``rollout`` (long enough for the metrics' horizons), computed without the
-    cache (pbdyn generate's candidates): the map metrics as pbdyn.metrics.cached computes them, then the route
-    metrics."""
-    from pbdyn.metrics.cached import metric_params
-    from pbdyn.metrics.registry import compute
-
-    metrics = {m: compute(rollout, m, **metric_params(scenario, m, backend)).value for m in MAP_METRICS}
-    return features_from(metrics, route_features(scenario, rollout, backend))
 
 
 # ------------------------------------------------------------------------------------------------ the model

@@ -204,13 +204,15 @@ def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]
     backend = resolve_backend(scenario, "auto")
     out = []
     if metric == PREDICTED:
-        from pbdyn.analysis.predict import MAP_METRICS, ROUTE_HORIZON_S, rollout_features
+        from pbdyn.analysis.scale import reference_pairs
+        from pbdyn.metrics.features import MAP_METRICS, ROUTE_HORIZON_S, rollout_features
 
         predictor = shipped_predictor(scenario.world.dims)
         horizon = max([INFO[m].horizon_s for m in MAP_METRICS] + [ROUTE_HORIZON_S]) + scenario.world.dt
+        pairs = reference_pairs(scenario.task.candidates)
         for i, setup, rep in entries:
             spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed)
-            feats = rollout_features(scenario, build_rollout(scenario, spec, horizon), backend)
+            feats = rollout_features(scenario, build_rollout(scenario, spec, horizon), pairs, backend)
             out.append((i, float(predictor.predict([feats])[0][0]), spec.seed))
         return out
     horizon = INFO[metric].horizon_s + scenario.world.dt
