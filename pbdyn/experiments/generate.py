@@ -62,6 +62,8 @@ FLY_ROUND = 4
 """Success mode flies at most this many candidates at once (one batch of 180 trials each)."""
 MAX_FLOWN_PER_MAP = 6
 """Success mode refuses after flying this many candidates per requested map."""
+BIAS_PRIOR = 2.0
+"""Success mode: pseudo-candidates with zero residual that shrink the learnt bias of the predictor."""
 
 
 @dataclass(frozen=True)
@@ -398,7 +400,10 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
     the target (``req.metric`` = PREDICTED, ``req.target`` = the success rate). The predictor proposes: the search
     of generate_by_metric runs on the predicted success (the pilot's predicted range is the family's reachable
     range); candidates predicted within PROPOSE_SHARE of the tolerance are flown, closest first, FLY_ROUND at a
-    time, and kept when their measured success is within the tolerance. The flights are stored in the cache
+    time, and kept when their measured success is within the tolerance. The predictor's bias on this family is
+    learnt as it flies: the mean logit residual of the flown candidates (measured minus predicted, shrunk towards 0
+    by BIAS_PRIOR pseudo-candidates) shifts the predicted success the search aims at. The flights are stored in the
+    cache
     (pbdyn.experiments.calibrate.default_store), so repeating a request reuses them; ConfigError naming "success"
     when the target is outside the predicted range or after MAX_FLOWN_PER_MAP x count flown candidates."""
     from pbdyn.experiments.calibrate import calibrate
@@ -434,10 +439,12 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
         budget = MAX_FLOWN_PER_MAP * req.count + FLY_ROUND
         spread = 0.05
         tried: set[int] = set()
+        residuals: list[float] = []
+        aim = replace(req)                          # the predicted success searched for (target minus the bias)
         while len(kept) < req.count:
             near = sorted((c for c in measured if c.replicate not in tried and
-                           abs(c.value - req.target) <= PROPOSE_SHARE * req.tolerance),
-                          key=lambda c: (abs(c.value - req.target), c.replicate))
+                           abs(c.value - aim.target) <= PROPOSE_SHARE * req.tolerance),
+                          key=lambda c: (abs(c.value - aim.target), c.replicate))
             if near:
                 if flown >= budget:
                     raise ConfigError("success", f"only {len(kept)} of {req.count} maps of family {req.family!r} "
@@ -455,17 +462,22 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
                                f"{MEASURED}_hi": r.success_ci[1]}
                     if abs(r.success - req.target) <= req.tolerance and len(kept) < req.count:
                         kept.append(c)
+                    k = r.success * r.trials
+                    residuals.append(_logit((k + 0.5) / (r.trials + 1.0)) - _logit(c.value))
+                bias = float(np.clip(sum(residuals) / (len(residuals) + BIAS_PRIOR), -2.0, 2.0))
+                aim = replace(req, target=float(_sigmoid(_logit(req.target) - bias)))
+                beta = fit_linear(measured, aim.target, scale)
                 shown.update(len(kept), flown)
                 continue
             if len(measured) >= MAX_CANDIDATES_PER_MAP * req.count + len(values):
                 raise ConfigError("success", f"the predictor proposed too few maps of family {req.family!r} near "
                                   f"reference success {req.target:g} after {len(measured)} candidates (predicted "
                                   f"range {lo:.2f} to {hi:.2f}); widen --tolerance", req.target, show_value=False)
-            batch = _propose(req, beta, rng, ROUND, next_rep, spread)
+            batch = _propose(aim, beta, rng, ROUND, next_rep, spread)
             measurer(req.family, batch)
             measured += batch
-            beta = fit_linear(measured, req.target, scale)
-            hits = sum(abs(c.value - req.target) <= PROPOSE_SHARE * req.tolerance for c in batch)
+            beta = fit_linear(measured, aim.target, scale)
+            hits = sum(abs(c.value - aim.target) <= PROPOSE_SHARE * req.tolerance for c in batch)
             spread = 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
     finally:
         measurer.close()
@@ -473,6 +485,15 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
     wall = time.perf_counter() - t0
     return GeneratedMaps(tuple(kept), scenario_document(req, kept), len(measured), (lo, hi),
                          tuple(float(x) for x in fit_linear(measured)), wall, flown)
+
+
+def _logit(p: float) -> float:
+    p = min(max(float(p), 1e-6), 1.0 - 1e-6)
+    return math.log(p / (1.0 - p))
+
+
+def _sigmoid(x: float) -> float:
+    return 1.0 / (1.0 + math.exp(-x))
 
 
 def _box_text(req: MetricTarget) -> str:

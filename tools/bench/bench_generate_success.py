@@ -72,7 +72,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     fams = args.only.split(",") if args.only else [f for f in FAMILIES if f != "walls"]
     rows = []
-    print(f"machine: {machine()}")
+    print(machine())
     print(f"--success {args.success} --tolerance {args.tolerance} --count {args.count} --workers {args.workers}")
     print("| family | maps | flown | s per map | flown success | re-flown within |")
     print("|---|---|---|---|---|---|")
