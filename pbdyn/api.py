@@ -200,20 +200,18 @@ def predict_success(scenario, map: int = 0, *, backend: str = "auto") -> dict:
     """The predicted reference success of one map (pbdyn.analysis.predict; README "Difficulty on one scale"):
     {"success", "ci": [lo, hi] (95%, for one map), "percentile" (share % of the bundled calibration maps easier
     than it), "features"}, or {"why": ...} when no shipped predictor covers the scenario's dims."""
-    from pbdyn.analysis.predict import load_predictor, predicted_success
+    from pbdyn.analysis.predict import load_predictors, predicted_success
     from pbdyn.analysis.scale import reference_pairs
     from pbdyn.metrics.cached import resolve_backend
     from pbdyn.metrics.features import map_features
 
     sc = load_scenario(scenario)
     spec = _map(sc, map)
-    predictor = load_predictor()
-    if predictor is None:
-        return {"why": "no reference-success predictor is shipped with this pbdyn"}
-    if sc.world.dims not in predictor.dims:
-        return predicted_success(predictor, {}, sc.world.dims)
+    predictors = load_predictors()
+    if sc.world.dims not in predictors:
+        return predicted_success(predictors, {}, sc.world.dims)
     feats = map_features(sc, spec.index, reference_pairs(sc.task.candidates), backend=resolve_backend(sc, backend))
-    return predicted_success(predictor, feats, sc.world.dims)
+    return predicted_success(predictors, feats, sc.world.dims)
 
 
 def metric_heatmaps(scenario, map: int = 0, out: str | Path = "heatmap.png", *, metrics=None, dense: bool = False,

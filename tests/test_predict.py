@@ -95,12 +95,14 @@ def test_the_shipped_predictor_reproduces_from_the_shipped_calibration_data():
         import fit_predictor as tool
     finally:
         sys.path.remove(str(ROOT / "tools"))
-    shipped = json.loads((DATA / "predictor.json").read_text())
-    again = tool.fit_chosen(tool.table())
-    assert again["features"] == shipped["features"]
-    assert np.allclose(again["coef"], shipped["coef"], rtol=0, atol=1e-9)
-    assert np.allclose(again["cov"], shipped["cov"], rtol=0, atol=1e-9)
-    assert again["sigma"] == pytest.approx(shipped["sigma"], abs=1e-9)
+    shipped = json.loads((DATA / "predictor.json").read_text())["models"]
+    refit = tool.fit_chosen(tool.table())["models"]
+    assert set(refit) == set(shipped) and "2" in shipped
+    for dims, again in refit.items():
+        assert again["features"] == shipped[dims]["features"]
+        assert np.allclose(again["coef"], shipped[dims]["coef"], rtol=0, atol=1e-9)
+        assert np.allclose(again["cov"], shipped[dims]["cov"], rtol=0, atol=1e-9)
+        assert again["sigma"] == pytest.approx(shipped[dims]["sigma"], abs=1e-9)
     with open(DATA / "calibration_features.csv") as fh:
         listed = {r["map_id"]: r for r in csv.DictReader(fh)}
     sc = pbdyn.load_scenario(CAL_2D)
@@ -117,7 +119,7 @@ def test_pbdyn_metrics_prints_the_predicted_reference_success(tmp_path):
     assert len(line) == 1 and "percentile" in line[0] and "[" in line[0]
     res = cli(["metrics", str(CAL_2D), "--map", "24", "--json"], tmp_path)
     pred = json.loads(res.stdout)["predicted_reference_success"]
-    model = load_predictor()
+    model = load_predictor(2)
     feats = map_features(pbdyn.load_scenario(CAL_2D), 24)
     p, lo, hi = model.predict([feats])
     assert pred["success"] == p[0] and pred["ci"] == [lo[0], hi[0]] and lo[0] < p[0] < hi[0]
@@ -126,8 +128,8 @@ def test_pbdyn_metrics_prints_the_predicted_reference_success(tmp_path):
     three.write_text('name = "three"\n[world]\ndims = 3\n[obstacles]\ncount = [10]\nradius = 1.0\nspeed = 2.0\n')
     res = cli(["metrics", str(three), "--metric", "density"], tmp_path)
     assert res.returncode == 0, res.stderr
-    if 3 not in model.dims:
-        assert "predicted reference success: none (the shipped predictor is fitted on 2D" in res.stdout
+    if load_predictor(3) is None:
+        assert "predicted reference success: none (the shipped predictors cover 2D maps; 3D maps" in res.stdout
 
 
 @pytest.fixture(scope="module")
@@ -186,8 +188,9 @@ def test_the_study_picks_the_shipped_feature_set():
         import fit_predictor as tool
     finally:
         sys.path.remove(str(ROOT / "tools"))
-    rows = tool.table()
-    fam = [r["family"] if r["family"].startswith("imported") else f"{r['dims']}D {r['family']}" for r in rows]
-    y = np.array([r["k"] / r["n"] for r in rows])
-    assert tool.choose({"models": tool._scores(rows, fam, y)}) == tool.CHOSEN
-    assert tuple(load_predictor().features) == tool.CANDIDATES[tool.CHOSEN]
+    for dims, name in tool.CHOSEN.items():
+        rows = [r for r in tool.table() if r["dims"] == dims]
+        fam = [r["family"] if r["family"].startswith("imported") else f"{r['dims']}D {r['family']}" for r in rows]
+        y = np.array([r["k"] / r["n"] for r in rows])
+        assert tool.choose({"models": tool._scores(rows, fam, y)}) == name
+        assert tuple(load_predictor(dims).features) == tool.CANDIDATES[name]

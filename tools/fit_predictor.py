@@ -53,8 +53,9 @@ def _candidates() -> dict[str, tuple]:
 CANDIDATES = _candidates()
 CLOSED_FORMS = ("log_flux", "log_density", "log_flux + log_density")
 """The candidates that are closed forms of (n, r, v) and the arena (no simulation of the movers)."""
-CHOSEN = "log_flux + static_share"
-"""The shipped model's feature set: what choose() picks on every calibration map (docs/difficulty-scale.md)."""
+CHOSEN = {2: "log_flux + static_share"}
+"""The shipped models' feature sets per dims: what choose() picks on every calibration map of those dims
+(docs/difficulty-scale.md)."""
 MAE_MARGIN = 0.005
 """choose(): a simpler model is preferred while its pooled MAE is within this of the best one's."""
 OUTCOME_FILES = {"calibration_2d.csv.gz": "2d", "calibration_3d.csv.gz": "3d", "calibration_worlds.csv.gz": "worlds"}
@@ -154,8 +155,8 @@ def _boot(values_fn, idx: np.ndarray, rng: np.random.Generator, n_boot: int = 20
     return (float(np.quantile(draws, 0.025)), float(np.quantile(draws, 0.975))) if draws.size else (np.nan, np.nan)
 
 
-def study(rows: list[dict], seed: int = 0) -> dict:
-    """The leave-one-family-out study (module doc) of every candidate."""
+def study(rows: list[dict], seed: int = 0, dims: int = 2) -> dict:
+    """The leave-one-family-out study (module doc) of every candidate on ``rows`` (maps of one dims)."""
     from pbdyn.analysis.srcc import spearman
 
     fam = [r["family"] if r["family"].startswith("imported") else f"{r['dims']}D {r['family']}" for r in rows]
@@ -166,7 +167,8 @@ def study(rows: list[dict], seed: int = 0) -> dict:
         rng = np.random.default_rng([seed, 1, fams.index(g)])
         ts = [r["tasks"] for r, h in zip(rows, fam) if h == g]
         rel[g] = split_half_reliability(ts, rng)
-    res = {"maps": len(rows), "families": {g: fam.count(g) for g in fams}, "reliability": rel, "models": {}}
+    res = {"maps": len(rows), "families": {g: fam.count(g) for g in fams}, "reliability": rel, "models": {},
+           "dims": dims}
     res["nested"] = nested(rows, fam, y, seed)
     for name, feats in CANDIDATES.items():
         pred = leave_one_group_out(rows, feats, fam)
@@ -267,10 +269,11 @@ def format_study(res: dict) -> str:
         lines.append(f"| {name} | {p['srcc']:.3f} [{p['srcc_ci'][0]:.2f}, {p['srcc_ci'][1]:.2f}] | {p['mae']:.3f} "
                      f"[{p['mae_ci'][0]:.3f}, {p['mae_ci'][1]:.3f}] | {worst[1]['mae']:.3f} ({worst[0]}) | "
                      f"{m['in_sample_coverage']:.2f} |")
-    lines += ["", f"The study picks \"{choose(res)}\" (choose()); shipped: \"{CHOSEN}\".", "",
-              f"Per held-out family, model \"{CHOSEN}\":", "",
+    shipped = CHOSEN.get(res["dims"], choose(res))
+    lines += ["", f"The study picks \"{choose(res)}\" (choose()); shipped: \"{CHOSEN.get(res['dims'])}\".", "",
+              f"Per held-out family, model \"{shipped}\":", "",
               "| held-out family | maps | SRCC [95% CI] | reliability ceiling | MAE [95% CI] |", "|---|---|---|---|---|"]
-    for g, v in res["models"][CHOSEN]["per_family"].items():
+    for g, v in res["models"][shipped]["per_family"].items():
         ceil = float(np.sqrt(max(res["reliability"].get(g, np.nan), 0.0))) if g in res["reliability"] else np.nan
         lines.append(f"| {g} | {res['families'].get(g, sum(n for h, n in res['families'].items() if h.startswith('imported')))} | {v['srcc']:.2f} [{v['srcc_ci'][0]:.2f}, {v['srcc_ci'][1]:.2f}] | "
                      f"{ceil:.2f} | {v['mae']:.3f} [{v['mae_ci'][0]:.3f}, {v['mae_ci'][1]:.3f}] |")
@@ -278,14 +281,15 @@ def format_study(res: dict) -> str:
 
 
 def fit_chosen(rows: list[dict]) -> dict:
-    """The shipped predictor document: CHOSEN fitted on every calibration map."""
-    dims = sorted({r["dims"] for r in rows})
-    src = f"tools/fit_predictor.py: statsmodels binomial GLM on {len(rows)} calibration maps " \
-          f"({', '.join(sorted({r['source'] for r in rows}))}), features: {CHOSEN}"
-    model = fit_predictor(rows, CANDIDATES[CHOSEN], source=src)
-    doc = model.to_dict()
-    doc["dims"] = dims
-    return doc
+    """The shipped predictors' document: per dims in CHOSEN, its feature set fitted on every calibration map of
+    those dims."""
+    models = {}
+    for dims, name in sorted(CHOSEN.items()):
+        sub = [r for r in rows if r["dims"] == dims]
+        src = f"tools/fit_predictor.py: statsmodels binomial GLM on {len(sub)} {dims}D calibration maps " \
+              f"({', '.join(sorted({r['source'] for r in sub}))}), features: {name}"
+        models[str(dims)] = fit_predictor(sub, CANDIDATES[name], source=src).to_dict()
+    return {"version": models[str(min(CHOSEN))]["version"], "models": models}
 
 
 def main(argv=None) -> int:
@@ -299,14 +303,18 @@ def main(argv=None) -> int:
         return 0
     rows = table()
     if args.study:
-        res = study(rows)
-        sys.stdout.write(format_study(res))
+        out = {}
+        for dims in sorted({r["dims"] for r in rows}):
+            print(f"## {dims}D\n")
+            res = out[dims] = study([r for r in rows if r["dims"] == dims], dims=dims)
+            sys.stdout.write(format_study(res) + "\n")
         if args.json:
-            args.json.write_text(json.dumps(res, indent=1, sort_keys=True) + "\n")
+            args.json.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
         return 0
     doc = fit_chosen(rows)
     (DATA / PREDICTOR_FILE).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
-    print(json.dumps({k: doc[k] for k in ("features", "coef", "sigma", "dims")}, indent=1))
+    print(json.dumps({d: {k: m[k] for k in ("features", "coef", "sigma")} for d, m in doc["models"].items()},
+                     indent=1))
     return 0
 
 

@@ -135,23 +135,36 @@ def map_sigma(k, n, eta) -> float:
     return float(math.sqrt(max(0.0, float(np.mean((emp - eta) ** 2 - noise)))))
 
 
-def load_predictor(path: str | Path | None = None) -> Predictor | None:
-    """The predictor shipped with pbdyn (pbdyn/analysis/data/predictor.json) or at ``path``; None if there is none."""
-    p = Path(path) if path is not None else Path(__file__).resolve().parent / "data" / PREDICTOR_FILE
-    if not p.is_file():
-        return None
-    d = json.loads(p.read_text())
+def _from_dict(d: dict) -> Predictor:
     return Predictor(tuple(d["features"]), tuple(d["mean"]), tuple(d["sd"]), tuple(d["coef"]),
                      tuple(tuple(r) for r in d["cov"]), float(d["sigma"]), tuple(d["dims"]),
                      d.get("calibration", {}), str(d.get("version", PREDICTOR_VERSION)), d.get("source", ""))
 
 
-def predicted_success(predictor: Predictor, feats: dict, dims: int) -> dict:
-    """One map's predicted reference success: {"success", "ci": [lo, hi], "percentile", "dims_fitted"} or, for
-    dims the predictor was not fitted on, {"why": ...}."""
-    if dims not in predictor.dims:
-        return {"why": f"the shipped predictor is fitted on {'/'.join(f'{d}D' for d in predictor.dims)} "
-                       f"calibration maps only; {dims}D maps are not predicted"}
+def load_predictors(path: str | Path | None = None) -> dict[int, Predictor]:
+    """The predictors shipped with pbdyn (pbdyn/analysis/data/predictor.json) or at ``path``: dims -> Predictor,
+    one model per dims fitted on that dims' calibration maps ({} if there are none)."""
+    p = Path(path) if path is not None else Path(__file__).resolve().parent / "data" / PREDICTOR_FILE
+    if not p.is_file():
+        return {}
+    doc = json.loads(p.read_text())
+    return {int(k): _from_dict(v) for k, v in sorted(doc.get("models", {}).items())}
+
+
+def load_predictor(dims: int = 2, path: str | Path | None = None) -> Predictor | None:
+    """The shipped predictor of ``dims``-D maps, or None."""
+    return load_predictors(path).get(int(dims))
+
+
+def predicted_success(predictors: dict, feats: dict, dims: int) -> dict:
+    """One map's predicted reference success from the predictor of its ``dims`` among ``predictors`` (dims ->
+    Predictor): {"success", "ci": [lo, hi], "percentile", "features"} or, without a predictor for those dims,
+    {"why": ...}."""
+    predictor = predictors.get(dims)
+    if predictor is None:
+        have = "/".join(f"{d}D" for d in sorted(predictors)) or "no"
+        return {"why": f"the shipped predictors cover {have} maps; {dims}D maps are not predicted (no {dims}D "
+                       "calibration flights shipped)"}
     p, lo, hi = predictor.predict([feats])
     return {"success": float(p[0]), "ci": [float(lo[0]), float(hi[0])],
             "percentile": predictor.percentile(float(p[0]), dims), "features": dict(feats)}

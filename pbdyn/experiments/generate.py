@@ -227,16 +227,15 @@ def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]
 
 
 def shipped_predictor(dims: int):
-    """The shipped predictor if it covers ``dims``-D maps, else ConfigError naming --success."""
-    from pbdyn.analysis.predict import load_predictor
+    """The shipped predictor of ``dims``-D maps, else ConfigError naming --success."""
+    from pbdyn.analysis.predict import load_predictors
 
-    predictor = load_predictor()
-    if predictor is None or dims not in predictor.dims:
-        have = "none is shipped" if predictor is None else \
-            f"the shipped one is fitted on {'/'.join(f'{d}D' for d in predictor.dims)} maps"
-        raise ConfigError("success", f"needs the reference-success predictor for {dims}D maps ({have}); use --metric",
-                          dims, show_value=False)
-    return predictor
+    predictors = load_predictors()
+    if dims not in predictors:
+        have = "/".join(f"{d}D" for d in sorted(predictors)) or "no"
+        raise ConfigError("success", f"needs the reference-success predictor of {dims}D maps (shipped: {have}); use "
+                          "--metric", dims, show_value=False)
+    return predictors[dims]
 
 
 def _measure_task(args):
