@@ -297,6 +297,7 @@ def main(argv=None) -> int:
     ap.add_argument("--features", action="store_true", help="compute the calibration maps' features")
     ap.add_argument("--study", action="store_true", help="run the leave-one-family-out study")
     ap.add_argument("--json", type=Path, help="with --study: also write the study as JSON here")
+    ap.add_argument("--dims", type=int, choices=(2, 3), help="with --study: only the maps of these dims")
     args = ap.parse_args(argv)
     if args.features:
         print(f"wrote {compute_features(calibration_maps()).relative_to(ROOT)}")
@@ -304,7 +305,7 @@ def main(argv=None) -> int:
     rows = table()
     if args.study:
         out = {}
-        for dims in sorted({r["dims"] for r in rows}):
+        for dims in sorted({r["dims"] for r in rows} if args.dims is None else {args.dims}):
             print(f"## {dims}D\n")
             res = out[dims] = study([r for r in rows if r["dims"] == dims], dims=dims)
             sys.stdout.write(format_study(res) + "\n")
