@@ -25,6 +25,7 @@ number of workers. Everything random comes from one Generator seeded by the requ
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 import os
 import sys
@@ -316,6 +317,14 @@ def _pilot(req: MetricTarget, rng: np.random.Generator, next_rep) -> list[Candid
     return out
 
 
+def _run_pilot(req: MetricTarget, rng: np.random.Generator, next_rep, measurer) -> tuple[list, float, float]:
+    """The pilot's candidates (_pilot), measured, and the (min, max) of their values: the family's reach."""
+    measured = _pilot(req, rng, next_rep)
+    measurer(req.family, measured)
+    values = [c.value for c in measured]
+    return measured, float(min(values)), float(max(values))
+
+
 def _propose(req: MetricTarget, beta: np.ndarray, rng: np.random.Generator, n_new: int, next_rep,
              spread: float) -> list[Candidate]:
     """``n_new`` candidates on (near) the model's level set of the target."""
@@ -350,18 +359,11 @@ def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = 
     rng = np.random.default_rng([req.seed, stable_hash64(canonical_json(
         {"metric": req.metric, "target": req.target, "tolerance": req.tolerance, "family": req.family,
          "dims": req.dims, "fixed": req.fixed, "bounds": req.bounds}))])
-    counter = iter(range(10 ** 9))
-
-    def next_rep() -> int:
-        return next(counter)
-
+    next_rep = itertools.count().__next__                 # replicates 0, 1, 2, ...: every candidate a new map
     measurer = _Measurer(doc, req.metric, workers)
     shown = _Progress(req.count, progress)
     try:
-        measured = _pilot(req, rng, next_rep)
-        measurer(req.family, measured)
-        values = np.array([c.value for c in measured])
-        lo, hi = float(values.min()), float(values.max())
+        measured, lo, hi = _run_pilot(req, rng, next_rep, measurer)
         if req.target + req.tolerance < lo or req.target - req.tolerance > hi:
             raise ConfigError("target", f"{req.metric} {req.target:g} is outside what family {req.family!r} reaches "
                               f"in {req.dims}D ({_box_text(req)}): {lo:.3g} to {hi:.3g} on "
@@ -415,20 +417,14 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
     rng = np.random.default_rng([req.seed, stable_hash64(canonical_json(
         {"success": req.target, "tolerance": req.tolerance, "family": req.family, "dims": req.dims,
          "fixed": req.fixed, "bounds": req.bounds}))])
-    counter = iter(range(10 ** 9))
-
-    def next_rep() -> int:
-        return next(counter)
-
+    next_rep = itertools.count().__next__
     measurer = _Measurer(doc, PREDICTED, workers)
     shown = _Progress(req.count, progress, "flown")
     kept: list[Candidate] = []
     flown = 0
     try:
-        measured = _pilot(req, rng, next_rep)
-        measurer(req.family, measured)
-        values = np.array([c.value for c in measured])
-        lo, hi = float(values.min()), float(values.max())
+        measured, lo, hi = _run_pilot(req, rng, next_rep, measurer)
+        pilot_size = len(measured)
         if req.target + req.tolerance < lo or req.target - req.tolerance > hi:
             raise ConfigError("success", f"reference success {req.target:g} is outside what family {req.family!r} "
                               f"reaches in {req.dims}D ({_box_text(req)}): {lo:.2f} to {hi:.2f} predicted on "
@@ -468,7 +464,7 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
                 beta = fit_linear(measured, aim.target, scale)
                 shown.update(len(kept), flown)
                 continue
-            if len(measured) >= MAX_CANDIDATES_PER_MAP * req.count + len(values):
+            if len(measured) >= MAX_CANDIDATES_PER_MAP * req.count + pilot_size:
                 raise ConfigError("success", f"the predictor proposed too few maps of family {req.family!r} near "
                                   f"reference success {req.target:g} after {len(measured)} candidates (predicted "
                                   f"range {lo:.2f} to {hi:.2f}); widen --tolerance", req.target, show_value=False)
