@@ -155,10 +155,20 @@ def _boot(values_fn, idx: np.ndarray, rng: np.random.Generator, n_boot: int = 20
     return (float(np.quantile(draws, 0.025)), float(np.quantile(draws, 0.975))) if draws.size else (np.nan, np.nan)
 
 
-def study(rows: list[dict], seed: int = 0, dims: int = 2) -> dict:
-    """The leave-one-family-out study (module doc) of every candidate on ``rows`` (maps of one dims)."""
+def _agreement(pred: np.ndarray, y: np.ndarray, idx: np.ndarray, rng: np.random.Generator | None = None) -> dict:
+    """SRCC and mean absolute error of predicted vs measured success over the maps ``idx``; with ``rng`` also
+    their 95% intervals from resampling those maps."""
     from pbdyn.analysis.srcc import spearman
 
+    out = {"srcc": float(spearman(pred[idx], y[idx])), "mae": float(np.mean(np.abs(pred[idx] - y[idx])))}
+    if rng is not None:
+        out["srcc_ci"] = _boot(lambda j: float(spearman(pred[j], y[j])), idx, rng)
+        out["mae_ci"] = _boot(lambda j: float(np.mean(np.abs(pred[j] - y[j]))), idx, rng)
+    return out
+
+
+def study(rows: list[dict], seed: int = 0, dims: int = 2) -> dict:
+    """The leave-one-family-out study (module doc) of every candidate on ``rows`` (maps of one dims)."""
     fam = [r["family"] if r["family"].startswith("imported") else f"{r['dims']}D {r['family']}" for r in rows]
     y = np.array([r["k"] / r["n"] for r in rows])
     fams = sorted(set(fam))
@@ -174,21 +184,11 @@ def study(rows: list[dict], seed: int = 0, dims: int = 2) -> dict:
         pred = leave_one_group_out(rows, feats, fam)
         rng = np.random.default_rng([seed, 2])
         idx = np.arange(len(rows))
-        pooled = {"srcc": float(spearman(pred, y)), "mae": float(np.mean(np.abs(pred - y))),
-                  "srcc_ci": _boot(lambda i: float(spearman(pred[i], y[i])), idx, rng),
-                  "mae_ci": _boot(lambda i: float(np.mean(np.abs(pred[i] - y[i]))), idx, rng)}
-        per = {}
-        for g in fams:
-            i = np.array([k for k, h in enumerate(fam) if h == g])
-            per[g] = {"srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i]))),
-                      "srcc_ci": _boot(lambda j: float(spearman(pred[j], y[j])), i, rng),
-                      "mae_ci": _boot(lambda j: float(np.mean(np.abs(pred[j] - y[j]))), i, rng)}
+        pooled = _agreement(pred, y, idx, rng)
+        per = {g: _agreement(pred, y, np.array([k for k, h in enumerate(fam) if h == g]), rng) for g in fams}
         i = np.array([k for k, h in enumerate(fam) if h.startswith("imported")], dtype=int)
         if i.size:
-            per["imported worlds (all kinds)"] = {
-                "srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i]))),
-                "srcc_ci": _boot(lambda j: float(spearman(pred[j], y[j])), i, rng),
-                "mae_ci": _boot(lambda j: float(np.mean(np.abs(pred[j] - y[j]))), i, rng)}
+            per["imported worlds (all kinds)"] = _agreement(pred, y, i, rng)
         full = fit_predictor(rows, feats)
         _, lo, hi = full.predict(rows)
         res["models"][name] = {"features": list(feats), "pooled": pooled, "per_family": per,
@@ -198,13 +198,10 @@ def study(rows: list[dict], seed: int = 0, dims: int = 2) -> dict:
 
 def _scores(rows: list[dict], fam: list[str], y: np.ndarray) -> dict:
     """Leave-one-family-out pooled SRCC and MAE of every candidate on ``rows``."""
-    from pbdyn.analysis.srcc import spearman
-
     out = {}
     for name, feats in CANDIDATES.items():
         pred = leave_one_group_out(rows, feats, fam)
-        out[name] = {"features": list(feats), "pooled": {"srcc": float(spearman(pred, y)),
-                                                          "mae": float(np.mean(np.abs(pred - y)))}}
+        out[name] = {"features": list(feats), "pooled": _agreement(pred, y, np.arange(len(rows)))}
     return out
 
 
@@ -213,8 +210,6 @@ def nested(rows: list[dict], fam: list[str], y: np.ndarray, seed: int = 0) -> di
     choose() runs on a leave-one-family-out study of the other families only, the chosen model is fitted on them
     and predicts the held-out maps. Returns pooled SRCC/MAE with 95% intervals, per family MAE/SRCC and the
     choice made in each fold."""
-    from pbdyn.analysis.srcc import spearman
-
     fam_a = np.asarray(fam)
     pred = np.full(len(rows), np.nan)
     picked = {}
@@ -231,11 +226,9 @@ def nested(rows: list[dict], fam: list[str], y: np.ndarray, seed: int = 0) -> di
     per = {}
     for g in sorted(set(fam)):
         i = np.flatnonzero(fam_a == g)
-        per[g] = {"srcc": float(spearman(pred[i], y[i])), "mae": float(np.mean(np.abs(pred[i] - y[i])))}
-    return {"srcc": float(spearman(pred, y)), "mae": float(np.mean(np.abs(pred - y))),
-            "srcc_ci": _boot(lambda i: float(spearman(pred[i], y[i])), idx, rng),
-            "mae_ci": _boot(lambda i: float(np.mean(np.abs(pred[i] - y[i]))), idx, rng),
-            "per_family": per, "picked": picked, "predictions": pred.tolist(), "measured": y.tolist()}
+        per[g] = _agreement(pred, y, i)
+    return {**_agreement(pred, y, idx, rng), "per_family": per, "picked": picked, "predictions": pred.tolist(),
+            "measured": y.tolist()}
 
 
 def choose(res: dict) -> str:
