@@ -414,7 +414,7 @@ def test_store_columns_follow_the_trial_result_fields(reference):
     with sqlite3.connect(f"file:{out}?mode=ro", uri=True) as c:
         cols = [(r[1], r[2]) for r in c.execute("PRAGMA table_info(trials)")]
         version = c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
-    assert int(version) == SCHEMA_VERSION == 4
+    assert int(version) == SCHEMA_VERSION == 5
     assert cols == [("trial_key", "TEXT")] + [(n, "TEXT" if t == "JSON" else t) for n, t in TRIAL_COLUMNS] + \
         [("error", "TEXT"), ("result_json", "TEXT"), ("finished", "REAL"), ("world_fingerprint", "TEXT")]
     store = ResultsStore.open(out)

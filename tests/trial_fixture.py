@@ -4,7 +4,7 @@ tests/data/trial_rows.json holds the rows these cases produced before the trial 
 core (main at 145e667), regenerated when the default start rule became "first_clear" (issue 13; with
 start_rule = "immediate" the old rows were reproduced bit-identically); test_trial_fixture.py re-flies them and requires bit-identical rows (all fields but wall
 times; regenerated once more when rows gained the task metrics task_survivability_s and task_flux_per_s, every other field
-bit-identical). Regenerate only for an intended behaviour change: python -m tests.trial_fixture
+bit-identical; and once more when rows gained path_length_m, every other field bit-identical). Regenerate only for an intended behaviour change: python -m tests.trial_fixture
 """
 
 from __future__ import annotations

@@ -22,7 +22,8 @@ are not UTF-8 or not JSON) likewise.
 Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_delay_s, max_speed_mps,
 max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.runner.check_scenario); 4 added
 trials.world_fingerprint (the first 16 hex digits of the row's map rollout key, which covers the world's code and
-files: pbdyn.world.rollout.rollout_key) and the meta key "world" (pbdyn.world.rollout.world_description). Older stores are read as they are (a column they lack reads as
+files: pbdyn.world.rollout.rollout_key) and the meta key "world" (pbdyn.world.rollout.world_description); 5 added
+trials.path_length_m. Older stores are read as they are (a column they lack reads as
 NULL) and upgraded in place when `pbdyn batch` writes to them (ResultsStore.create adds the missing columns); a
 store from a newer schema is refused.
 """
@@ -42,7 +43,7 @@ from pathlib import Path
 from pbdyn.errors import NAME_MAX, ConfigError, check_path_length
 from pbdyn.sim.result import TrialResult
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 WORLD_FINGERPRINT_CHARS = 16
 """A row's world fingerprint: this many leading hex digits of its map's rollout key."""

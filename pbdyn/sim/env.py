@@ -99,7 +99,8 @@ class TrialEnv:
     ``position``/``velocity``/``acceleration``/``yaw``, ``detections`` (this step's sensing), ``outcome`` (None
     while running), ``reason``, ``min_clearance`` (m), ``sense_timings`` (SENSE_SPLITS of the last sensing, s) and
     ``collision_wall_s`` (the last step's (6)-(7) time, s), ``max_speed`` (m/s) and ``max_accel`` (m/s^2: the
-    largest of the executed samples' |a| and |v_k+1 - v_k| / dt) of the flight so far. ``start`` (pbdyn.sim.start
+    largest of the executed samples' |a| and |v_k+1 - v_k| / dt) and ``path_length`` (m: the sum of |p_k+1 - p_k| over
+    the executed steps) of the flight so far. ``start`` (pbdyn.sim.start
     .TrialStart): the rollout flown and the rollout step ``k0`` at which the trial's t = 0 lies (the start rule).
     Times (``t``, the views' times) are trial times: t = 0 at the start."""
 
@@ -144,6 +145,7 @@ class TrialEnv:
         self.outcome: Outcome | None = None
         self.max_speed = 0.0
         self.max_accel = 0.0
+        self.path_length = 0.0
 
     # -------------------------------------------------------------------------------------------- episode
     def reset(self, *, sense: bool = True) -> None:
@@ -178,6 +180,7 @@ class TrialEnv:
         self.min_clearance = math.inf
         self.max_speed = 0.0
         self.max_accel = 0.0
+        self.path_length = 0.0
         self.collision_wall_s = 0.0
         if sense:
             self._sense()
@@ -259,6 +262,8 @@ class TrialEnv:
         dv = v1 - self.velocity
         self.max_speed = max(self.max_speed, math.sqrt(float(v1 @ v1)))
         self.max_accel = max(self.max_accel, math.sqrt(float(a1 @ a1)), math.sqrt(float(dv @ dv)) / self.dt)
+        dp = p1 - self.position
+        self.path_length += math.sqrt(float(dp @ dp))
         self.position, self.velocity, self.acceleration, self.yaw = p1, v1, a1, yaw1
         self.k += 1
         if hit is not None:

@@ -43,6 +43,7 @@ class _Trial:
     env: TrialEnv | None = None
     timings: dict = field(default_factory=dict)
     step_walls: list = field(default_factory=list)
+    plan_walls: list = field(default_factory=list)
 
 
 def run_lockstep(specs: Sequence[TrialSpec], rollout: Rollout, world: PyBulletWorld, *,
@@ -303,6 +304,7 @@ def _step(tr: _Trial, decision, contact) -> bool:
     for name, value in zip(SPLITS, splits):
         tr.timings[name] += value
     tr.step_walls.append(sum(splits))
+    tr.plan_walls.append(decision.planning_wall_s)
     return env.done
 
 
@@ -320,15 +322,13 @@ def _share_rest(stepped: list[_Trial], tick_s: float) -> None:
 
 def _finish(tr: _Trial, rollout: Rollout) -> TrialResult:
     """The ended trial's TrialResult, as run_trial makes it."""
-    from pbdyn.sim.trial import _result
+    from pbdyn.sim.trial import _result, step_summary
 
     env = tr.env
     grid_discovered = env.grid.discovered()
     tracked = int(env.tracker.ever_tracked)
     tracked_time = float(env.tracker.tracked_time_s)
     env.close()
-    walls = tr.step_walls
-    tr.timings["wall_step_mean_s"] = float(np.mean(walls)) if walls else 0.0
-    tr.timings["wall_step_median_s"] = float(np.median(walls)) if walls else 0.0
-    wall = tr.timings["wall_setup_s"] + sum(walls)
+    step_summary(tr.timings, tr.step_walls, tr.plan_walls)
+    wall = tr.timings["wall_setup_s"] + sum(tr.step_walls)
     return _result(tr.spec, rollout, env, tr.agent, grid_discovered, tracked, tracked_time, wall, tr.timings)

@@ -17,7 +17,9 @@ class TrialResult:
     v_max and a_max, else which limit was exceeded and by how much (only possible under thesis_program).
     task_survivability_s, task_flux_per_s: the task's difficulty on the flown map from the trial's start
     (pbdyn.metrics.task: corridor survivability, s, higher = easier; corridor flux, 1/s, higher = harder); None
-    where the corridor has no sample.
+    where the corridor has no sample. path_length_m: the length of the flown path (sum of the executed steps'
+    |p_k+1 - p_k|, m). wall_timings holds the wall-time splits (s), among them wall_planning_median_s and
+    wall_planning_p99_s: the median and 99th percentile over the trial's steps of the planner's time per step.
     """
 
     gaze: str
@@ -54,6 +56,7 @@ class TrialResult:
     limits_exceeded: str = ""
     task_survivability_s: float | None = None
     task_flux_per_s: float | None = None
+    path_length_m: float = 0.0
     wall_time_s: float = 0.0
     wall_timings: dict = field(default_factory=dict)
 
