@@ -9,7 +9,7 @@ Names are imported on first use, so ``import pbdyn`` stays fast.
 __version__ = "0.1.0"
 
 _API = ("load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", "metric_heatmaps", "metric_backend", "run_batch", "merge_results",
-        "replay", "open_results", "generate_maps", "calibrate",
+        "replay", "open_results", "generate_maps", "calibrate", "bench", "compare_cards",
         "Results", "export_results", "evaluate", "check_planner", "run_demo")
 _OTHER = {"ConfigError": "pbdyn.errors", "PbdynError": "pbdyn.errors", "PbdynWarning": "pbdyn.errors",
           "TrialResult": "pbdyn.sim.result",

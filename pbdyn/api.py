@@ -358,6 +358,47 @@ def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: 
                       progress=progress)
 
 
+def bench(planner: str, *, gaze: str | None = None, suite: str | Path = "pbdyn-2d-v1", out: str | Path,
+          workers: int | None = None, scheduler=None, progress: bool = False, reproduce: bool = False,
+          command: str = "") -> dict:
+    """`pbdyn bench`: fly ``planner`` (a registry name or "package.module:Class"; gaze: default the thesis pairing)
+    on the frozen ``suite`` (a bundled suite name or a suite folder) into the folder ``out`` (resumable) and write its
+    score card there (card.json, card.md, card.html; docs/benchmark.md). Returns the card (a dict, schema
+    pbdyn-card/1). ``reproduce``: also compare the flights with the planner's shipped reference results."""
+    from pbdyn.benchmark.run import bench as _bench
+
+    if scheduler is None:
+        workers = _workers(workers)
+    return _bench(planner, gaze=gaze, suite=suite, out=_path(out, "out"), workers=workers, scheduler=scheduler,
+                  progress=progress, reproduce=reproduce, command=command)
+
+
+def compare_cards(cards, *, out: str | Path | None = None) -> list[dict]:
+    """`pbdyn bench --compare`: read score cards (card.json files or bench folders) of one suite; with ``out`` (a
+    folder), write compare.md and compare.html there. Returns the cards. Cards of different suite versions are
+    refused (their numbers are not comparable)."""
+    from pbdyn.benchmark.render import compare_html, compare_markdown
+    from pbdyn.benchmark.run import _write_atomic, read_card
+
+    if isinstance(cards, (str, Path)) or not cards:
+        raise ConfigError("card", "give one or more card files", cards)
+    docs = [read_card(c) for c in cards]
+    first = docs[0]["suite"]
+    for c, d in zip(cards, docs):
+        if d["suite"]["hash"] != first["hash"]:
+            raise ConfigError("card", f"is a card of {d['suite']['name']} ({d['suite']['hash'][:12]}), not of "
+                              f"{first['name']} ({first['hash'][:12]}): cards of different suites are not comparable",
+                              str(c))
+    if out is not None:
+        folder = Path(_path(out, "out"))
+        if folder.exists() and not folder.is_dir():
+            raise ConfigError("out", "must be a folder", str(out))
+        folder.mkdir(parents=True, exist_ok=True)
+        _write_atomic(folder / "compare.md", compare_markdown(docs))
+        _write_atomic(folder / "compare.html", compare_html(docs))
+    return docs
+
+
 def _workers(workers) -> int:
     """``workers`` (None: the CPU count) as an int >= 1; ConfigError naming it otherwise."""
     if workers is None:

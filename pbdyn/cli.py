@@ -87,6 +87,23 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--workers", type=_positive_int, help="local processes (default: CPU count)")
     cal.add_argument("--json", action="store_true", help="print the maps' difficulties as one JSON document")
 
+    bn = sub.add_parser("bench", help="fly a planner on a frozen benchmark suite and write its score card "
+                        "(card.json, card.md, card.html)")
+    bn.add_argument("planner", nargs="?", help="trajectory planner: a registry name or 'package.module:Class'")
+    bn.add_argument("--gaze", help="gaze planner (default: the thesis pairing; lookahead for a plug-in)")
+    bn.add_argument("--suite", default=None, help="suite name or folder (default pbdyn-2d-v1; --list shows them)")
+    bgrp = bn.add_mutually_exclusive_group()
+    bgrp.add_argument("--workers", type=_positive_int, help="local worker processes (default: CPU count)")
+    bgrp.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786")
+    bn.add_argument("--out", help="folder of the flights and the card (resumable; with --compare: where to write "
+                    "compare.md and compare.html)")
+    bn.add_argument("--reproduce", action="store_true",
+                    help="a built-in planner: compare the flights with its shipped reference results, field by field")
+    bn.add_argument("--compare", nargs="+", metavar="CARD", help="put score cards (card.json or bench folders) side "
+                    "by side instead of flying")
+    bn.add_argument("--list", action="store_true", help="list the bundled suites")
+    bn.add_argument("--json", action="store_true", help="print the card (or the comparison) as JSON")
+
     gen = sub.add_parser("generate", help="maps of a chosen difficulty, written as a scenario file (thesis 5-2-2)")
     gen.add_argument("--metric", help="the metric to hit (e.g. survivability; with --target)")
     gen.add_argument("--target", type=_finite_float, help="the metric's target value (its unit)")
@@ -190,7 +207,7 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS",
          "target": "--target", "tolerance": "--tolerance", "count": "--count", "family": "--family", "dims": "--dims",
          "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed",
-         "store": "--store", "maps": "--map", "success": "--success"}
+         "store": "--store", "maps": "--map", "success": "--success", "suite": "--suite", "card": "CARD"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
@@ -338,6 +355,47 @@ def cmd_merge(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from pbdyn.benchmark import render
+    from pbdyn.benchmark.run import DEFAULT_SUITE
+
+    if args.list:
+        from pbdyn.benchmark.suite import load_suite, suite_names
+
+        for name in suite_names():
+            s = load_suite(name)
+            sys.stdout.write(f"{name}: {s.dims}D, {len(s.maps)} maps in {len(s.levels)} levels, {s.n_tasks()} tasks, "
+                             f"hash {s.hash[:12]}\n")
+        return 0
+    if args.compare:
+        if args.planner is not None:
+            raise ConfigError("--compare", "takes card files only, not a PLANNER", args.planner)
+        cards = api.compare_cards(args.compare, out=args.out)
+        if args.json:
+            sys.stdout.write(json.dumps({"cards": cards}, sort_keys=True) + "\n")
+        else:
+            sys.stdout.write(render.compare_text(cards))
+        return 0
+    if args.planner is None:
+        raise ConfigError("PLANNER", "is required (or --compare CARD ... / --list)", None, show_value=False)
+    if args.out is None:
+        raise ConfigError("--out", "is required: the folder of the flights and the card", None, show_value=False)
+    card = api.bench(args.planner, gaze=args.gaze, suite=args.suite or DEFAULT_SUITE, out=args.out,
+                     workers=args.workers, scheduler=args.scheduler, progress=not args.json,
+                     reproduce=args.reproduce, command=" ".join(["pbdyn", "bench", *sys.argv[2:]]))
+    if args.json:
+        sys.stdout.write(json.dumps(card, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(card["summary"] + "\n" + f"card: {Path(args.out) / 'card.json'} (.md, .html)\n")
+        rp = card.get("reproduction")
+        if rp is not None:
+            sys.stdout.write(f"reproduction of the shipped reference of {rp['reference']}: " +
+                             (f"bit for bit on all {rp['tasks']} tasks\n" if rp["identical"] else
+                              f"{rp['n_differences']} difference(s), e.g. " + "; ".join(rp["differences"][:3]) + "\n"))
+            return 0 if rp["identical"] else 1
+    return 0
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from pbdyn.experiments.calibrate import format_difficulties
 
@@ -406,7 +464,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "demo": cmd_demo, "batch": cmd_batch,
             "export": cmd_export, "evaluate": cmd_evaluate, "merge": cmd_merge, "replay": cmd_replay,
-            "generate": cmd_generate, "calibrate": cmd_calibrate}
+            "generate": cmd_generate, "calibrate": cmd_calibrate, "bench": cmd_bench}
 
 
 def _warning_line(show):

@@ -1,0 +1,1 @@
+"""Frozen benchmark suites, their reference results and score cards (`pbdyn bench`; docs/benchmark.md)."""

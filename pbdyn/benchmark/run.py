@@ -1,0 +1,215 @@
+"""`pbdyn bench`: fly a planner on a frozen suite and write its score card (docs/benchmark.md).
+
+The suite's parts are flown by the batch runner (pbdyn.experiments.runner: lockstep, resumable, local processes or
+a Dask scheduler) into ``OUT/flights/<part>.sqlite``; then the card (pbdyn.benchmark.card) is written as
+``OUT/card.json``, ``OUT/card.md`` and ``OUT/card.html`` (pbdyn.benchmark.render), each atomically. ``OUT/bench.json``
+records which planner and suite the folder holds, so a folder never mixes two benches.
+
+The suite's reference results (REFERENCE_FILE in the suite folder) hold every built-in trajectory planner flown with
+its thesis gaze pairing (THESIS_GAZE); ``reproduce=True`` compares the planner's flights with its shipped reference
+rows field by field (DETERMINISTIC_FIELDS: everything but wall times) and reports every difference.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+from pathlib import Path
+
+from pbdyn.benchmark.card import DETERMINISTIC_FIELDS, TASK_FIELDS, make_card, task_key, task_row
+from pbdyn.benchmark.suite import Suite, flight_scenario, load_suite
+from pbdyn.config import PlannerEntry
+from pbdyn.errors import ConfigError
+
+REFERENCE_FILE = "reference.json.gz"
+REFERENCE_FORMAT = "pbdyn-reference/1"
+THESIS_GAZE = {"local_primitives": "lookahead", "global_primitives": "fullrange", "mpc": "lookahead",
+               "straight_line": "lookahead", "local_primitives_minjerk": "lookahead"}
+"""The gaze each built-in trajectory planner flies with by default (the thesis' pairings: FullRange with the global
+planner, LookAhead with the local ones)."""
+DEFAULT_SUITE = "pbdyn-2d-v1"
+MARKER = "bench.json"
+
+
+def planner_entry(planner: str, gaze: str | None = None) -> PlannerEntry:
+    """The (trajectory, gaze) pair benched: ``gaze`` or the planner's THESIS_GAZE (LookAhead for a plug-in)."""
+    from pbdyn.planning.registry import pair_fingerprint
+
+    if not isinstance(planner, str) or not planner:
+        raise ConfigError("planner", "must be a registry name or 'package.module:Class'", planner)
+    if gaze is not None and (not isinstance(gaze, str) or not gaze):
+        raise ConfigError("gaze", "must be a gaze planner name or 'package.module:Class'", gaze)
+    entry = PlannerEntry(planner, gaze or THESIS_GAZE.get(planner, "lookahead"))
+    pair_fingerprint(entry.trajectory, entry.gaze)         # unknown names fail here, before anything is written
+    return entry
+
+
+def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
+    marker = out / MARKER
+    mine = {"suite": suite.name, "suite_hash": suite.hash, "trajectory": entry.trajectory, "gaze": entry.gaze}
+    if marker.is_file():
+        try:
+            have = json.loads(marker.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError):
+            have = None
+        if have != mine:
+            what = f"{have.get('gaze')}+{have.get('trajectory')} on {have.get('suite')}" if isinstance(have, dict) \
+                else "something else"
+            raise ConfigError("out", f"holds the bench of {what}; use another --out folder", str(out))
+        return
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ConfigError("out", "exists and is not an empty folder or a bench folder; use another --out folder",
+                          str(out))
+    out.mkdir(parents=True, exist_ok=True)
+    _write_atomic(marker, json.dumps(mine, indent=1, sort_keys=True) + "\n")
+
+
+def fly(suite: Suite, entry: PlannerEntry, out: Path, *, workers=None, scheduler=None, progress: bool = False,
+        command: str = "") -> list[dict]:
+    """Fly ``entry`` on every part of ``suite`` into out/flights/ (resuming what is there) and return its task
+    rows (read_rows)."""
+    from pbdyn.experiments.runner import BatchOptions, run_batch
+
+    folder = out / "flights"
+    folder.mkdir(parents=True, exist_ok=True)
+    for part in suite.parts:
+        run_batch(flight_scenario(suite, part, [entry]), folder / f"{part.name}.sqlite",
+                  BatchOptions(workers=workers, scheduler=scheduler, metrics=False, progress=progress),
+                  command=command)
+    return read_rows(suite, out)
+
+
+def read_rows(suite: Suite, out: Path, label: str | None = None) -> list[dict]:
+    """The task rows (card.task_row) of the suite's maps in the bench folder ``out`` (its flights/<part>.sqlite
+    stores; the rows of planner label ``label`` only, if given), ordered by task."""
+    from pbdyn.experiments.store import ResultsStore
+
+    rows = []
+    for part in suite.parts:
+        path = Path(out) / "flights" / f"{part.name}.sqlite"
+        if not path.is_file():
+            continue
+        st = ResultsStore.open(path)
+        try:
+            results = st.results()
+        finally:
+            st.close()
+        wanted = {m["map_id"] for m in suite.maps if m["part"] == part.name}
+        rows.extend(task_row(part.name, r) for r in results
+                    if r["map_id"] in wanted and (label is None or r.get("planner_label") == label))
+    return sorted(rows, key=task_key)
+
+
+def load_references(suite: Suite) -> dict:
+    """The suite's shipped reference results: label -> {"meta": {...}, "rows": [task rows]} ({} if none)."""
+    path = suite.folder / REFERENCE_FILE
+    if not path.is_file():
+        return {}
+    doc = json.loads(gzip.decompress(path.read_bytes()).decode("utf-8"))
+    if doc.get("format") != REFERENCE_FORMAT:
+        raise ConfigError("reference", f"is not a {REFERENCE_FORMAT} file", str(path))
+    if doc.get("suite_hash") != suite.hash:
+        raise ConfigError("reference", f"was flown on another version of suite {suite.name} (hash "
+                          f"{str(doc.get('suite_hash'))[:12]}, the suite's is {suite.hash[:12]})", str(path))
+    cols = doc["columns"]
+    out = {}
+    for label, meta in doc["planners"].items():
+        out[label] = {"meta": meta, "rows": []}
+    for values in doc["rows"]:
+        r = dict(zip(cols, values))
+        label = r.pop("label")
+        out[label]["rows"].append(r)
+    return out
+
+
+def reference_document(suite: Suite, flown: dict) -> dict:
+    """The reference file's document from ``flown``: label -> {"meta": {...}, "rows": [task rows]}."""
+    cols = ["label", *TASK_FIELDS]
+    rows = []
+    for label in sorted(flown):
+        for r in sorted(flown[label]["rows"], key=task_key):
+            rows.append([label, *(r[c] for c in TASK_FIELDS)])
+    return {"format": REFERENCE_FORMAT, "suite": suite.name, "suite_hash": suite.hash, "columns": cols,
+            "planners": {k: flown[k]["meta"] for k in sorted(flown)}, "rows": rows}
+
+
+def compare_rows(mine: list[dict], reference: list[dict]) -> list[str]:
+    """The differences between flown task rows and reference rows (DETERMINISTIC_FIELDS), one line each; [] when
+    they reproduce bit for bit."""
+    ref = {task_key(r): r for r in reference}
+    got = {task_key(r): r for r in mine}
+    out = [f"task {k} missing from the flights" for k in sorted(set(ref) - set(got))]
+    out += [f"task {k} not in the reference" for k in sorted(set(got) - set(ref))]
+    for k in sorted(set(ref) & set(got)):
+        for f in DETERMINISTIC_FIELDS:
+            if ref[k][f] != got[k][f]:
+                out.append(f"task {k}: {f} {got[k][f]!r} (reference {ref[k][f]!r})")
+    return out
+
+
+def bench(planner: str, *, gaze: str | None = None, suite=DEFAULT_SUITE, out, workers=None, scheduler=None,
+          progress: bool = False, reproduce: bool = False, command: str = "") -> dict:
+    """Fly ``planner`` (with ``gaze``) on ``suite`` into the folder ``out`` and write its score card there
+    (card.json, card.md, card.html); returns the card. ``reproduce``: the card gains "reproduction", the
+    comparison of the flights with the planner's shipped reference rows (a built-in planner only)."""
+    from pbdyn.benchmark.render import card_html, card_markdown
+    from pbdyn.planning.registry import pair_fingerprint
+
+    s = suite if isinstance(suite, Suite) else load_suite(suite)
+    if any(m.get("difficulty") is None or m.get("level") is None for m in s.maps):
+        raise ConfigError("suite", "is a draft: its maps have no measured difficulty yet (tools/make_suites.py "
+                          "freeze)", s.name)
+    entry = planner_entry(planner, gaze)
+    refs = load_references(s)
+    if reproduce and entry.label not in refs:
+        raise ConfigError("planner", f"has no shipped reference results on {s.name} to reproduce (references: "
+                          + (", ".join(sorted(refs)) or "none") + ")", entry.label)
+    out = Path(out)
+    _check_marker(out, s, entry)
+    rows = fly(s, entry, out, workers=workers, scheduler=scheduler, progress=progress, command=command)
+    info = {"label": entry.label, "trajectory": entry.trajectory, "gaze": entry.gaze,
+            "fingerprint": pair_fingerprint(entry.trajectory, entry.gaze)}
+    card = make_card(s, info, rows, refs)
+    if reproduce:
+        diffs = compare_rows(rows, refs[entry.label]["rows"])
+        card["reproduction"] = {"reference": entry.label, "tasks": len(refs[entry.label]["rows"]),
+                                "identical": not diffs, "differences": diffs[:50], "n_differences": len(diffs)}
+    card = clean(card)
+    _write_atomic(out / "card.json", json.dumps(card, indent=1, sort_keys=True, allow_nan=False) + "\n")
+    _write_atomic(out / "card.md", card_markdown(card))
+    _write_atomic(out / "card.html", card_html(card))
+    return card
+
+
+def read_card(path) -> dict:
+    """A card.json (or a bench folder holding one); ConfigError naming the file if it is not a score card."""
+    from pbdyn.benchmark.card import CARD_SCHEMA
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / "card.json"
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError("card", f"cannot be read ({exc.__class__.__name__})", str(path)) from None
+    if not isinstance(doc, dict) or doc.get("schema") != CARD_SCHEMA:
+        raise ConfigError("card", f"is not a {CARD_SCHEMA} score card", str(path))
+    return doc
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    from pbdyn.files import atomic_write
+
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
+def clean(value):
+    """``value`` with every NaN or infinite float replaced by None (cards are strict JSON)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [clean(v) for v in value]
+    return value

@@ -1,0 +1,173 @@
+"""Frozen benchmark suites (README "Benchmark your planner"; docs/benchmark.md).
+
+A suite is a folder of the bundled scenarios, ``suites/<name>/``, holding ``suite.json`` (the manifest) and the
+scenario files of its *parts*: one part per scenario file the suite's maps come from (a file of generated maps, or
+one imported world). The manifest names the suite and its version, its dims, the MAV speeds every task is flown
+at, its difficulty levels and, per map, its part, index and id in that part, its generator family, its level and
+its measured difficulty on the anchored scale (pbdyn.analysis.scale: the reference panel's success on exactly the
+suite's tasks of that map, with a 95% interval, and the difficulty in logits with its interval). A part's tasks are
+the ordered start/goal pairs ``pairs_flown`` of its manifest entry (default: the reference pairs,
+pbdyn.analysis.scale.reference_pairs) at each of the suite's speeds.
+
+A suite's identity is its content hash (suite_hash): the sha256 of the manifest and of every part's resolved
+scenario (canonical JSON), printed on every score card; a test fixes the shipped suites' hashes.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from pbdyn.config import PlannerEntry, Scenario, canonical_json, parse_scenario
+from pbdyn.errors import ConfigError
+
+SUITE_FILE = "suite.json"
+SUITE_FORMAT = "pbdyn-suite/1"
+SUITES_FOLDER = "suites"
+
+
+@dataclass(frozen=True)
+class Part:
+    """One scenario file of a suite: ``name``, the scenario ``path``, its document (TOML-shaped dict) and the
+    ordered start/goal candidate pairs flown on its maps (``pairs``, candidate indices)."""
+
+    name: str
+    path: Path
+    doc: dict
+    pairs: tuple
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A loaded suite: its manifest (``doc``), folder and parts; ``maps`` are the manifest's map entries."""
+
+    name: str
+    version: str
+    dims: int
+    speeds: tuple
+    levels: tuple
+    maps: tuple
+    parts: tuple
+    doc: dict
+    folder: Path
+
+    @property
+    def hash(self) -> str:
+        """The suite's identity (module doc)."""
+        return suite_hash(self)
+
+    def part(self, name: str) -> Part:
+        """The part called ``name``."""
+        for p in self.parts:
+            if p.name == name:
+                return p
+        raise ConfigError("part", f"is not a part of suite {self.name}", name)
+
+    def level_of(self, part: str, map_id: str) -> int:
+        """The level of the map ``map_id`` of part ``part``."""
+        for m in self.maps:
+            if m["part"] == part and m["map_id"] == map_id:
+                return int(m["level"])
+        raise ConfigError("map", f"is not a map of part {part} of suite {self.name}", map_id)
+
+    def n_tasks(self) -> int:
+        """Tasks (map x pair x speed) in the suite."""
+        per_part = {p.name: len(p.pairs) for p in self.parts}
+        return sum(per_part[m["part"]] for m in self.maps) * len(self.speeds)
+
+
+def suites_dir() -> Path:
+    """The folder of the bundled suites."""
+    from pbdyn import resources
+
+    return resources.scenarios_dir() / SUITES_FOLDER
+
+
+def suite_names() -> list[str]:
+    """Names of the bundled suites."""
+    root = suites_dir()
+    return sorted(p.parent.name for p in root.glob(f"*/{SUITE_FILE}")) if root.is_dir() else []
+
+
+def load_suite(name_or_path) -> Suite:
+    """The suite ``name_or_path``: a bundled suite's name ("pbdyn-2d-v1") or a suite folder / suite.json path."""
+    if not isinstance(name_or_path, (str, Path)) or not str(name_or_path):
+        raise ConfigError("suite", "must be a suite name or a suite folder", name_or_path)
+    p = Path(name_or_path)
+    if p.is_dir():
+        p = p / SUITE_FILE
+    if not p.is_file():
+        bundled = suites_dir() / str(name_or_path) / SUITE_FILE
+        if not bundled.is_file():
+            raise ConfigError("suite", "is neither a bundled suite (" + ", ".join(suite_names()) +
+                              ") nor a suite folder", str(name_or_path))
+        p = bundled
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError("suite", f"cannot be read ({exc.__class__.__name__})", str(p)) from None
+    if not isinstance(doc, dict) or doc.get("format") != SUITE_FORMAT:
+        raise ConfigError("suite", f"is not a {SUITE_FORMAT} manifest", str(p))
+    return suite_from_doc(doc, p.parent)
+
+
+def suite_from_doc(doc: dict, folder: Path) -> Suite:
+    """A Suite from a manifest dict whose part files are relative to ``folder`` (or bundled scenario names)."""
+    from pbdyn import resources
+    from pbdyn.analysis.scale import reference_pairs
+
+    parts = []
+    for entry in doc["parts"]:
+        path = folder / entry["scenario"]
+        if not path.is_file():
+            path = resources.find_scenario(entry["scenario"])
+        part_doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        pairs = entry.get("pairs_flown")
+        if pairs is None:
+            sc = parse_scenario(part_doc, path)
+            pairs = reference_pairs(sc.task.candidates)
+        parts.append(Part(str(entry["name"]), path, part_doc, tuple(tuple(int(i) for i in q) for q in pairs)))
+    return Suite(str(doc["name"]), str(doc["version"]), int(doc["dims"]), tuple(float(v) for v in doc["speeds"]),
+                 tuple(doc["levels"]), tuple(doc["maps"]), tuple(parts), doc, folder)
+
+
+def suite_hash(suite: Suite) -> str:
+    """sha256 (hex) over the manifest and every part's resolved scenario, in canonical JSON."""
+    h = hashlib.sha256()
+    h.update(canonical_json(suite.doc).encode())
+    for part in suite.parts:
+        sc = parse_scenario(part.doc, part.path)
+        h.update(b"\0" + part.name.encode() + b"\0" + canonical_json(sc.to_dict()).encode())
+    return h.hexdigest()
+
+
+def flight_document(suite: Suite, part: Part, entries) -> dict:
+    """The scenario document that flies ``entries`` (PlannerEntry list) on a part's suite maps: the part's
+    document with those planners, the suite's speeds and the part's pairs, its maps cut to the suite's (an
+    explicit map list keeps each map's setup, replicate and seed), named "<suite>.<part>"."""
+    doc = copy.deepcopy(part.doc)
+    doc["name"] = f"{suite.name}.{part.name}"
+    doc["planners"] = [_entry_table(e) for e in entries]
+    doc.setdefault("drone", {})["v_max"] = list(suite.speeds)
+    doc.setdefault("task", {})["pairs_flown"] = [list(q) for q in part.pairs]
+    return doc
+
+
+def flight_scenario(suite: Suite, part: Part, entries) -> Scenario:
+    """flight_document() parsed (relative paths resolve against the part's file)."""
+    return parse_scenario(flight_document(suite, part, entries), part.path)
+
+
+def _entry_table(e: PlannerEntry) -> dict:
+    out = {"trajectory": e.trajectory, "gaze": e.gaze}
+    if e.trajectory_params:
+        out["trajectory_params"] = dict(e.trajectory_params)
+    if e.gaze_params:
+        out["gaze_params"] = dict(e.gaze_params)
+    if e.name:
+        out["name"] = e.name
+    return out
