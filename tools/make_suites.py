@@ -294,36 +294,10 @@ def freeze(name: str, out: Path) -> None:
 
 
 def _toml(doc: dict, comment: str) -> str:
-    """A scenario document as TOML (the shapes a suite part uses: tables, arrays of tables, scalars, lists)."""
-    lines = [f"# {comment}"]
+    """A scenario document as TOML (tomli_w) under a comment line."""
+    import tomli_w
 
-    def scalar(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, list):
-            return "[" + ", ".join(scalar(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {scalar(x)}" for k, x in v.items()) + " }"
-        return repr(v)
-
-    def table(prefix: str, d: dict):
-        simple = {k: v for k, v in d.items() if not isinstance(v, dict) and not (
-            isinstance(v, list) and v and isinstance(v[0], dict))}
-        if prefix:
-            lines.append(f"\n[{prefix}]")
-        lines.extend(f"{k} = {scalar(v)}" for k, v in simple.items())
-        for k, v in d.items():
-            if isinstance(v, dict):
-                table(f"{prefix}.{k}" if prefix else k, v)
-            elif isinstance(v, list) and v and isinstance(v[0], dict):
-                for item in v:
-                    lines.append(f"\n[[{prefix}.{k}]]" if prefix else f"\n[[{k}]]")
-                    lines.extend(f"{kk} = {scalar(vv)}" for kk, vv in item.items())
-
-    table("", doc)
-    return "\n".join(lines) + "\n"
+    return f"# {comment}\n" + tomli_w.dumps(doc)
 
 
 def main(argv=None) -> int:

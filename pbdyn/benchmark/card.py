@@ -10,9 +10,10 @@ figures. The card holds, for the planner and beside it for every reference plann
 - paired comparisons with each reference on the tasks both flew (pbdyn.analysis.paired.paired_comparison: discordant
   counts, exact McNemar p, the success difference with a paired map-bootstrap interval);
 - outcomes (failure modes) overall and per level; the worst levels' success (CVAR_SHARE: the mean success of the
-  lowest 20% of levels, at least one); time to goal (s) and path length over the straight start-goal distance on the
-  successful tasks; minimum clearance (m) over the tasks that flew; the planner's time per step (ms: the median over
-  tasks of each task's median step, and of each task's 99th-percentile step);
+  lowest 20% of levels, at least one); on the successful tasks, the time to goal (s), the path length over the
+  straight-line distance from the start to the goal ball (|goal - start| - goal radius) and the minimum clearance
+  (m); the planner's time per step (ms: the median over the tasks flown of each task's median step, and of each
+  task's 99th-percentile step);
 - the suite's name, version and hash, pbdyn's version, the planner's fingerprint, the machine and the date, and a
   one-line summary to quote.
 
@@ -101,6 +102,13 @@ def _ability(rows: list[dict], difficulty: dict, seed: int) -> dict:
     return {"logit": float(a), "ci95": [float(lo), float(hi)]}
 
 
+def goal_radii(suite) -> dict:
+    """part name -> the goal radius (m) of its tasks."""
+    from pbdyn.config import parse_scenario
+
+    return {p.name: float(parse_scenario(p.doc, p.path).task.goal_radius) for p in suite.parts}
+
+
 def summarise(rows: list[dict], suite, *, seed: int = 0) -> dict:
     """The per-planner part of a card (success, levels, ability, outcomes, figures) from its task rows."""
     levels = [int(lv["level"]) for lv in suite.levels]
@@ -114,8 +122,9 @@ def summarise(rows: list[dict], suite, *, seed: int = 0) -> dict:
     rates = sorted(x["rate"] for x in per_level if x["rate"] is not None)
     worst = rates[:max(1, math.ceil(CVAR_SHARE * len(rates)))] if rates else []
     ok = [r for r in rows if r["outcome"] == "success"]
+    radius = goal_radii(suite)
     ratio = [r["path_length_m"] / d for r in ok if r["path_length_m"] is not None
-             for d in [math.dist(r["start"], r["goal"])] if d > 0]
+             for d in [math.dist(r["start"], r["goal"]) - radius[r["part"]]] if d > 0]
     flew = [r for r in rows if r["outcome"] != "error"]
     plan_med = _finite(r["wall_planning_median_s"] for r in flew)
     plan_p99 = _finite(r["wall_planning_p99_s"] for r in flew)
@@ -127,7 +136,7 @@ def summarise(rows: list[dict], suite, *, seed: int = 0) -> dict:
         "cvar20_success": {"rate": float(np.mean(worst)) if worst else None, "levels": len(worst)},
         "time_to_goal_s": _median_iqr(r["flight_time_s"] for r in ok),
         "path_ratio": _median_iqr(ratio),
-        "min_clearance_m": _median_iqr(r["min_clearance_m"] for r in flew),
+        "min_clearance_m": _median_iqr(r["min_clearance_m"] for r in ok),
         "planning_time_ms": {"median": float(np.median(plan_med) * 1e3) if plan_med.size else None,
                              "p99": float(np.median(plan_p99) * 1e3) if plan_p99.size else None,
                              "n": int(plan_med.size)},

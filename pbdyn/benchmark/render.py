@@ -73,9 +73,9 @@ def _figures_rows(card: dict) -> list[tuple[str, str]]:
     t, p, c, pt = card["time_to_goal_s"], card["path_ratio"], card["min_clearance_m"], card["planning_time_ms"]
     return [
         ("time to goal (s; successful tasks)", f"median {_f(t['median'])}, IQR {_ci(t['iqr'])} (n = {t['n']})"),
-        ("path length / straight-line distance (successful tasks)",
+        ("path length / straight-line distance to the goal ball (successful tasks)",
          f"median {_f(p['median'], '.3f')}, IQR {_ci(p['iqr'], '.3f')} (n = {p['n']})"),
-        ("minimum clearance (m; tasks flown)", f"median {_f(c['median'])}, IQR {_ci(c['iqr'])} (n = {c['n']})"),
+        ("minimum clearance (m; successful tasks)", f"median {_f(c['median'])}, IQR {_ci(c['iqr'])} (n = {c['n']})"),
         ("planner time per step (ms; wall time, this machine)",
          f"median {_f(pt['median'], '.3f')}, p99 {_f(pt['p99'], '.3f')} (medians over {pt['n']} tasks)"),
         ("worst 20% of levels: mean success", f"{_f(card['cvar20_success']['rate'])} "
