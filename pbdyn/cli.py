@@ -180,7 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("results", nargs="+", help="results store(s); the first is the reference (controlled) set")
     ev.add_argument("--plots", help="write the figures into this folder (.png at 200 dpi, .pdf, .svg)")
     ev.add_argument("--html", help="write one self-contained HTML report (tables, figures inlined, scenario)")
-    ev.add_argument("--bootstrap", type=_nonneg_int, default=1000, help="bootstrap draws for the SRCC CIs (1000)")
+    ev.add_argument("--bootstrap", type=_nonneg_int, default=1000,
+                    help="bootstrap draws for the SRCC CIs and the paired success differences (1000)")
     ev.add_argument("--json", action="store_true", help="print the whole report as one JSON document")
     ev.add_argument("--pool", action="store_true",
                     help="evaluate every store's maps as one dataset (a heterogeneous set: no reference set)")

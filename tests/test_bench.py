@@ -257,3 +257,16 @@ def test_reference_results_of_the_2d_suite_reproduce_bit_for_bit(planner, tmp_pa
                  timeout=5400)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "bit for bit" in res.stdout
+
+
+def test_the_benchmark_page_examples_run(tmp_path, monkeypatch):
+    from tests.test_readme import FENCE, RUN_TAG
+
+    text = (ROOT / "docs" / "benchmark.md").read_text(encoding="utf-8")
+    blocks = [m.group(2) for m in FENCE.finditer(text) if m.group(1).strip() == RUN_TAG]
+    assert blocks
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {"__name__": "benchmark_page"}
+    for code in blocks:
+        exec(compile(code, "docs/benchmark.md", "exec"), namespace)
+    assert (tmp_path / "bench-straight" / "card.html").is_file() and (tmp_path / "compare" / "compare.md").is_file()

@@ -7,7 +7,8 @@ under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a l
 Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, files (atomic writes),
 limits (resource limits), urdf (URDF validation), resources, jit (numba's njit, its cache never in the way), config |
 world | perception | planning | metrics (beside perception and planning: it sees rollouts only) | sim | analysis |
-experiments (evaluate feeds stored results to analysis) | api (the one door) | cli, gym, __main__, and the package
+experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown by the batch runner, score
+cards) | api (the one door) | cli, gym, __main__, and the package
 root pbdyn/__init__.py, which re-exports the api.
 """
 
@@ -41,11 +42,12 @@ RULES: dict[str, tuple[str, ...]] = {
     "sim": _BELOW_SIM,
     "analysis": _BASE + ("metrics", "sim"),
     "experiments": _BELOW_EXPERIMENTS,
-    "api": _BELOW_API,
+    "benchmark": _BELOW_API,
+    "api": _BELOW_API + ("benchmark",),
     "gym": _BELOW_API + ("api",),
-    "cli": _BELOW_API + ("api",),
+    "cli": _BELOW_API + ("benchmark", "api"),
     "__main__": ("cli",),
-    "pbdyn": _BELOW_API + ("api",),
+    "pbdyn": _BELOW_API + ("benchmark", "api"),
 }
 """unit -> units it may import. "pbdyn" is the package root: importing it, or a name it defines other than
 __version__ (``from pbdyn import run``), is importing the public API."""

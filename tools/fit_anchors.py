@@ -64,9 +64,18 @@ def store_outcomes(store: Path) -> tuple[str, list[tuple]]:
 def export(stores: list[Path]) -> list[Path]:
     """Write the panel's outcomes of ``stores`` to DATA/calibration_<kind>.csv.gz (one file per kind: 2d, 3d,
     worlds -- the stores of one kind together); returns the paths written."""
+    import collections
+
     per: dict[str, list] = {}
     for store in stores:
         kind, rows = store_outcomes(store)
+        counts = collections.Counter(r[0] for r in rows)
+        full = max(counts.values()) if counts else 0
+        partial = sorted(m for m, c in counts.items() if c < full)
+        if partial:       # a map the panel has not finished is left out: its outcomes would be a biased sample
+            print(f"{store}: left out {len(partial)} map(s) not fully flown: " + ", ".join(
+                f"{m} ({counts[m]} of {full} trials)" for m in partial))
+            rows = [r for r in rows if r[0] not in partial]
         per.setdefault(kind, []).extend(rows)
     paths = []
     for kind, rows in per.items():

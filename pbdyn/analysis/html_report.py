@@ -1,7 +1,9 @@
 """One self-contained HTML page of an evaluation (`pbdyn evaluate --html FILE.html`): the run (stores, scenario,
-pbdyn version), success per planner pair, every metric's rank correlation with success beside the baselines and
-against the fitted difficulty, the planners' fitted abilities, the figures inlined as PNG data, the full text table,
-and the resolved scenario. No external files, scripts or fonts: the page opens from disk in any browser.
+pbdyn version), success per planner pair (then, when the report has them, per setup and benchmark level, and the
+paired comparisons of planner pairs on common tasks), every metric's rank correlation with success beside the
+baselines and against the fitted difficulty, the planners' fitted abilities, the figures inlined as PNG data, the
+full text table, and the resolved scenario. No external files, scripts or fonts: the page opens from disk in any
+browser.
 """
 
 from __future__ import annotations
@@ -65,6 +67,38 @@ def _caption(stem: str) -> str:
     return ""
 
 
+def _group_sections(section: dict) -> list[str]:
+    """Success per setup and per level (report["success_by_group"]) with Wilson 95% intervals; [] without rows."""
+    e = html.escape
+    parts = []
+    for key, title in (("setup", "setup"), ("level", "level")):
+        rows = [[e(pair), e(group), str(c.get("n_maps")), str(c.get("trials")), _num(c.get("rate")),
+                 _ci(c.get("ci95"))] for pair, cells in (section.get(key) or {}).items() for group, c in cells.items()]
+        if rows:
+            parts.append(f"<h2>Success by {title}</h2><p>Success of each planner pair per {title} with its 95% "
+                         "Wilson interval (error trials not rated).</p>")
+            parts.append(_table(["planner pair", title, "maps", "trials", "success rate", "95% interval"], rows,
+                                name_cols=2))
+    return parts
+
+
+def _paired_section(section: dict) -> list[str]:
+    """Every two planner pairs on their common tasks (report["paired"]); [] without comparisons."""
+    e = html.escape
+    rows = [[e(r["a"]), e(r["b"]), str(r.get("tasks")), str(r.get("both")), str(r.get("a_only")),
+             str(r.get("b_only")), str(r.get("neither")), _num(r.get("success_a")), _num(r.get("success_b")),
+             _num(r.get("difference"), "{:+.3f}"), _ci(r.get("difference_ci95")), _num(r.get("mcnemar_p"), "{:.4f}")]
+            for r in section.get("comparisons") or []]
+    if not rows:
+        return []
+    return ["<h2>Paired comparisons</h2><p>Planner pairs A and B compared on the tasks both flew (task = map, "
+            "start&rarr;goal, MAV speed): tasks both succeeded on, only A, only B, neither; the difference of success "
+            "A &minus; B with its 95% interval from a paired bootstrap resampling maps, and the exact McNemar "
+            "p-value of the discordant tasks.</p>",
+            _table(["A", "B", "tasks", "both", "only A", "only B", "neither", "success A", "success B",
+                    "A \u2212 B", "95% interval", "McNemar p"], rows, name_cols=2)]
+
+
 def render_html(report: dict, table_text: str, figures: list[Path], *, stores: list[str], scenario: dict | None,
                 version: str) -> str:
     """The report page as a string (see the module docstring)."""
@@ -88,6 +122,8 @@ def render_html(report: dict, table_text: str, figures: list[Path], *, stores: l
                          _num(c.get("se"))])
     parts.append(_table(["planner pair", "dataset", "maps", "trials", "success rate", "standard error"], rows,
                         name_cols=2))
+    parts += _group_sections(report.get("success_by_group") or {})
+    parts += _paired_section(report.get("paired") or {})
 
     parts.append("<h2>Does a metric rank maps like success does?</h2>")
     parts.append(f"<p>{e(str(report.get('sign_convention', '')))}. Baselines need no simulation; a metric is "

@@ -147,8 +147,10 @@ def _setup_order(setup: dict | None) -> tuple:
 
 
 def _level_order(level) -> tuple:
-    return (0, float(level), "") if isinstance(level, (int, float)) and not isinstance(level, bool) else (1, 0.0,
-                                                                                                         str(level))
+    """Numeric levels first, in value order, then the others in name order."""
+    if isinstance(level, (int, float)) and not isinstance(level, bool):
+        return (0, float(level), "")
+    return (1, 0.0, str(level))
 
 
 def _cells(groups: dict) -> dict:
@@ -164,7 +166,8 @@ def _cells(groups: dict) -> dict:
 def success_by_group(trials: list[dict], maps: dict[str, dict]) -> dict:
     """Success of each planner pair per setup (setup_label of the map's setup; setups ordered by obstacle count,
     radius, speed, structure) and, when the trials carry a "level" (a benchmark suite's), per level: successes,
-    flown trials, maps, rate and its Wilson 95% interval. Flown (not "error") trials of every dataset pooled.
+    flown trials, maps, rate and its Wilson 95% interval. Flown (not "error") trials of every dataset and MAV speed
+    pooled.
     "level" is None when no trial has one. JSON-able apart from NaN."""
     by_setup: dict = {}
     by_level: dict = {}
@@ -197,7 +200,7 @@ def success_by_group(trials: list[dict], maps: dict[str, dict]) -> dict:
 
 def _ci_text(ci) -> str:
     if not ci or ci[0] is None or (isinstance(ci[0], float) and math.isnan(ci[0])):
-        return "[   -,     -]"
+        return "-"
     return f"[{ci[0]:.3f}, {ci[1]:.3f}]"
 
 

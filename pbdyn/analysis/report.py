@@ -438,6 +438,16 @@ def evaluate(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 
     return _clean(report)
 
 
+def paired_sections(trials: list[dict], maps: dict, *, n_boot: int = 1000, seed: int = 0) -> dict:
+    """The report's "success_by_group" (each pair's success per setup and level, Wilson 95% intervals) and "paired"
+    (every two pairs on their common tasks, ``n_boot`` paired-bootstrap draws from ``seed``, exact McNemar p)
+    sections (pbdyn.analysis.paired), JSON-safe (NaN as None); format_table prints them when a report has them."""
+    from pbdyn.analysis.paired import paired_table, success_by_group
+
+    return _clean({"success_by_group": success_by_group(trials, maps),
+                   "paired": paired_table(trials, n_boot=n_boot, seed=seed)})
+
+
 def difficulty_table(maps: dict, report: dict) -> tuple[tuple[str, ...], dict[str, np.ndarray]]:
     """(map_ids sorted, {metric: difficulty [maps]}) rebuilt from the maps and a report's normalisers (eq. 4-10,
     4-11) and setup-model coefficients (eq. 5-1)."""
@@ -488,7 +498,8 @@ def beaters(rows: dict, raw: str = "beats_baselines", holm: str = "beats_baselin
 def format_table(report: dict) -> str:
     """Text report laid out like thesis table 4-5 (rows: metrics and setup_model; columns: Srcc mean +- std over
     pairs, bootstrap 95% CI, within-setup Srcc, Cv mean +- std, compute time per map), then the sigma bands
-    (tables 4-6..4-8), the eq. 5-1 regression (table 5-4) and the success-rate summary."""
+    (tables 4-6..4-8), the eq. 5-1 regression (table 5-4) and the success-rate summary; then, when the report has
+    them (paired_sections), success per setup and level and the paired comparisons."""
     lines = [f"Controlled dataset: {report['controlled_dataset']}  "
              f"({report['datasets'].get(report['controlled_dataset'], 0)} maps, {len(report['pairs'])} planner "
              f"pairs, {report['n_boot']} bootstrap draws)", f"Sign: {report['sign_convention']}", ""]
@@ -577,4 +588,9 @@ def format_table(report: dict) -> str:
         for ds, s in per.items():
             lines.append(f"  {pair:<40} {ds:<24} {_f(s['rate'])} +- {_f(s['se'])} "
                          f"({_f(s['se_between_maps'])})  {s['n_trials']} trials, {s['n_maps']} maps")
+    if report.get("success_by_group") or report.get("paired"):
+        from pbdyn.analysis.paired import format_paired, format_success_by_group
+
+        lines += format_success_by_group(report.get("success_by_group") or {})
+        lines += format_paired(report.get("paired") or {})
     return "\n".join(lines)

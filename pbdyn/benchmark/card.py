@@ -164,7 +164,7 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
               date: str | None = None) -> dict:
     """The score card (module doc). ``planner``: {"label", "trajectory", "gaze", "fingerprint"}; ``rows``: its
     task rows; ``references``: label -> {"meta": {...}, "rows": [task rows]} (the suite's shipped references)."""
-    import pbdyn
+    from pbdyn import __version__
     from pbdyn.experiments.calibrate import load_anchors
     from pbdyn.analysis.scale import SCALE_VERSION
 
@@ -195,7 +195,7 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
                              for lv in suite.levels]}
     scale = f"anchored-{SCALE_VERSION}/{anchors.version}" if anchors is not None else "unanchored"
     card = {"schema": CARD_SCHEMA, "summary": "", "suite": suite_info, "planner": dict(planner),
-            "provenance": {"pbdyn": pbdyn.__version__, "scale": scale, "machine": machine(),
+            "provenance": {"pbdyn": __version__, "scale": scale, "machine": machine(),
                            "date": date or datetime.now(timezone.utc).replace(microsecond=0).isoformat()},
             "trials": {"flown": len(rows), "expected": suite.n_tasks(), "errors": mine["outcomes"]["error"]},
             **mine, "rank": {"by": "ability", "rank": rank, "of": n_ranked}, "references": refs}

@@ -17,6 +17,13 @@ def _task(row: dict) -> str | None:
     return f"{','.join(f'{float(x):g}' for x in start)}->{','.join(f'{float(x):g}' for x in goal)}"
 
 
+def _level(store_map: dict):
+    """A map's benchmark level when its store records one (a "level" in the maps row or in the map's setup), else
+    None."""
+    level = store_map.get("level")
+    return (store_map.get("setup") or {}).get("level") if level is None else level
+
+
 POOLED = "pooled"
 """The dataset name of every map when stores are pooled (load_results(pool=True))."""
 
@@ -27,7 +34,8 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
     with their store's scenario name so that maps of different stores never collide. Stores of different profiles
     ("physical", "thesis_program") are refused: their rows are never pooled; so is a store holding one planner label
     flown with two codes or one map flown in two worlds (pbdyn.experiments.merge.check_same_code). ``pool``: every map belongs to one
-    dataset, POOLED (a heterogeneous set; map ids keep their store's prefix)."""
+    dataset, POOLED (a heterogeneous set; map ids keep their store's prefix). Maps and trial rows carry "level":
+    the map's benchmark level when its store records one (see _level), else None."""
     trials: list[dict] = []
     maps: dict[str, dict] = {}
     names: list[str] = []
@@ -55,20 +63,21 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
                                      "metrics": m["metrics"],
                                      "metric_times": m["metric_times"],
                                      "mean_obstacle_speed": m["mean_obstacle_speed"],
-                                     "mean_obstacle_radius": m["mean_obstacle_radius"]}
+                                     "mean_obstacle_radius": m["mean_obstacle_radius"], "level": _level(m)}
         for r in rows:
             mid = f"{name}/{r.get('map_id')}"
             if mid not in maps:   # a store run with --no-metrics: the map without metrics
                 maps[mid] = {"setup": {"count": r.get("obstacle_count"), "radius": r.get("obstacle_radius"),
                                        "speed": r.get("obstacle_speed")}, "dataset": POOLED if pool else name,
                              "metrics": {},
-                             "metric_times": {}, "mean_obstacle_speed": None, "mean_obstacle_radius": None}
+                             "metric_times": {}, "mean_obstacle_speed": None, "mean_obstacle_radius": None,
+                             "level": None}
             trials.append({"map_id": mid, "pair": r.get("planner_label"), "trajectory": r.get("planner"),
                            "gaze": r.get("gaze"), "mav_speed": r.get("mav_speed"), "outcome": r.get("outcome"),
                            "obstacle_count": r.get("obstacle_count"), "obstacle_radius": r.get("obstacle_radius"),
                            "obstacle_speed": r.get("obstacle_speed"), "dataset": POOLED if pool else name,
                            "task": _task(r), "task_survivability_s": r.get("task_survivability_s"),
-                           "task_flux_per_s": r.get("task_flux_per_s")})
+                           "task_flux_per_s": r.get("task_flux_per_s"), "level": maps[mid]["level"]})
     if not trials:
         raise ConfigError("RESULTS", "holds no trials", [str(p) for p in paths])
     return trials, maps, POOLED if pool else names[0]
@@ -77,9 +86,11 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
 def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None, n_boot: int = 1000,
                     seed: int = 0, pool: bool = False) -> tuple[dict, str, list[Path]]:
     """(report dict, formatted table, figure paths) of the stores (see load_results); report["figures"] holds the
-    numbers of figs 5-9, 5-10 and 5-14 (pbdyn.analysis.figure_tables)."""
+    numbers of figs 5-9, 5-10 and 5-14 (pbdyn.analysis.figure_tables), report["paired"] every two planner pairs
+    compared on their common tasks (pbdyn.analysis.paired.paired_table: ``n_boot`` draws, ``seed``) and
+    report["success_by_group"] each pair's success per setup and level (pbdyn.analysis.paired.success_by_group)."""
     from pbdyn.analysis.figure_tables import figure_tables
-    from pbdyn.analysis.report import evaluate, format_table
+    from pbdyn.analysis.report import evaluate, format_table, paired_sections
 
     from pbdyn.experiments.calibrate import format_scale, load_anchors, place_on_scale
 
@@ -87,6 +98,7 @@ def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None,
     report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
     report["figures"] = figure_tables(trials, maps, report)
     report["anchored_scale"] = place_on_scale(trials, load_anchors(), _dims(paths, pool))
+    report.update(paired_sections(trials, maps, n_boot=n_boot, seed=seed))
     figures: list[Path] = []
     if plots is not None:
         from pbdyn.analysis.plots import write_plots

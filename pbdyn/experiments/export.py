@@ -1,9 +1,13 @@
 """A results store's trials as one table (pandas), and `pbdyn export` of it as CSV or Parquet.
 
 The table: one row per trial ordered by trial key; trial_key, then the store's trial columns in TrialResult field
-order (Table 2-2 first) with start and goal as numeric columns (start_x, start_y[, start_z], goal_x, ...), then
-error, then one ``metric_<name>`` column per map metric in the store (joined on map_id; NaN where a map has no
-value). Integer columns are int64 (nullable Int64 where error rows leave them empty), real columns float64;
+order (Table 2-2 first; path_length_m, m, among them) with start and goal as numeric columns (start_x,
+start_y[, start_z], goal_x, ...), then error, then the DERIVED columns (path_ratio: path_length_m over the
+straight-line distance from the start to the goal ball, |goal - start| - goal radius; wall_planning_median_s, wall_planning_p99_s: the median and 99th percentile
+over the trial's steps of the planner's wall time per step, s, from the row's result JSON), then one
+``metric_<name>`` column per map metric in the store (joined on map_id; NaN where a map has no value). Integer
+columns are int64 (nullable Int64 where error rows leave them empty), real columns float64 (NaN where a value is
+missing: error rows, stores written before the field existed, a start inside the goal ball for path_ratio);
 obstacle_radius and obstacle_speed are float64 when every value is a number, else JSON text ({"min", "max"}
 ranges).
 """
@@ -17,9 +21,15 @@ from pathlib import Path
 
 from pbdyn.errors import ConfigError
 from pbdyn.files import atomic_write
-from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore
+from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore, store_error
 
 _AXES = "xyz"
+
+RESULT_JSON_COLUMNS = ("wall_planning_median_s", "wall_planning_p99_s")
+"""Columns read from each row's result JSON (s; NaN where a row lacks them: stores written before them)."""
+
+DERIVED = ("path_ratio", *RESULT_JSON_COLUMNS)
+"""The columns after error, in order (see the module docstring)."""
 
 
 def _store_dims(store: ResultsStore, vectors: list[list]) -> int:
@@ -41,6 +51,44 @@ def _numbers_or_text(values: list):
     return values, False
 
 
+def _float_or_nan(v) -> float:
+    return float(v) if isinstance(v, Number) and not isinstance(v, bool) else math.nan
+
+
+def _result_json_columns(store: ResultsStore, raw_rows: list) -> dict[str, list[float]]:
+    """RESULT_JSON_COLUMNS from the rows' result JSON texts; an undecodable row is the store's one-line error."""
+    out: dict[str, list[float]] = {k: [] for k in RESULT_JSON_COLUMNS}
+    for raw in raw_rows:
+        try:
+            doc = json.loads(raw) if raw else {}
+        except (json.JSONDecodeError, UnicodeError) as exc:
+            raise store_error(store.field, exc, store.path) from None
+        doc = doc if isinstance(doc, dict) else {}
+        for k, values in out.items():
+            values.append(_float_or_nan(doc.get(k)))
+    return out
+
+
+def _goal_radius(store: ResultsStore) -> float:
+    """The goal radius (m) of the store's scenario (task.goal_radius; the default 1 m where it is not recorded)."""
+    from pbdyn.config import TaskConfig
+
+    raw = store.get_meta("scenario")
+    task = (json.loads(raw).get("task") or {}) if raw else {}
+    value = task.get("goal_radius", TaskConfig.goal_radius)
+    return float(value) if isinstance(value, Number) and not isinstance(value, bool) else TaskConfig.goal_radius
+
+
+def _path_ratio(length: list, starts: list[list], goals: list[list], goal_radius: float) -> list[float]:
+    """path_length_m over the straight-line distance from the start to the goal ball (|goal - start| - goal_radius)
+    per row; NaN where a value is missing or that distance is not positive."""
+    out = []
+    for n, s, g in zip(length, starts, goals):
+        dist = math.dist(s, g) - goal_radius if s and g and len(s) == len(g) else 0.0
+        out.append(float(n) / dist if n is not None and dist > 0.0 else math.nan)
+    return out
+
+
 def trials_frame(store: ResultsStore | str | Path):
     """Every trial of ``store`` (a ResultsStore or a store path) as a pandas DataFrame (see the module docstring)."""
     import pandas as pd
@@ -51,8 +99,10 @@ def trials_frame(store: ResultsStore | str | Path):
             return trials_frame(opened)
         finally:
             opened.close()
-    names, rows = store.trial_rows()
+    names, rows = store.trial_rows(["trial_key", *(n for n, _ in TRIAL_COLUMNS), "error", "result_json"])
     columns = {n: [r[i] for r in rows] for i, n in enumerate(names)}
+    names = names[:-1]
+    from_json = _result_json_columns(store, columns.pop("result_json"))
     types = dict(TRIAL_COLUMNS)
     vectors = {k: _vectors(columns[k]) for k in ("start", "goal")}
     dims = _store_dims(store, vectors["start"] + vectors["goal"])
@@ -72,6 +122,11 @@ def trials_frame(store: ResultsStore | str | Path):
             data[name] = pd.array(values, dtype="float64" if numeric else object)
         else:
             data[name] = pd.array(values, dtype=object)
+    data["path_ratio"] = pd.array(_path_ratio(columns["path_length_m"], vectors["start"], vectors["goal"],
+                                                  _goal_radius(store)),
+                                  dtype="float64")
+    for name, values in from_json.items():
+        data[name] = pd.array(values, dtype="float64")
     maps = store.maps()
     metric_names = sorted({k for m in maps.values() for k in m["metrics"]})
     for metric in metric_names:

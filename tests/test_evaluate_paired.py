@@ -1,0 +1,283 @@
+"""`pbdyn evaluate`'s score-card tables on a real store: the trial frame's path and planning-time columns, the paired
+comparison of planner pairs on common tasks (counted by hand from the store rows, McNemar against scipy) and success
+per setup and level, in the JSON, the text table and the HTML page; paired_comparison on synthetic arrays."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import sqlite3
+import warnings
+from collections import Counter
+
+import numpy as np
+import pytest
+from scipy.stats import binomtest
+
+import pbdyn
+from pbdyn.analysis.html_report import render_html
+from pbdyn.analysis.paired import mcnemar_exact, paired_comparison, paired_table, success_by_group, wilson_interval
+from pbdyn.analysis.report import format_table
+from pbdyn.errors import ConfigError
+from pbdyn.experiments.evaluate import evaluate_stores, load_results
+from pbdyn.experiments.export import DERIVED, trials_frame
+from pbdyn.experiments.store import ResultsStore
+
+SCENARIO = """
+name = "paired_small"
+[world]
+dims = 2
+size = [50.0, 50.0]
+dt = 0.1
+time_limit = 30.0
+[obstacles]
+count = [4, 12]
+radius = 1.0
+speed = 2.0
+radius_jitter = 0.2
+maps_per_setup = 1
+root_seed = 7
+[drone]
+v_max = [4.0]
+[task]
+candidates = [[4.0, 4.0], [46.0, 46.0], [4.0, 46.0], [46.0, 4.0]]
+pairs_flown = [[0, 1], [1, 0], [2, 3], [3, 2], [0, 2], [1, 3]]
+[[planners]]
+trajectory = "local_primitives"
+gaze = "lookahead"
+[[planners]]
+trajectory = "straight_line"
+gaze = "lookahead"
+[[planners]]
+trajectory = "straight_line"
+gaze = "fullrange"
+"""
+"""2 maps (4 and 12 obstacles) x 6 tasks x 3 planner pairs = 36 trials (about 6 s)."""
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    d = tmp_path_factory.mktemp("paired")
+    (d / "paired.toml").write_text(SCENARIO)
+    out = d / "paired.sqlite"
+    s = pbdyn.run_batch(str(d / "paired.toml"), out, workers=1, progress=False)
+    assert (s.total, s.ran, s.errors) == (36, 36, 0)
+    return out
+
+
+def _rows(path) -> list[dict]:
+    st = ResultsStore.open(path)
+    try:
+        return st.results()
+    finally:
+        st.close()
+
+
+def _cli(argv: list[str]) -> tuple[int, str, str]:
+    """pbdyn.cli.main(argv) in this process: (exit status, stdout, stderr)."""
+    from pbdyn import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def _copy(src, dst):
+    dst.write_bytes(src.read_bytes())
+    return dst
+
+
+def _by_hand(rows: list[dict]) -> dict[str, dict[tuple, bool]]:
+    """planner label -> {(map, start, goal, speed): success} of the flown rows."""
+    out: dict = {}
+    for r in rows:
+        if r["outcome"] != "error":
+            key = (r["map_id"], tuple(r["start"]), tuple(r["goal"]), r["mav_speed"])
+            out.setdefault(r["planner_label"], {})[key] = r["outcome"] == "success"
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ the trial frame
+def test_the_trial_frame_carries_path_ratio_and_planning_times(store, tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pbdyn.open_results(store) as res:
+            df = res.trials()
+    rows = {r["trial_key"]: r for r in _rows(store)}
+    cols = list(df.columns)
+    assert cols[cols.index("error") + 1:cols.index("error") + 1 + len(DERIVED)] == list(DERIVED)
+    assert cols.index("path_length_m") < cols.index("error")
+    for name in ("path_length_m", *DERIVED):
+        assert df[name].dtype == np.float64, name
+    for r in df.itertuples():
+        row = rows[r.trial_key]
+        dist = math.hypot(r.goal_x - r.start_x, r.goal_y - r.start_y) - 1.0     # to the goal ball (radius 1 m)
+        assert r.path_length_m == row["path_length_m"] > 0
+        assert r.path_ratio == pytest.approx(row["path_length_m"] / dist, rel=1e-12)
+        assert r.wall_planning_median_s == row["wall_planning_median_s"] >= 0
+        assert r.wall_planning_p99_s == row["wall_planning_p99_s"] >= r.wall_planning_median_s
+    # a store written before the fields: NaN, not 0
+    old = _copy(store, tmp_path / "old.sqlite")
+    key = df.trial_key.iloc[0]
+    with sqlite3.connect(old) as c:
+        c.execute("UPDATE trials SET path_length_m = NULL, result_json = json_remove(result_json, "
+                  "'$.wall_planning_median_s', '$.wall_planning_p99_s') WHERE trial_key = ?", (key,))
+    back = trials_frame(old).set_index("trial_key")
+    assert back.loc[key, ["path_length_m", *DERIVED]].isna().all()
+    assert back.drop(index=key)[["path_length_m", *DERIVED]].notna().all().all()
+    # the export goes through the same frame
+    assert pbdyn.export_results(store, tmp_path / "t.csv") == 36
+    import pandas as pd
+
+    csv = pd.read_csv(tmp_path / "t.csv")
+    assert list(csv.columns) == cols
+    assert csv["path_ratio"].tolist() == pytest.approx(df["path_ratio"].tolist(), rel=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------ evaluate
+@pytest.fixture(scope="module")
+def evaluated(store):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report, text, _ = evaluate_stores([store], n_boot=200, seed=0)
+    return report, text
+
+
+def test_paired_counts_equal_a_hand_count_and_mcnemar_is_the_binomial_test(store, evaluated):
+    report, _ = evaluated
+    hand = _by_hand(_rows(store))
+    comps = report["paired"]["comparisons"]
+    names = sorted(hand)
+    assert [(c["a"], c["b"]) for c in comps] == [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    assert len(comps) == 3
+    for c in comps:
+        a, b = hand[c["a"]], hand[c["b"]]
+        common = sorted(a.keys() & b.keys())
+        counts = Counter((a[k], b[k]) for k in common)
+        assert (c["tasks"], c["both"], c["a_only"], c["b_only"], c["neither"]) == \
+            (12, counts[True, True], counts[True, False], counts[False, True], counts[False, False])
+        assert c["n_maps"] == 2
+        assert c["success_a"] == pytest.approx(sum(a[k] for k in common) / 12)
+        assert c["difference"] == pytest.approx(c["success_a"] - c["success_b"])
+        n = c["a_only"] + c["b_only"]
+        assert c["mcnemar_p"] == (binomtest(c["a_only"], n, 0.5).pvalue if n else 1.0)
+        lo, hi = c["difference_ci95"]
+        assert lo - 1e-12 <= c["difference"] <= hi + 1e-12
+    assert any(c["a_only"] + c["b_only"] > 0 for c in comps)          # the store has discordant tasks
+    assert report["paired"]["n_boot"] == 200 and report["paired"]["seed"] == 0
+
+
+def test_an_error_trial_leaves_its_task_out_of_the_comparisons(store, tmp_path):
+    bad = _copy(store, tmp_path / "err.sqlite")
+    rows = _rows(store)
+    victim = next(r for r in rows if r["planner_label"] == "lookahead+local_primitives")
+    with sqlite3.connect(bad) as c:
+        c.execute("UPDATE trials SET outcome = 'error', result_json = json_set(result_json, '$.outcome', 'error') "
+                  "WHERE trial_key = ?", (victim["trial_key"],))
+    trials, maps, _ = load_results([bad])
+    comps = {(c["a"], c["b"]): c for c in paired_table(trials, n_boot=50, seed=0)["comparisons"]}
+    for (a, b), c in comps.items():
+        assert c["tasks"] == (11 if "lookahead+local_primitives" in (a, b) else 12)
+    groups = success_by_group(trials, maps)["setup"]["lookahead+local_primitives"]
+    assert sum(g["trials"] for g in groups.values()) == 11
+
+
+def test_success_by_setup_and_level(store, evaluated, tmp_path):
+    report, _ = evaluated
+    section = report["success_by_group"]
+    assert section["level"] is None                       # this store was not flown from a benchmark suite
+    rows = [r for r in _rows(store) if r["outcome"] != "error"]
+    for pair, cells in section["setup"].items():
+        assert list(cells) == ["n=4 r=1 v=2", "n=12 r=1 v=2"]
+        for label, cell in cells.items():
+            sel = [r for r in rows if r["planner_label"] == pair and label.startswith(f"n={r['obstacle_count']} ")]
+            k = sum(r["outcome"] == "success" for r in sel)
+            assert (cell["trials"], cell["successes"], cell["n_maps"]) == (len(sel), k, 1)
+            assert cell["ci95"] == pytest.approx(list(wilson_interval(k, len(sel))))
+            ci = binomtest(k, len(sel)).proportion_ci(method="wilson")
+            assert cell["ci95"] == pytest.approx([ci.low, ci.high], abs=1e-12)
+    # a suite's store records the level with each map (its setup): per level as well
+    lev = _copy(store, tmp_path / "levels.sqlite")
+    with sqlite3.connect(lev) as c:
+        c.execute("UPDATE maps SET setup_json = json_set(setup_json, '$.level', "
+                  "CASE WHEN json_extract(setup_json, '$.count') = 4 THEN 1 ELSE 2 END)")
+    trials, maps, _ = load_results([lev])
+    assert {t["level"] for t in trials} == {1, 2}
+    levels = success_by_group(trials, maps)["level"]
+    for pair, cells in levels.items():
+        assert list(cells) == ["1", "2"]
+        assert [c["trials"] for c in cells.values()] == [section["setup"][pair][s]["trials"]
+                                                         for s in ("n=4 r=1 v=2", "n=12 r=1 v=2")]
+    report2 = {**report, "success_by_group": json.loads(json.dumps(success_by_group(trials, maps)))}
+    assert "Success by level per planner pair" in format_table(report2)
+
+
+def test_the_text_json_and_html_reports_hold_the_tables(store, evaluated):
+    report, text = evaluated
+    old = format_table({k: v for k, v in report.items() if k not in ("paired", "success_by_group")})
+    assert text.startswith(old + "\n")                    # the existing table is unchanged; the new ones follow
+    tail = text[len(old):]
+    assert "Success by setup per planner pair" in tail and "Paired comparisons on the tasks both pairs flew" in tail
+    for c in report["paired"]["comparisons"]:
+        line = next(x for x in tail.splitlines() if x.split()[:2] == [c["a"], c["b"]])
+        assert line.split()[2:7] == [str(c[k]) for k in ("tasks", "both", "a_only", "b_only", "neither")]
+        assert line.split()[-1] == f"{c['mcnemar_p']:.4f}"
+    code, out, err = _cli(["evaluate", str(store), "--bootstrap", "200"])     # what `pbdyn evaluate` prints
+    assert code == 0 and out.rstrip("\n") == text.rstrip("\n") and "warning" not in err.lower()
+    doc = json.loads(json.dumps(report, allow_nan=False))                      # `--json`: no NaN leaks
+    assert len(doc["paired"]["comparisons"]) == 3 and set(doc["success_by_group"]["setup"]) == set(doc["pairs"])
+    with pbdyn.open_results(store) as res:
+        scenario = res.scenario
+    html = render_html(report, text, [], stores=[str(store)], scenario=scenario, version=pbdyn.__version__)
+    assert "<h2>Paired comparisons</h2>" in html and "<h2>Success by setup</h2>" in html
+    assert "<h2>Success by level</h2>" not in html
+    for c in doc["paired"]["comparisons"]:
+        cells = "".join(f"<td>{c[k]}</td>" for k in ("tasks", "both", "a_only", "b_only", "neither"))
+        assert f'<td class="name">{c["a"]}</td><td class="name">{c["b"]}</td>{cells}' in html
+    for pair, cells in doc["success_by_group"]["setup"].items():
+        for label, c in cells.items():
+            assert (f'<td class="name">{pair}</td><td class="name">{label}</td><td>1</td><td>{c["trials"]}</td>'
+                    f'<td>{c["rate"]:.3f}</td><td>[{c["ci95"][0]:.3f}, {c["ci95"][1]:.3f}]</td>') in html
+
+
+# ------------------------------------------------------------------------------------------------ synthetic
+def test_paired_comparison_on_synthetic_arrays():
+    rng = np.random.default_rng(11)
+    a = rng.random(60) < 0.7
+    b = rng.random(60) < 0.4
+    maps = np.repeat([f"m{i}" for i in range(12)], 5)
+    out = paired_comparison(a, b, maps, n_boot=500, seed=4)
+    assert (out["tasks"], out["both"], out["a_only"], out["b_only"], out["neither"]) == \
+        (60, int(np.sum(a & b)), int(np.sum(a & ~b)), int(np.sum(~a & b)), int(np.sum(~a & ~b)))
+    assert out["both"] + out["a_only"] + out["b_only"] + out["neither"] == 60
+    assert out["difference"] == pytest.approx(a.mean() - b.mean())
+    assert out["success_a"] == pytest.approx(a.mean()) and out["success_b"] == pytest.approx(b.mean())
+    lo, hi = out["difference_ci95"]
+    assert lo < out["difference"] < hi
+    assert out["mcnemar_p"] == binomtest(out["a_only"], out["a_only"] + out["b_only"], 0.5).pvalue
+    assert paired_comparison(a, b, maps, n_boot=500, seed=4) == out                # same seed, same interval
+    assert paired_comparison(a, b, maps, n_boot=500, seed=5)["difference_ci95"] != out["difference_ci95"]
+    same = paired_comparison(a, a, maps, n_boot=100)
+    assert same["difference"] == 0 and same["difference_ci95"] == [0.0, 0.0] and same["mcnemar_p"] == 1.0
+    assert all(math.isnan(x) for x in paired_comparison(a, b, maps, n_boot=0)["difference_ci95"])
+    with pytest.raises(ConfigError) as err:
+        paired_comparison(a, b, maps, n_boot=-1)
+    assert err.value.field == "n_boot"
+    assert mcnemar_exact(0, 0) == 1.0 and mcnemar_exact(7, 1) == binomtest(7, 8, 0.5).pvalue
+    assert all(math.isnan(x) for x in wilson_interval(0, 0))
+
+
+def test_paired_table_pairs_only_common_tasks():
+    def trial(pair, mid, task, outcome):
+        return {"pair": pair, "map_id": mid, "task": task, "mav_speed": 4.0, "outcome": outcome}
+
+    trials = [trial("A", "m1", "t1", "success"), trial("A", "m1", "t2", "success"),
+              trial("A", "m2", "t1", "dynamic_collision"),
+              trial("B", "m1", "t1", "dynamic_collision"), trial("B", "m2", "t1", "success"),
+              trial("B", "m2", "t9", "success"), trial("C", "m3", "t1", "success")]   # C shares no task
+    rows = paired_table(trials, n_boot=20, seed=1)["comparisons"]
+    assert [(r["a"], r["b"], r["tasks"], r["a_only"], r["b_only"], r["n_maps"]) for r in rows] == \
+        [("A", "B", 2, 1, 1, 2)]
