@@ -24,6 +24,7 @@ from pbdyn.world.rollout import build_rollout
 from tests.conftest import ROOT, pbdyn_cmd
 
 CAL_2D = ROOT / "scenarios" / "calibration" / "calibration_2d.toml"
+CAL_3D = ROOT / "scenarios" / "calibration" / "calibration_3d.toml"
 DATA = ROOT / "pbdyn" / "analysis" / "data"
 
 
@@ -128,8 +129,11 @@ def test_pbdyn_metrics_prints_the_predicted_reference_success(tmp_path):
     three.write_text('name = "three"\n[world]\ndims = 3\n[obstacles]\ncount = [10]\nradius = 1.0\nspeed = 2.0\n')
     res = cli(["metrics", str(three), "--metric", "density"], tmp_path)
     assert res.returncode == 0, res.stderr
-    if load_predictor(3) is None:
-        assert "predicted reference success: none (the shipped predictors cover 2D maps; 3D maps" in res.stdout
+    line = [x for x in res.stdout.splitlines() if x.startswith("predicted reference success")]
+    assert load_predictor(3) is not None and len(line) == 1 and "percentile" in line[0] and "outside" not in line[0]
+    res = cli(["metrics", str(CAL_3D), "--map", "25", "--metric", "density"], tmp_path)     # a 3D walls map
+    assert res.returncode == 0, res.stderr
+    assert "outside the 3D calibration set" in res.stdout
 
 
 @pytest.fixture(scope="module")

@@ -176,8 +176,9 @@ def format_prediction(pred: dict) -> str:
         return f"predicted reference success: none ({pred['why']})\n"
     pct = f", percentile {pred['percentile']:.0f} of the bundled calibration set" \
         if pred.get("percentile") is not None else ""
+    note = f"; {pred['note']}" if pred.get("note") else ""
     return (f"predicted reference success {pred['success']:.2f} [{pred['ci'][0]:.2f}, {pred['ci'][1]:.2f}]{pct} "
-            "(higher percentile = harder; pbdyn calibrate measures it)\n")
+            f"(higher percentile = harder; pbdyn calibrate measures it{note})\n")
 
 
 # ------------------------------------------------------------------------------------------------ validation
