@@ -126,12 +126,12 @@ def _rows(store: Path) -> int:
 
 
 def test_a_bench_resumed_after_sigint_gives_the_card_of_an_uninterrupted_one(tmp_path):
-    whole = tmp_path / "whole"
-    res = _bench(["local_primitives", "--suite", MINI, "--out", str(whole), "--workers", "1", "--reproduce"])
+    whole = tmp_path / "whole"          # MPC: slow enough per map that the bench is still flying when interrupted
+    res = _bench(["mpc", "--suite", MINI, "--out", str(whole), "--workers", "1", "--reproduce"])
     assert res.returncode == 0, res.stderr
     assert "bit for bit on all 12 tasks" in res.stdout
     cut = tmp_path / "cut"
-    proc = subprocess.Popen(pbdyn_cmd() + ["bench", "local_primitives", "--suite", MINI, "--out", str(cut),
+    proc = subprocess.Popen(pbdyn_cmd() + ["bench", "mpc", "--suite", MINI, "--out", str(cut),
                                            "--workers", "1"], env=_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     store = cut / "flights" / "generated.sqlite"
@@ -143,7 +143,7 @@ def test_a_bench_resumed_after_sigint_gives_the_card_of_an_uninterrupted_one(tmp
     assert proc.returncode == 130, err
     assert not (cut / "card.json").exists()
     assert 0 < _rows(store) < 12
-    res = _bench(["local_primitives", "--suite", MINI, "--out", str(cut), "--workers", "1"])
+    res = _bench(["mpc", "--suite", MINI, "--out", str(cut), "--workers", "1"])
     assert res.returncode == 0, res.stderr
     a = json.loads((whole / "card.json").read_text())
     b = json.loads((cut / "card.json").read_text())

@@ -29,9 +29,11 @@ from datetime import datetime, timezone
 import numpy as np
 
 from pbdyn.analysis.paired import paired_comparison, wilson_interval
+from pbdyn.sim.outcome import Outcome
 
 CARD_SCHEMA = "pbdyn-card/1"
-OUTCOMES = ("success", "dynamic_collision", "static_collision", "deadlock", "freezing", "invalid_plan", "error")
+OUTCOMES = tuple(o.value for o in Outcome)
+"""The outcomes a card counts, in pbdyn.sim.outcome.Outcome's order (success first)."""
 CVAR_SHARE = 0.2
 ABILITY_BOOT = 1000
 TASK_FIELDS = ("part", "map_id", "start", "goal", "mav_speed", "outcome", "flight_time_s", "path_length_m",
@@ -49,7 +51,7 @@ def task_row(part: str, result: dict) -> dict:
 
     return {"part": part, "map_id": result["map_id"], "start": [float(x) for x in result["start"]],
             "goal": [float(x) for x in result["goal"]], "mav_speed": float(result["mav_speed"]),
-            "outcome": result.get("outcome") or "error", "flight_time_s": num("flight_time_s"),
+            "outcome": result.get("outcome") or Outcome.ERROR.value, "flight_time_s": num("flight_time_s"),
             "path_length_m": num("path_length_m"), "min_clearance_m": num("min_clearance_m"),
             "steps": None if result.get("steps") is None else int(result["steps"]),
             "planning_failures": None if result.get("planning_failures") is None else int(result["planning_failures"]),
@@ -125,7 +127,7 @@ def summarise(rows: list[dict], suite, *, seed: int = 0) -> dict:
     radius = goal_radii(suite)
     ratio = [r["path_length_m"] / d for r in ok if r["path_length_m"] is not None
              for d in [math.dist(r["start"], r["goal"]) - radius[r["part"]]] if d > 0]
-    flew = [r for r in rows if r["outcome"] != "error"]
+    flew = [r for r in rows if r["outcome"] != Outcome.ERROR.value]
     plan_med = _finite(r["wall_planning_median_s"] for r in flew)
     plan_p99 = _finite(r["wall_planning_p99_s"] for r in flew)
     return {
@@ -197,7 +199,7 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
     card = {"schema": CARD_SCHEMA, "summary": "", "suite": suite_info, "planner": dict(planner),
             "provenance": {"pbdyn": __version__, "scale": scale, "machine": machine(),
                            "date": date or datetime.now(timezone.utc).replace(microsecond=0).isoformat()},
-            "trials": {"flown": len(rows), "expected": suite.n_tasks(), "errors": mine["outcomes"]["error"]},
+            "trials": {"flown": len(rows), "expected": suite.n_tasks(), "errors": mine["outcomes"][Outcome.ERROR.value]},
             **mine, "rank": {"by": "ability", "rank": rank, "of": n_ranked}, "references": refs}
     card["summary"] = summary_line(card)
     return card

@@ -10,6 +10,8 @@ import html
 import io
 import math
 
+from pbdyn.benchmark.card import OUTCOMES
+
 NA = "n/a"
 
 
@@ -83,19 +85,22 @@ def _figures_rows(card: dict) -> list[tuple[str, str]]:
     ]
 
 
+FAILURES = OUTCOMES[1:]
+"""The failure outcomes, in the card's order."""
+
+
 def _level_rows(card: dict) -> list[list[str]]:
-    outs = ("dynamic_collision", "static_collision", "deadlock", "freezing", "invalid_plan", "error")
     rows = []
     ranges = {lv["level"]: lv["success_range"] for lv in card["suite"]["levels"]}
     for lv in card["levels"]:
         rng = ranges.get(lv["level"])
         rows.append([str(lv["level"]), _ci(rng) if rng else NA, f"{_f(lv['rate'])} {_ci(lv['ci95'])}",
-                     str(lv["trials"]), *(str(lv["outcomes"][o]) for o in outs)])
+                     str(lv["trials"]), *(str(lv["outcomes"][o]) for o in FAILURES)])
     return rows
 
 
-LEVEL_HEAD = ["level", "reference success range", "success [95% CI]", "tasks", "dynamic collision",
-              "static collision", "deadlock", "freezing", "invalid plan", "error"]
+LEVEL_HEAD = ["level", "reference success range", "success [95% CI]", "tasks",
+              *(o.replace("_", " ") for o in FAILURES)]
 PAIRED_HEAD = ["reference", "its success", "tasks in common", "both", "only this", "only the reference", "neither",
                "difference [95% CI]", "McNemar p"]
 REFERENCE_HEAD = ["reference", "success [95% CI]", "ability (logits) [95% CI]", "worst-20% levels"]
