@@ -180,11 +180,9 @@ def _start_x(suite, part: str, candidate: int) -> float:
     return float(parse_scenario(p.doc, p.path).task.candidates[candidate][0])
 
 
-def test_cards_compare_side_by_side_and_cards_of_other_suites_are_refused(template_card, tmp_path):
+def test_cards_compare_side_by_side_and_cards_of_other_suites_are_refused(template_card, api_card, tmp_path):
     out, _ = template_card
-    other = tmp_path / "other"
-    res = _bench(["straight_line", "--suite", MINI, "--out", str(other), "--workers", "1"])
-    assert res.returncode == 0, res.stderr
+    other, _ = api_card
     cmp_dir = tmp_path / "cmp"
     res = _bench(["--compare", str(out / "card.json"), str(other), "--out", str(cmp_dir)])
     assert res.returncode == 0, res.stderr
@@ -240,12 +238,18 @@ def test_the_shipped_suites_have_their_fixed_hashes_and_matching_references():
             assert m["difficulty_ci95"][0] <= m["difficulty"] <= m["difficulty_ci95"][1]
 
 
-def test_the_api_benches_and_returns_the_card(tmp_path):
+@pytest.fixture(scope="module")
+def api_card(tmp_path_factory):
     import pbdyn
 
-    card = pbdyn.bench("straight_line", suite=MINI, out=tmp_path / "api", workers=1)
+    out = tmp_path_factory.mktemp("bench_api") / "straight"
+    return out, pbdyn.bench("straight_line", suite=MINI, out=out, workers=1)
+
+
+def test_the_api_benches_and_returns_the_card(api_card):
+    out, card = api_card
     assert card["planner"]["label"] == "lookahead+straight_line"
-    assert json.loads((tmp_path / "api" / "card.json").read_text())["summary"] == card["summary"]
+    assert json.loads((out / "card.json").read_text())["summary"] == card["summary"]
     ref = next(r for r in card["references"] if r["label"] == "lookahead+straight_line")
     assert ref["success"] == card["success"] and ref["paired"]["a_only"] == ref["paired"]["b_only"] == 0
 

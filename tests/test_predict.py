@@ -198,3 +198,15 @@ def test_the_study_picks_the_shipped_feature_set():
         y = np.array([r["k"] / r["n"] for r in rows])
         assert tool.choose({"models": tool._scores(rows, fam, y)}) == name
         assert tuple(load_predictor(dims).features) == tool.CANDIDATES[name]
+
+
+@pytest.mark.slow
+def test_success_mode_in_3d_keeps_a_map_that_flies_within_the_tolerance_again(tmp_path):
+    res = cli(["generate", "--success", "0.8", "--tolerance", "0.05", "--count", "1", "--dims", "3", "--family",
+               "uniform", "--out", "s3.toml", "--json", "--workers", "2"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    entry = tomllib.loads((tmp_path / "s3.toml").read_text())["obstacles"]["maps"][0]
+    assert abs(entry["measured"]["reference_success"] - 0.8) <= 0.05
+    res = cli(["calibrate", "s3.toml", "--store", "fresh.sqlite", "--json"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["maps"][0]["success"] == entry["measured"]["reference_success"]
