@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 
 from pbdyn.benchmark.card import DETERMINISTIC_FIELDS, TASK_FIELDS, make_card, task_key, task_row
-from pbdyn.benchmark.suite import Suite, flight_scenario, load_suite
+from pbdyn.benchmark.suite import Suite, flight_scenario, load_suite, read_versioned_json
 from pbdyn.config import PlannerEntry
 from pbdyn.errors import ConfigError
 
@@ -189,13 +189,7 @@ def read_card(path) -> dict:
     p = Path(path)
     if p.is_dir():
         p = p / "card.json"
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError("card", f"cannot be read ({exc.__class__.__name__})", str(path)) from None
-    if not isinstance(doc, dict) or doc.get("schema") != CARD_SCHEMA:
-        raise ConfigError("card", f"is not a {CARD_SCHEMA} score card", str(path))
-    return doc
+    return read_versioned_json(p, "card", "schema", CARD_SCHEMA, "score card", shown=str(path))
 
 
 def _write_atomic(path: Path, text: str) -> None:

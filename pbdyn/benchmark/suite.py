@@ -106,13 +106,20 @@ def load_suite(name_or_path) -> Suite:
             raise ConfigError("suite", "is neither a bundled suite (" + ", ".join(suite_names()) +
                               ") nor a suite folder", str(name_or_path))
         p = bundled
+    return suite_from_doc(read_versioned_json(p, "suite", "format", SUITE_FORMAT, "manifest"), p.parent)
+
+
+def read_versioned_json(path: Path, field: str, key: str, version: str, what: str, shown=None) -> dict:
+    """The JSON object in ``path`` whose ``key`` is ``version``; else ConfigError naming ``field`` and ``shown``
+    (default: the path) -- unreadable, or not a ``version`` ``what``."""
+    shown = str(path) if shown is None else shown
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError("suite", f"cannot be read ({exc.__class__.__name__})", str(p)) from None
-    if not isinstance(doc, dict) or doc.get("format") != SUITE_FORMAT:
-        raise ConfigError("suite", f"is not a {SUITE_FORMAT} manifest", str(p))
-    return suite_from_doc(doc, p.parent)
+        raise ConfigError(field, f"cannot be read ({exc.__class__.__name__})", shown) from None
+    if not isinstance(doc, dict) or doc.get(key) != version:
+        raise ConfigError(field, f"is not a {version} {what}", shown)
+    return doc
 
 
 def suite_from_doc(doc: dict, folder: Path) -> Suite:
