@@ -35,7 +35,7 @@ demo: $(NATIVE)
 
 test: $(NATIVE)
 	@bash tools/install_sysdeps.sh
-	$(PY) -m pytest -q -p no:cacheprovider --durations=30
+	$(PY) -m pytest -q -p no:cacheprovider -n auto --durations=30
 
 bench: $(NATIVE)
 	$(PY) tools/bench/bench_trial.py

@@ -166,6 +166,6 @@ def test_step_times_account_for_the_loop_in_lockstep_and_one_by_one():
     for results, total in ((together, elapsed), (single, elapsed_single)):
         covered = sum(r.wall_time_s for r in results)
         assert 0.9 * total < covered <= total, (covered, total)
-        for r in results:
+        for r in results:       # 3% for the scheduler: a step's sensing split is the previous step's, timed apart
             steps = r.wall_timings["wall_step_mean_s"] * r.steps
-            assert steps > sum(r.wall_timings[k] for k in SPLITS)
+            assert steps > 0.97 * sum(r.wall_timings[k] for k in SPLITS)
