@@ -84,6 +84,7 @@ def acceleration_grid(n_accel: int, dims: int) -> np.ndarray:
 
 ACCEL_GRIDS = ("norm_lattice", "program")
 HEURISTICS = ("lqmt", "program")
+SEARCHES = ("auto", "python", "compiled")
 PROGRAM_PX = 0.1         # m: the program's length unit (10 px = 1 m); its node keys round to it
 PROGRAM_KEY_CELL_PX = 10  # a program node key's position cell (px): 1 m, the program's grid cell
 _PX_PER_M = 10.0
@@ -172,6 +173,11 @@ class GlobalPrimitives:
         accel_grid: "norm_lattice" (default: the lattice above) or "program" (the thesis program's per-axis grid,
             sized by v_max, and its node keys; see the module doc). n_accel applies to "norm_lattice" only.
         heuristic: "lqmt" (default: astar_heuristic.lqmt_lower_bound) or "program" (program_heuristic).
+        search: "auto" (default), "python" (_search / _expand) or "compiled" (the same search in one numba call,
+            pbdyn.planning.astar_compiled; needs accel_grid "norm_lattice" and heuristic "lqmt"; falls back to
+            "python" when the lattice's keys do not pack into one int64). "auto" is "compiled" where the kernel
+            repeats numpy's float orders on this machine (astar_compiled.numpy_modes' ``exact``: the two searches
+            give the same plans bit for bit) and "python" elsewhere, so the default never changes a result.
 
     PROGRAM_PARAMS: the parameters that reproduce the thesis program (merged under a scenario's own params under
     the "thesis_program" profile): its grid, heuristic and node keys, 2 s primitives, plain A* (epsilon 1), no
@@ -194,7 +200,7 @@ class GlobalPrimitives:
     def __init__(self, context: PlannerContext, *, duration_s: float = 1.0, n_accel: int | None = None,
                  rho: float = 10.0, epsilon: float = 1.5, max_expansions: int = 20000, horizon_s: float = 5.0,
                  margin: float = 0.5, lattice_time_bound: bool = True, accel_grid: str = "norm_lattice",
-                 heuristic: str = "lqmt"):
+                 heuristic: str = "lqmt", search: str = "auto"):
         d = int(context.dims)
         if d not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {d}")
@@ -202,6 +208,10 @@ class GlobalPrimitives:
             raise ValueError(f"accel_grid must be one of {', '.join(ACCEL_GRIDS)}, got {accel_grid!r}")
         if heuristic not in HEURISTICS:
             raise ValueError(f"heuristic must be one of {', '.join(HEURISTICS)}, got {heuristic!r}")
+        if search not in SEARCHES:
+            raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
+        if search == "compiled" and (accel_grid, heuristic) != ("norm_lattice", "lqmt"):
+            raise ValueError("search 'compiled' needs accel_grid 'norm_lattice' and heuristic 'lqmt'")
         program = accel_grid == "program"
         if program and n_accel is not None:
             raise ValueError("n_accel applies to accel_grid 'norm_lattice' only (the program grid is sized by v_max)")
@@ -259,6 +269,15 @@ class GlobalPrimitives:
         self.last_path: list[tuple[np.ndarray, np.ndarray, float, float]] = []
         self.n_plans = 0
         self.n_budget_hits = 0
+        self._compiled = None
+        lattice = (accel_grid, heuristic) == ("norm_lattice", "lqmt")
+        if search != "python" and lattice and self._int_keys:
+            from pbdyn.planning.astar_compiled import CompiledSearch
+
+            compiled = CompiledSearch(self)
+            if search == "compiled" or compiled.exact:
+                self._compiled = compiled
+        self.search_kind = "python" if self._compiled is None else "compiled"   # the search plan() runs
 
     # ------------------------------------------------------------------ lattice and heuristic
 
@@ -383,7 +402,7 @@ class GlobalPrimitives:
         self.n_plans += 1
         self.last_cost = math.nan
         self.last_path = []
-        found = self._search(view)
+        found = self._search(view) if self._compiled is None else self._search_compiled(view)
         if found is None:
             return None
         self._checked_grid, self._checked_version = view.grid, view.grid.version
@@ -428,6 +447,19 @@ class GlobalPrimitives:
         if status == "budget":
             self.n_budget_hits += 1
         return None
+
+    def _search_compiled(self, view: View):
+        """_search by astar_compiled's kernel: the same result and diagnostics, the nodes of the found path only."""
+        status, expansions, path = self._compiled.run(view, self._screen(view.grid))
+        self.last_status, self.last_expansions = status, expansions
+        if path is None:
+            if status == "budget":
+                self.n_budget_hits += 1
+            return None
+        nodes = _Nodes(path[0][0] + 0.5 * self.T * path[0][1])
+        for i, (p, v, g, h, a, cut) in enumerate(path):
+            nodes.add(p, v, None, None, i, g, h, i - 1, a, cut, None)
+        return len(path) - 1, nodes
 
     def _program_children(self, p: np.ndarray, v: np.ndarray):
         """The program grid's children of state p, v [d] (m, m/s) whose end speed is below v_max: end positions and
