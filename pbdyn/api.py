@@ -516,7 +516,8 @@ def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, po
     """How well each metric ranks maps like the planners' success (thesis table 4-5) for one or more stores (the
     first is the reference set; ``pool``: all stores' maps as one dataset, e.g. generated maps and imported worlds
     together): (report dict, text table, written figure paths). ``html``: also write one self-contained HTML page
-    of the report with its figures inlined (pbdyn.analysis.html_report)."""
+    of the report with its figures inlined (pbdyn.analysis.html_report). The flight stores of `pbdyn bench`
+    (<out>/flights/<part>.sqlite) get their suite's levels (success per level in the report)."""
     import tempfile
 
     from pbdyn.errors import check_writable_file, check_writable_folder
@@ -536,7 +537,10 @@ def evaluate(results, *, plots: str | Path | None = None, n_boot: int = 1000, po
         check_writable_file("html", html, make_parents=True)
     with tempfile.TemporaryDirectory(prefix="pbdyn-figures-") as tmp:
         figure_dir = tmp if plots is None and html is not None else plots   # the page needs figures to inline
-        report, table, figures = evaluate_stores([str(p) for p in paths], plots=figure_dir, n_boot=n_boot, pool=pool)
+        from pbdyn.benchmark.suite import flight_levels
+
+        report, table, figures = evaluate_stores([str(p) for p in paths], plots=figure_dir, n_boot=n_boot, pool=pool,
+                                                 levels=flight_levels(paths))
         if html is not None:
             from pbdyn import __version__
             from pbdyn.analysis.html_report import render_html, write_html

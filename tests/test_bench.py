@@ -274,3 +274,17 @@ def test_the_benchmark_page_examples_run(tmp_path, monkeypatch):
     for code in blocks:
         exec(compile(code, "docs/benchmark.md", "exec"), namespace)
     assert (tmp_path / "bench-straight" / "card.html").is_file() and (tmp_path / "compare" / "compare.md").is_file()
+
+
+def test_evaluate_on_a_bench_flight_store_gives_success_per_suite_level(api_card):
+    """pbdyn evaluate on <out>/flights/<part>.sqlite knows the suite's levels: success per level equals the card's."""
+    import pbdyn
+
+    out, card = api_card
+    report, table, _ = pbdyn.evaluate(out / "flights" / "generated.sqlite", n_boot=50)
+    levels = report["success_by_group"]["level"]["lookahead+straight_line"]
+    want = {str(lv["level"]): lv for lv in card["levels"] if lv["trials"]}
+    assert set(levels) == set(want) and len(levels) >= 3
+    for lv, cell in levels.items():
+        assert (cell["successes"], cell["trials"]) == (want[lv]["successes"], want[lv]["trials"])
+    assert "level" in table

@@ -13,6 +13,14 @@ Three steps, each a sub-command:
                  tasks (pbdyn.experiments.calibrate.measure: the same numbers `pbdyn calibrate` gives), assign the
                  levels, write the final manifest and the reference results (reference.json.gz) with the suite's hash.
 
+Hard maps beyond the calibration sets' range (the 3D sets reach reference success 0.54 only) come from a pool:
+
+  pool FILE --dims D   write a pool scenario of POOL_MAPS maps per generator family (walls aside) with (n, r, v)
+                 from a seeded Latin hypercube over POOL_BOX (denser, larger obstacles than the calibration box),
+                 whose experiment is the reference panel's flights (as the calibration sets');
+  measured FILE STORE OUT  after `pbdyn batch FILE --store STORE`, write OUT: FILE's maps with each map's measured
+                 reference success (the panel's share of successes on its reference tasks), an --extra for draft.
+
 The mini suite is drafted from a full suite (draft-mini NAME FROM): MINI_LEVELS' first map of each of those
 levels that is neither a walls map nor an imported world, MINI_PAIRS pairs, at MINI_SPEED only.
 """
@@ -40,6 +48,12 @@ MINI_PAIRS = 3
 MINI_SPEED = 4.0
 CALIBRATION = {2: ("calibration_2d", "scenarios/calibration/calibration_2d.toml", "worlds/imported_2d"),
                3: ("calibration_3d", "scenarios/calibration/calibration_3d.toml", None)}
+
+
+POOL_MAPS = 6
+POOL_SEED = 2027
+POOL_BOX = {"count": (30, 160), "radius": (0.8, 2.0), "speed": (2.5, 6.0)}
+"""The pool's (n, r, v) box: up to ~25x the flux of the thesis' box, where 3D maps get hard."""
 
 
 def levels_doc() -> list[dict]:
@@ -198,6 +212,60 @@ def draft_mini(name: str, source: str) -> Path:
     return folder
 
 
+def pool(path: Path, dims: int) -> Path:
+    """Write the pool scenario ``path`` (module doc): POOL_MAPS maps per non-walls family, (n, r, v) from a seeded
+    Latin hypercube over POOL_BOX, in the calibration set's world, explicit seeds, the panel's flights."""
+    import numpy as np
+
+    from pbdyn.analysis.scale import reference_document
+    from pbdyn.config import BUILTIN_STRUCTURES, parse_scenario
+    from pbdyn.world.maps import enumerate_maps
+
+    base_doc = tomllib.loads((ROOT / CALIBRATION[dims][1]).read_text())
+    maps = []
+    for f, family in enumerate(s for s in BUILTIN_STRUCTURES if s != "walls"):
+        rng = np.random.default_rng([POOL_SEED, dims, f])
+        pts = {}
+        for key, (lo, hi) in POOL_BOX.items():
+            u = (rng.permutation(POOL_MAPS) + rng.uniform(size=POOL_MAPS)) / POOL_MAPS
+            vals = lo + u * (hi - lo)
+            pts[key] = [int(round(x)) for x in vals] if key == "count" else [round(float(x), 2) for x in vals]
+        maps += [{"count": pts["count"][k], "radius": pts["radius"][k], "speed": pts["speed"][k],
+                  "structure": family, "replicate": k} for k in range(POOL_MAPS)]
+    base = {"name": f"pool_{dims}d", "world": base_doc["world"], "obstacles": {"root_seed": POOL_SEED, "maps": maps}}
+    doc = reference_document(base, parse_scenario(base).task.candidates)
+    for entry, spec in zip(doc["obstacles"]["maps"], enumerate_maps(parse_scenario(doc))):
+        entry["seed"] = spec.seed
+    path.write_text(_toml(doc, f"pbdyn benchmark pool {dims}D, written by tools/make_suites.py pool: hard "
+                               "candidate maps for the suites' upper levels; the experiment is the panel's flights."))
+    return path
+
+
+def measured(path: Path, store: Path, out: Path) -> Path:
+    """Write ``out``: the pool ``path`` with every map's measured reference success from the panel's flights in
+    ``store`` (module doc); a map the store does not hold in full stops the tool."""
+    from pbdyn.config import load_scenario
+    from pbdyn.experiments.calibrate import panel_counts
+    from pbdyn.experiments.store import ResultsStore
+    from pbdyn.world.maps import enumerate_maps
+
+    st = ResultsStore.open(store)
+    try:
+        rows = st.results()
+    finally:
+        st.close()
+    counts = panel_counts(rows)
+    doc = tomllib.loads(path.read_text())
+    for spec, entry in zip(enumerate_maps(load_scenario(path)), doc["obstacles"]["maps"]):
+        m = counts.get(spec.map_id)
+        if m is None or int(m["trials"].sum()) != 180:
+            raise SystemExit(f"{store}: map {spec.index} ({spec.map_id}) is not flown in full")
+        entry["measured"] = {"reference_success": round(float(m["success"].sum() / m["trials"].sum()), 6)}
+    out.write_text(_toml(doc, f"{path.name} with each map's measured reference success (tools/make_suites.py "
+                              "measured)"))
+    return out
+
+
 def fly(name: str, out: Path, planners: list[str], workers: int) -> None:
     """Fly the built-in planners (or ``planners``) on suite NAME into out/<trajectory>/."""
     from pbdyn.benchmark.run import THESIS_GAZE, _check_marker, fly as fly_suite, planner_entry
@@ -322,8 +390,19 @@ def main(argv=None) -> int:
     z = sub.add_parser("freeze")
     z.add_argument("name")
     z.add_argument("out", type=Path)
+    pl = sub.add_parser("pool")
+    pl.add_argument("file", type=Path)
+    pl.add_argument("--dims", type=int, default=3)
+    me = sub.add_parser("measured")
+    me.add_argument("file", type=Path)
+    me.add_argument("store", type=Path)
+    me.add_argument("out", type=Path)
     a = ap.parse_args(argv)
-    if a.cmd == "draft":
+    if a.cmd == "pool":
+        print(pool(a.file, a.dims))
+    elif a.cmd == "measured":
+        print(measured(a.file, a.store, a.out))
+    elif a.cmd == "draft":
         print(draft(a.name, a.dims, a.extra))
     elif a.cmd == "draft-mini":
         print(draft_mini(a.name, a.source))

@@ -152,6 +152,33 @@ def suite_hash(suite: Suite) -> str:
     return h.hexdigest()
 
 
+def flight_levels(paths) -> dict[str, dict[str, int]]:
+    """The levels of the suite maps in results stores flown by `pbdyn bench` (flight_document's scenario name
+    "<suite>.<part>" of a shipped suite): scenario name -> {map id: level}, for the stores whose flown world is
+    the suite part's (the map ids the store holds are among the part's); other stores are left out."""
+    import json as _json
+
+    from pbdyn.experiments.store import ResultsStore
+
+    names = set(suite_names())
+    out: dict[str, dict[str, int]] = {}
+    for path in paths:
+        st = ResultsStore.open(path)
+        try:
+            doc, held = _json.loads(st.get_meta("scenario") or "{}"), {r["map_id"] for r in st.results()}
+        finally:
+            st.close()
+        name = str(doc.get("name") or "")
+        suite_name, _, part = name.rpartition(".")
+        if suite_name not in names:
+            continue
+        suite = load_suite(suite_name)
+        levels = {m["map_id"]: int(m["level"]) for m in suite.maps if m["part"] == part and m.get("level")}
+        if levels and held <= set(levels):
+            out[name] = levels
+    return out
+
+
 def flight_document(suite: Suite, part: Part, entries) -> dict:
     """The scenario document that flies ``entries`` (PlannerEntry list) on a part's suite maps: the part's
     document with those planners, the suite's speeds and the part's pairs, its maps cut to the suite's (an

@@ -28,14 +28,16 @@ POOLED = "pooled"
 """The dataset name of every map when stores are pooled (load_results(pool=True))."""
 
 
-def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict], dict[str, dict], str]:
+def load_results(paths: list[str | Path], pool: bool = False,
+                 levels: dict[str, dict[str, int]] | None = None) -> tuple[list[dict], dict[str, dict], str]:
     """(trials, maps, controlled dataset name) from one or more stores: the first store's scenario is the
     reference (controlled) set, the others are compared with it (e.g. the uncontrolled sets). Map ids are prefixed
     with their store's scenario name so that maps of different stores never collide. Stores of different profiles
     ("physical", "thesis_program") are refused: their rows are never pooled; so is a store holding one planner label
     flown with two codes or one map flown in two worlds (pbdyn.experiments.merge.check_same_code). ``pool``: every map belongs to one
     dataset, POOLED (a heterogeneous set; map ids keep their store's prefix). Maps and trial rows carry "level":
-    the map's benchmark level when its store records one (see _level), else None."""
+    the map's benchmark level when its store records one (see _level), else ``levels``[scenario name][map id] (a
+    benchmark suite's levels of its flight stores, pbdyn.benchmark.suite.flight_levels), else None."""
     trials: list[dict] = []
     maps: dict[str, dict] = {}
     names: list[str] = []
@@ -58,12 +60,14 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
             listed = ", ".join(f"{Path(p).name}: {v}" for p, v in profiles.items())
             raise ConfigError("RESULTS", f"mixes profiles ({listed}); evaluate one profile at a time", str(path))
         names.append(name)
+        known = (levels or {}).get(name) or {}
         for mid, m in store_maps.items():
             maps[f"{name}/{mid}"] = {"setup": m["setup"], "dataset": POOLED if pool else name,
                                      "metrics": m["metrics"],
                                      "metric_times": m["metric_times"],
                                      "mean_obstacle_speed": m["mean_obstacle_speed"],
-                                     "mean_obstacle_radius": m["mean_obstacle_radius"], "level": _level(m)}
+                                     "mean_obstacle_radius": m["mean_obstacle_radius"],
+                                     "level": known.get(mid) if _level(m) is None else _level(m)}
         for r in rows:
             mid = f"{name}/{r.get('map_id')}"
             if mid not in maps:   # a store run with --no-metrics: the map without metrics
@@ -71,7 +75,7 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
                                        "speed": r.get("obstacle_speed")}, "dataset": POOLED if pool else name,
                              "metrics": {},
                              "metric_times": {}, "mean_obstacle_speed": None, "mean_obstacle_radius": None,
-                             "level": None}
+                             "level": known.get(r.get("map_id"))}
             trials.append({"map_id": mid, "pair": r.get("planner_label"), "trajectory": r.get("planner"),
                            "gaze": r.get("gaze"), "mav_speed": r.get("mav_speed"), "outcome": r.get("outcome"),
                            "obstacle_count": r.get("obstacle_count"), "obstacle_radius": r.get("obstacle_radius"),
@@ -84,17 +88,19 @@ def load_results(paths: list[str | Path], pool: bool = False) -> tuple[list[dict
 
 
 def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None, n_boot: int = 1000,
-                    seed: int = 0, pool: bool = False) -> tuple[dict, str, list[Path]]:
+                    seed: int = 0, pool: bool = False,
+                    levels: dict[str, dict[str, int]] | None = None) -> tuple[dict, str, list[Path]]:
     """(report dict, formatted table, figure paths) of the stores (see load_results); report["figures"] holds the
     numbers of figs 5-9, 5-10 and 5-14 (pbdyn.analysis.figure_tables), report["paired"] every two planner pairs
     compared on their common tasks (pbdyn.analysis.paired.paired_table: ``n_boot`` draws, ``seed``) and
-    report["success_by_group"] each pair's success per setup and level (pbdyn.analysis.paired.success_by_group)."""
+    report["success_by_group"] each pair's success per setup and level (pbdyn.analysis.paired.success_by_group;
+    ``levels`` as in load_results)."""
     from pbdyn.analysis.figure_tables import figure_tables
     from pbdyn.analysis.report import evaluate, format_table, paired_sections
 
     from pbdyn.experiments.calibrate import format_scale, load_anchors, place_on_scale
 
-    trials, maps, controlled = load_results(paths, pool)
+    trials, maps, controlled = load_results(paths, pool, levels)
     report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
     report["figures"] = figure_tables(trials, maps, report)
     report["anchored_scale"] = place_on_scale(trials, load_anchors(), _dims(paths, pool))
