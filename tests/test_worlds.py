@@ -396,3 +396,78 @@ def test_imported_world_set_is_what_its_tool_writes_clear_of_the_candidates_and_
             r = run_trial(spec, ro)
             assert r.outcome in {o.value for o in Outcome} - {"error", "invalid_plan"} and r.steps > 0
     assert flown == {"warehouse", "plaza", "office", "orbits"}
+
+
+WORLDS_3D = sorted((SCENARIOS / "worlds" / "imported_3d").glob("*.toml"))
+
+
+def test_imported_3d_world_set_is_what_its_tool_writes_and_check_sees_a_change(tmp_path):
+    """scenarios/worlds/imported_3d is exactly what tools/make_worlds.py --dims 3 writes (nine worlds, three per
+    family); --check fails on an edited file, and --out needs --dims."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    tool = [sys.executable, str(ROOT / "tools" / "make_worlds.py")]
+    out = subprocess.run(tool + ["--check", "--dims", "3"], capture_output=True, text=True, cwd=ROOT, env=env)
+    assert out.returncode == 0, out.stderr
+    assert [f.stem for f in WORLDS_3D] == [f"{fam}_{i}" for fam in ("atrium", "hangar", "orbits") for i in range(3)]
+    copy = tmp_path / "w3"
+    assert subprocess.run(tool + ["--dims", "3", "--out", str(copy)], capture_output=True, cwd=ROOT,
+                          env=env).returncode == 0
+    assert sorted(p.name for p in copy.glob("*.toml")) == [f.name for f in WORLDS_3D]
+    edited = copy / "atrium_1.toml"
+    edited.write_text(edited.read_text() + "# edited by hand\n")
+    out = subprocess.run(tool + ["--check", "--dims", "3", "--out", str(copy)], capture_output=True, text=True,
+                         cwd=ROOT, env=env)
+    assert out.returncode == 1 and "atrium_1.toml" in out.stderr
+    out = subprocess.run(tool + ["--check", "--out", str(copy)], capture_output=True, text=True, cwd=ROOT, env=env)
+    assert out.returncode == 2 and "--dims" in out.stderr
+
+
+def test_imported_3d_worlds_load_clear_of_the_candidates_span_easy_to_hard_and_fly_deterministically(monkeypatch):
+    """Every 3D imported world loads as a 50 x 50 x 20 m world flown at the panel's speeds, keeps its static bodies'
+    real shapes >= 3 m from every start/goal candidate and every body inside the arena, has more and faster movers
+    from world 0 to world 2 of a family, and flies one short trial (6 m/s, candidate 0 -> 1) to an outcome, twice
+    alike. The trials' task metrics (the equivalent radii of the movers on 5 cm cells: seconds per hard world) are
+    computed for world 0 of each family only, to keep the test short."""
+    from pbdyn.experiments.tasks import trial_spec
+    from pbdyn.sim import trial as trial_mod
+    from pbdyn.sim.outcome import Outcome
+
+    real_task_metrics = trial_mod.task_metrics
+    movers: dict[str, list] = {}
+    for f in WORLDS_3D:
+        sc = load_scenario(f)
+        assert sc.world.dims == 3 and sc.world.size == (50.0, 50.0, 20.0) and sc.world.time_limit == 80.0
+        assert sc.drone.v_max == (2.0, 4.0, 6.0)
+        m = enumerate_maps(sc)[0]
+        ro = build_rollout(sc, m)
+        field = ro.bodies.field()
+        moving = field.indices("moving")
+        cands = np.array(sc.task.candidates, dtype=float)
+        assert cands.shape == (9, 3)
+        for b in field.indices("static"):
+            assert field.body_distance(b, cands, 0).min() >= 3.0 - 1e-9, (f.name, ro.bodies.names[b])
+        size = np.array(sc.world.size)
+        for k in range(0, ro.n_steps, 100):
+            for b in field.indices("all") if k == 0 else moving:
+                lo, hi = field.world_bounds(b, k)
+                assert lo.min() >= -1e-9 and (hi <= size + 1e-9).all(), (f.name, ro.bodies.names[b], k)
+        family, level = f.stem.rsplit("_", 1)
+        movers.setdefault(family, []).append((len(moving), float(np.linalg.norm(ro.velocities[0], axis=-1).mean())))
+        if level == "0":
+            monkeypatch.setattr(trial_mod, "task_metrics", real_task_metrics)
+        else:
+            monkeypatch.setattr(trial_mod, "task_metrics",
+                                lambda *a, **k: {"task_survivability_s": None, "task_flux_per_s": None})
+        spec = trial_spec(sc, m, sc.planners[0], 6.0, sc.task.candidates[0], sc.task.candidates[1])
+        rows = []
+        for _ in range(2):
+            d = trial_mod.run_trial(spec, ro).to_dict()
+            rows.append({k: v for k, v in d.items() if not k.startswith("wall")})
+        assert rows[0] == rows[1], f.name
+        assert rows[0]["outcome"] in {o.value for o in Outcome} - {"error", "invalid_plan"} and rows[0]["steps"] > 0
+        assert rows[0]["motion_profile"] == "imported" and rows[0]["obstacle_count"] == len(moving)
+        assert (rows[0]["task_flux_per_s"] is not None) == (level == "0")
+    assert sorted(movers) == ["atrium", "hangar", "orbits"]
+    for family, rows in movers.items():
+        (n0, v0), (n1, v1), (n2, v2) = rows
+        assert n0 < n1 < n2 and n2 >= 2 * n0 and v0 < v1 < v2, (family, rows)

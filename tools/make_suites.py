@@ -4,7 +4,8 @@ Three steps, each a sub-command:
 
   draft NAME     choose the suite's maps from the calibration sets (pbdyn/analysis/data/calibration_*.csv.gz: the
                  reference panel's flights of every calibration map) and extra generated maps (--extra FILE: scenario
-                 files written by `pbdyn generate --success`), LEVELS_PER_SUITE levels by the panel's success,
+                 files written by `pbdyn generate --success` or `measured`), imported worlds (the bundled 2D set, and
+                 --world FILE: measured by `pbdyn calibrate`), LEVELS_PER_SUITE levels by the panel's success,
                  MAPS_PER_LEVEL maps per level, families mixed (module functions choose and level_of); writes
                  scenarios/suites/NAME/ with the manifest (no measured difficulty yet) and the generated maps' part.
   fly NAME DIR   fly every built-in trajectory planner (with its thesis gaze) on the draft into DIR/<planner>/
@@ -98,7 +99,22 @@ def _success_per_map(path: Path) -> dict:
     return {str(k): float(v) for k, v in d.groupby("map_id").success.mean().items()}
 
 
-def _candidates(dims: int, extra: list[Path]) -> tuple[list[dict], dict, dict]:
+def _world_candidates(worlds: list[Path]) -> list[dict]:
+    """Imported worlds given by file (--world): each world's map 0 with its reference success as `pbdyn calibrate`
+    measures it (the panel's flights in calibrate's default store: flown once, then read)."""
+    from pbdyn.api import calibrate
+
+    out = []
+    for path in worlds:
+        path = path.resolve()
+        rel = path.relative_to(ROOT / "scenarios").with_suffix("").as_posix()
+        m = calibrate(path, maps=[0], workers=2, progress=True)[0]
+        out.append({"key": f"world/{path.stem}", "kind": "world:" + path.stem.rstrip("_0123456789"),
+                    "success": m.success, "part": path.stem, "map_id": m.map_id, "scenario": rel})
+    return out
+
+
+def _candidates(dims: int, extra: list[Path], worlds: list[Path] = ()) -> tuple[list[dict], dict, dict]:
     """Every candidate map (key, kind, success, part, map id), the generated maps' TOML entries by key, and each
     generated part's base document (world, root seed): the calibration maps make part "generated", each --extra file
     a part of its own ("extra<i>"; its maps' seeds follow its root seed)."""
@@ -137,18 +153,19 @@ def _candidates(dims: int, extra: list[Path]) -> tuple[list[dict], dict, dict]:
             world, map_id = mid.split("/")
             out.append({"key": f"world/{world}", "kind": "world:" + world.rstrip("_0123456789"), "success": s,
                         "part": world, "map_id": map_id, "scenario": f"{worlds}/{world}"})
+    out += _world_candidates(list(worlds))
     for c in out:
         c["level"] = level_of(c["success"])
     return out, entries, bases
 
 
-def draft(name: str, dims: int, extra: list[Path]) -> Path:
-    """Write the draft suite NAME (module doc)."""
+def draft(name: str, dims: int, extra: list[Path], worlds: list[Path] = ()) -> Path:
+    """Write the draft suite NAME (module doc; ``worlds``: imported world files beside the bundled 2D set)."""
     from pbdyn.analysis.scale import PANEL_SPEEDS
     from pbdyn.config import load_scenario
     from pbdyn.world.maps import enumerate_maps
 
-    cands, entries, bases = _candidates(dims, extra)
+    cands, entries, bases = _candidates(dims, extra, worlds)
     chosen, used = [], {}
     for lv in range(1, len(LEVEL_EDGES)):
         chosen += choose([c for c in cands if c["level"] == lv], MAPS_PER_LEVEL, used)
@@ -379,6 +396,7 @@ def main(argv=None) -> int:
     d.add_argument("name")
     d.add_argument("--dims", type=int, default=2)
     d.add_argument("--extra", type=Path, action="append", default=[])
+    d.add_argument("--world", type=Path, action="append", default=[])
     dm = sub.add_parser("draft-mini")
     dm.add_argument("name")
     dm.add_argument("source")
@@ -403,7 +421,7 @@ def main(argv=None) -> int:
     elif a.cmd == "measured":
         print(measured(a.file, a.store, a.out))
     elif a.cmd == "draft":
-        print(draft(a.name, a.dims, a.extra))
+        print(draft(a.name, a.dims, a.extra, a.world))
     elif a.cmd == "draft-mini":
         print(draft_mini(a.name, a.source))
     elif a.cmd == "fly":
