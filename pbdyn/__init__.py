@@ -1,6 +1,6 @@
 """pbdyn: a PyBullet testbed for MAV dynamic obstacle avoidance and environment difficulty.
 
-The public Python API (pbdyn.api, README "Python API"): load_scenario, rollout, run_trial, compute_metrics,
+The public Python API (pbdyn.api, docs/api.md): load_scenario, rollout, run_trial, compute_metrics,
 run_batch, merge_results, open_results, generate_maps, check_planner; the errors they raise (ConfigError, PbdynError) and the
 warning they give (PbdynWarning); TrialResult and Outcome.
 Names are imported on first use, so ``import pbdyn`` stays fast.

@@ -1,4 +1,4 @@
-"""The public Python API: the one door to pbdyn for notebooks, scripts, the CLI and the tools (README "Python API").
+"""The public Python API: the one door to pbdyn for notebooks, scripts, the CLI and the tools (docs/api.md).
 
     import pbdyn
     result = pbdyn.run_trial("quickstart", planner="local_primitives", gaze="lookahead")
@@ -197,7 +197,7 @@ def compute_metrics(scenario, map: int = 0, *, metrics=None, dense: bool = False
 
 
 def predict_success(scenario, map: int = 0, *, backend: str = "auto") -> dict:
-    """The predicted reference success of one map (pbdyn.analysis.predict; README "Difficulty on one scale"):
+    """The predicted reference success of one map (pbdyn.analysis.predict; docs/difficulty-scale.md):
     {"success", "ci": [lo, hi] (95%, for one map), "percentile" (share % of the bundled calibration maps easier
     than it), "features"}, or {"why": ...} when no shipped predictor covers the scenario's dims."""
     from pbdyn.analysis.predict import load_predictors, predicted_success

@@ -1,4 +1,4 @@
-"""Scenario files (TOML) validated into frozen dataclasses (docs/design.md "Defaults", README "Scenario reference").
+"""Scenario files (TOML) validated into frozen dataclasses (docs/design.md "Defaults", docs/scenarios.md "Scenario reference").
 
 Every omitted field takes its default, written once: as the dataclass field's default (a ClassVar for a default
 that depends on world.dims or has no field); the parsers read it from there (``_defaults``) and the README's
@@ -28,7 +28,7 @@ BODY_MOTIONS = ("static", "constant_velocity", "waypoints")
 COLLISION_CHECKS = ("swept", "sampled")
 PROFILES = ("physical", "thesis_program")
 """Profiles (docs/design.md "Profiles"): "physical" enforces the MAV's limits on every plan; "thesis_program" reproduces
-the thesis' program (README "Profiles")."""
+the thesis' program (docs/profiles.md "Profiles")."""
 START_RULES = ("first_clear", "immediate", "program")
 """When and where a trial starts (TaskConfig.start_rule; pbdyn.sim.start)."""
 
@@ -50,7 +50,7 @@ PROFILE_DEFAULTS: dict[str, dict[tuple[str, str], Any]] = {
     },
 }
 """Per profile, the defaults that replace the dataclass defaults for omitted fields ((section, key) -> value);
-README "Profiles" lists them (tests/test_config_defaults.py). thesis_program: the program spawned its obstacles
+docs/profiles.md "Profiles" lists them (tests/test_config_defaults.py). thesis_program: the program spawned its obstacles
 outside an 8 m circle around the flown start (7 m beyond the 1 m MAV disc) and limited the yaw rate to 80 deg/s
 (the thesis text: 1.4 rad/s); it moved the obstacles to t_k+1 before the MAV sensed at t_k
 (sensor.obstacles_at = "next"), dropped a track whose predicted disc of the setup radius reached a wall and restarted
@@ -194,7 +194,7 @@ class RVOParams:
 
 @dataclass(frozen=True)
 class StructureConfig:
-    """How a map is built at fixed (n, r, v) (pbdyn.world.structure; README "Structured worlds").
+    """How a map is built at fixed (n, r, v) (pbdyn.world.structure; docs/scenarios.md "Structured worlds").
 
     layout: "uniform" (centres uniform) or "clustered" (centres drawn around ``clusters`` centres uniform in the
     arena, Gaussian with sd ``cluster_spread`` m per axis). headings: None (the scenario's obstacles.headings),
@@ -235,7 +235,7 @@ BUILTIN_STRUCTURES: dict[str, dict] = {
     "spread": {"radius_spread": 0.5, "speed_spread": 0.5},
     "rvo": {"motion": "rvo"},
 }
-"""Named structures usable in obstacles.structure without a table of their own (README "Structured worlds")."""
+"""Named structures usable in obstacles.structure without a table of their own (docs/scenarios.md "Structured worlds")."""
 
 
 @dataclass(frozen=True)
@@ -328,7 +328,7 @@ class StaticObstacleConfig:
 
 @dataclass(frozen=True)
 class BodyConfig:
-    """One body of an imported world (``[[bodies]]``; README "Imported worlds").
+    """One body of an imported world (``[[bodies]]``; docs/scenarios.md "Imported worlds").
 
     name: label (default "body<i>"). urdf: the URDF file as written (relative: the world file's folder, then the
     bundled urdf/). scale: (sx, sy, sz) applied to its geometry. position: the base's initial position (m; 3 values,

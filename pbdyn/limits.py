@@ -1,4 +1,4 @@
-"""Resource limits checked when a scenario or world file is loaded (README "Scenario reference").
+"""Resource limits checked when a scenario or world file is loaded (docs/scenarios.md "Scenario reference").
 
 A scenario that passes every other check can still ask for more memory or time than any machine has (a map count
 of 2**63, a step of a microsecond, an arena of a million metres at a 1 m grid, ten thousand obstacles). Such a

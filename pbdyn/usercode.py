@@ -1,4 +1,4 @@
-"""Running foreign code at pbdyn's boundary: user motion functions and planner plug-ins (README "Imported worlds",
+"""Running foreign code at pbdyn's boundary: user motion functions and planner plug-ins (docs/scenarios.md "Imported worlds",
 "Benchmark your planner").
 
 pbdyn's stdout belongs to its results (``--json`` prints one JSON document there and nothing else), so user code's

@@ -70,7 +70,7 @@ SCHEMA: dict[str, tuple[str, ...]] = {
     "planners[].trajectory_params": ("horizon_s", "n_headings", "n_candidates", "sphere_spacing_deg"),
     "planners[].gaze_params": ("gain", "rate_fraction"),
 }
-"""Documented fields (README "Scenario reference") a ``set`` may create when the base document lacks them."""
+"""Documented fields (docs/scenarios.md "Scenario reference") a ``set`` may create when the base document lacks them."""
 
 CATEGORIES = ("enum", "negative", "zero", "nan", "inf", "huge", "tiny", "scaled", "string", "bool", "float_for_int",
               "empty_list", "list", "longer_list", "shorter_list", "element", "nested_table", "empty_table",

@@ -28,7 +28,7 @@ NOT_KEYS = {("", "world"), ("", "obstacles"), ("", "static_obstacles"), ("", "dr
             ("", "tracking"), ("", "task"), ("", "planners"), ("", "bodies"), ("", "source"),
             ("obstacles", "rvo"), ("obstacles", "grid_order"), ("obstacles.rvo", "neighbour_dist"),
             ("obstacles", "structures"), ("obstacles.structures.name", "name")}
-"""Fields that are no scalar key of their section: sub-tables (own sections; bodies: README "Imported worlds"),
+"""Fields that are no scalar key of their section: sub-tables (own sections; bodies: docs/scenarios.md "Imported worlds"),
 the source path, the grid order (the keys' file order), RVO's neighbour_dist (Python API only), the structures'
 tables (their own section) and a structure's name (the table's key)."""
 
@@ -51,8 +51,8 @@ COMPUTED = {
 
 
 def _readme_rows() -> dict[tuple[str, str], str]:
-    """(section, key) -> default cell of the README "Scenario reference" table (array sections: meaning cell)."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    """(section, key) -> default cell of the docs/scenarios.md "Scenario reference" table (array sections: meaning cell)."""
+    text = (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8")
     m = re.search(r"^## Scenario reference\n(.*?)(?=^## )", text, re.S | re.M)
     assert m, 'README.md has no "## Scenario reference" section'
     rows, section = {}, ""
@@ -133,7 +133,7 @@ THREE_D = {("world", "size"): C.WorldConfig.SIZE_3D,
            ("sensor", "resolution_deg"): C.SensorConfig.RESOLUTION_3D_DEG,
            ("sensor", "vfov_deg"): C.SensorConfig.VFOV_3D_DEG,
            ("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_3D}
-"""Defaults that differ in 3D (README "(3D ...)"): ClassVars of the dataclass."""
+"""Defaults that differ in 3D (docs/scenarios.md "Scenario reference" (3D ...)): ClassVars of the dataclass."""
 
 BY_DIMS = {("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_2D, ("sensor", "vfov_deg"): None}
 """Fields whose default is None, resolved per dims: the 2D value (None: 3D only)."""

@@ -1,4 +1,4 @@
-"""Profiles (README "Profiles", docs/design.md "Profiles") and the start rules (pbdyn.sim.start)."""
+"""Profiles (docs/profiles.md "Profiles", docs/design.md "Profiles") and the start rules (pbdyn.sim.start)."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def _scenario(profile: str | None = None, **extra):
 
 
 def _readme_section(title: str) -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "profiles.md").read_text(encoding="utf-8")
     m = re.search(rf"^## {title}\n(.*?)(?=^## )", text, re.S | re.M)
     assert m, f"README has no {title!r} section"
     return m.group(1)

@@ -291,7 +291,7 @@ def test_obstacles_table_and_candidates_inside_a_body_are_rejected():
 
 
 def test_world_file_text_is_documented_in_the_readme():
-    readme = (ROOT / "README.md").read_text()
+    readme = (ROOT / "docs" / "scenarios.md").read_text()
     for needle in ("[[bodies]]", "warehouse_2d.toml", "mixed_3d.toml", "constant_velocity", "waypoints",
                    "package.module:function", "--backend"):
         assert needle in readme

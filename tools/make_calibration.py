@@ -59,8 +59,8 @@ def document(dims: int) -> dict:
     return doc
 
 
-HEADER = """pbdyn calibration set {dims}D of the anchored difficulty scale (pbdyn.analysis.scale; README "Difficulty on
-one scale"), written by tools/make_calibration.py: do not edit by hand (the shipped abilities were fitted on
+HEADER = """pbdyn calibration set {dims}D of the anchored difficulty scale (pbdyn.analysis.scale;
+docs/difficulty-scale.md), written by tools/make_calibration.py: do not edit by hand (the shipped abilities were fitted on
 these maps). {n} maps: {per} per generator family, (n, r, v) from a seeded Latin hypercube over the thesis' box.
 The experiment is the reference panel's flights: pbdyn batch on this file flies what pbdyn calibrate flies."""
 

@@ -1,4 +1,4 @@
-"""Write the imported-world sets scenarios/worlds/imported_2d/*.toml (README "The study": the heterogeneous set)
+"""Write the imported-world sets scenarios/worlds/imported_2d/*.toml (docs/science.md: the heterogeneous set)
 and scenarios/worlds/imported_3d/*.toml.
 
     .venv/bin/python tools/make_worlds.py [--dims {2,3}] [--out DIR (with --dims)] [--check]

@@ -1,4 +1,4 @@
-"""The structure study (README "Structured worlds: the study"): does any metric see difficulty beyond the setup?
+"""The structure study (docs/science.md): does any metric see difficulty beyond the setup?
 
     .venv/bin/pbdyn batch scenarios/datasets/structured_2d.toml --out results/study/structured_2d.sqlite
     .venv/bin/pbdyn batch scenarios/datasets/heterogeneous_2d.toml --out results/study/heterogeneous_2d.sqlite

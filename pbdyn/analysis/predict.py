@@ -1,4 +1,4 @@
-"""Predicted reference success: the anchored scale's difficulty from metrics alone (README "Difficulty on one scale").
+"""Predicted reference success: the anchored scale's difficulty from metrics alone (docs/difficulty-scale.md).
 
 The anchored scale (pbdyn.analysis.scale) is measured by flying the reference panel (`pbdyn calibrate`). The
 predictor estimates the same number -- the panel's expected success on a map's reference tasks -- from features

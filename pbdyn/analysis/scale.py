@@ -1,4 +1,4 @@
-"""The anchored difficulty scale: one difficulty a paper can quote (README "Difficulty on one scale").
+"""The anchored difficulty scale: one difficulty a paper can quote (docs/difficulty-scale.md).
 
 The difficulty of a task set -- a map with its start/goal pairs and MAV speeds -- is the expected success of a fixed
 reference panel of built-in planners at their defaults (PANEL) flying the reference tasks of that map: the ordered

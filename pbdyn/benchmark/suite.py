@@ -1,4 +1,4 @@
-"""Frozen benchmark suites (README "Benchmark your planner"; docs/benchmark.md).
+"""Frozen benchmark suites (docs/benchmark.md; docs/benchmark.md).
 
 A suite is a folder of the bundled scenarios, ``suites/<name>/``, holding ``suite.json`` (the manifest) and the
 scenario files of its *parts*: one part per scenario file the suite's maps come from (a file of generated maps, or

@@ -2,7 +2,7 @@
 
 The thesis fits a linear model of survivability on the obstacle count, radius and speed (eq. 5-1) and picks the
 setup whose prediction is closest to the target (eq. 5-2 under the bounds 5-3 to 5-6). A prediction is not a
-measurement: maps of one setup differ by their seed (README "Structured worlds"), so pbdyn measures every candidate
+measurement: maps of one setup differ by their seed (docs/scenarios.md "Structured worlds"), so pbdyn measures every candidate
 with the real metric and keeps only those within the tolerance. The search, for one generator family (a structure:
 uniform, clustered, crossing, walls, mixed, spread, rvo) in 2D or 3D:
 
@@ -40,7 +40,7 @@ from pbdyn.errors import ConfigError
 from pbdyn.metrics.catalog import INFO, NAMES
 
 FAMILIES = tuple(BUILTIN_STRUCTURES)
-"""The generator families: pbdyn's built-in structures (README "Structured worlds")."""
+"""The generator families: pbdyn's built-in structures (docs/scenarios.md "Structured worlds")."""
 
 BOX = {"count": (10, 30), "radius": (0.5, 1.5), "speed": (2.0, 6.0)}
 """The setup bounds of thesis eqs. 5-4 to 5-6: obstacle count (integer), radius (m), speed (m/s)."""

@@ -69,7 +69,7 @@ PROFILE_METRIC_PARAMS: dict[str, dict[str, dict]] = {
 }
 """Per profile and metric, parameters that replace the scenario-derived ones. thesis_program: the thesis' program
 computed VO feasibility with an MAV radius of 0.5 m, and (dynamic) traversability by walking grid cells with the
-MAV's centre, cells marked by its own rules (pbdyn.metrics.traversability, marking "program"; README "Profiles"),
+MAV's centre, cells marked by its own rules (pbdyn.metrics.traversability, marking "program"; docs/profiles.md "Profiles"),
 from the scenario's start/goal candidates (PROGRAM_CANDIDATE_METRICS; the program walked from its 9 candidate cells,
 which the thesis scenarios' 48 m arena puts at 3, 24, 45 m, not at the arena-derived 4, L/2, L - 4)."""
 

@@ -185,7 +185,7 @@ PROGRAM_TIE_ORDERS: dict[float, tuple[int, ...]] = {
            19, 18, 0, 1, 17, 2, 16, 15, 3, 14, 4, 13, 5, 12, 6, 7, 11, 10, 8, 9),
 }
 """The program's candidate order (indices k of theta = 5k deg) at the goal directions phi (deg) where its costs
-tie, as its numpy 1.23.4 argsort left them (tools/program_tables.py writes this table; README "Profiles")."""
+tie, as its numpy 1.23.4 argsort left them (tools/program_tables.py writes this table; docs/profiles.md "Profiles")."""
 
 
 def _snap_px(px: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ class TrialResult:
 
     Units: times in s, distances in m, speeds in m/s; start/goal in m (world frame). planner_fingerprint: what
     code flew the trial (pbdyn.planning.registry.pair_fingerprint; "" where not recorded). profile: "physical" or
-    "thesis_program" (README "Profiles"). start_delay_s: the map time (s) at which the trial began (the start rule,
+    "thesis_program" (docs/profiles.md "Profiles"). start_delay_s: the map time (s) at which the trial began (the start rule,
     pbdyn.sim.start; flight_time_s counts from it). max_speed_mps, max_accel_mps2: the largest executed |v| and
     acceleration (max of the samples' |a| and |v_k+1 - v_k| / dt); limits_exceeded: "" when both stayed within
     v_max and a_max, else which limit was exceeded and by how much (only possible under thesis_program).

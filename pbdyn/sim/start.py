@@ -1,4 +1,4 @@
-"""Where and when a trial starts (TaskConfig.start_rule; README "Profiles" and "Scenario reference").
+"""Where and when a trial starts (TaskConfig.start_rule; docs/profiles.md "Profiles" and "Scenario reference").
 
 Spawning keeps every start/goal candidate's MAV disc plus ``spawn_clearance`` free at t = 0, but an obstacle can
 arrive at the start before the MAV can move: such a trial begins next to an obstacle by construction, and its early

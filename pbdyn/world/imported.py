@@ -1,4 +1,4 @@
-"""Imported worlds: URDF bodies with scripted motion become a rollout of poses (README "Imported worlds").
+"""Imported worlds: URDF bodies with scripted motion become a rollout of poses (docs/scenarios.md "Imported worlds").
 
 A world file is a scenario whose generated obstacles are replaced by ``[[bodies]]``. Every body's base pose is
 computed at every rollout step from its motion (static; constant velocity whose bounding sphere reflects at the
@@ -182,7 +182,7 @@ def _pose(out: object) -> tuple[np.ndarray | None, np.ndarray | None, str]:
 def _function_poses(body: BodyConfig, where: str, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Every pose of a body moved by a user function, called at each time under the user-code rules: its prints go
     to stderr, any exception or exit it raises (not KeyboardInterrupt) and any return value that is not a pose
-    (README "Imported worlds") become a ConfigError naming ``bodies[i].motion`` with the time, and all its calls
+    (docs/scenarios.md "Imported worlds") become a ConfigError naming ``bodies[i].motion`` with the time, and all its calls
     together must finish within USER_CODE_TIMEOUT_S of wall-clock time."""
     field = f"{where}.motion"
     fn = _load_function(body, where)

@@ -1,4 +1,4 @@
-"""The real shapes of imported bodies as signed-distance fields (README "Imported worlds").
+"""The real shapes of imported bodies as signed-distance fields (docs/scenarios.md "Imported worlds").
 
 A body's collision geometry is read from its URDF (every link's <collision> elements, links placed by their joint
 origins at joint position 0, i.e. "joints stay fixed"), scaled like pbdyn.world.bullet.load_scaled_urdf scales it,

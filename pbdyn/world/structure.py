@@ -1,6 +1,6 @@
 """Maps whose structure varies at fixed (n, r, v): clustered positions, flows aimed across the start/goal lines,
-walls with gaps, static shares, size and speed distributions (pbdyn.config.StructureConfig; README "Structured
-worlds").
+walls with gaps, static shares, size and speed distributions (pbdyn.config.StructureConfig; docs/scenarios.md
+"Structured worlds").
 
 Everything is drawn from the map's own Generator (pbdyn.world.maps.MapSpec.rng) in a fixed order, except the walls,
 which come from a second stream of the map's seed (SeedSequence([root_seed, key hash, WALL_STREAM])) so that they

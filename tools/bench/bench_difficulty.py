@@ -1,5 +1,5 @@
 """Median times of the difficulty-evaluation pieces: the closed-form baselines per map, the task metrics per trial,
-the item-response fits and the trial-level scores (README "Benchmarks").
+the item-response fits and the trial-level scores (docs/performance.md).
 
     .venv/bin/python tools/bench/bench_difficulty.py [--repeat 5]
 

@@ -8,7 +8,7 @@ Use it from a scenario (the folder holding this file must be importable, e.g. PY
     trajectory_params = { horizon_s = 2.0, n_headings = 13 }
 
 pbdyn builds the planner once per trial as ``GoalSeeker(context, **trajectory_params)`` and calls, every step,
-``replan_check(view)`` and, when that returns True, ``plan(view)`` (README "Benchmark your own planner"). The
+``replan_check(view)`` and, when that returns True, ``plan(view)`` (docs/planners.md "Your planner, step by step"). The
 planner sees only what the MAV knows (``view``): its state, its occupancy grid, the Kalman tracks of the obstacles
 it has seen, the goal and the time; never the true obstacle motion.
 
