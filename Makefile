@@ -3,23 +3,32 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+TESTS  := $(VENV)/.installed-test
 NATIVE := $(VENV)/.native
 
 .PHONY: demo test bench sysdeps native clean
 
+## pbdyn and what it runs with: its system libraries (tools/install_sysdeps.sh), the venv, the package (editable).
+## Nothing only the tests use (`make demo` needs this and the native build alone).
 $(STAMP): setup.cfg pyproject.toml
 	@bash tools/install_sysdeps.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e .
 	touch $(STAMP)
+
+## The test extras (pytest, selenium, ...), once per install of the package.
+$(TESTS): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(TESTS)
 
 ## Built (or tried: a failed build leaves the Python package in use) after the install and whenever its source changes.
 $(NATIVE): $(STAMP) pbdyn/planning/native/ruckig_batch.cpp pbdyn/planning/native/build.py
 	-$(PY) -m pbdyn.planning.native.build
 	touch $(NATIVE)
 
-## Optional system libraries (libusb-1.0 for open3d's mesh backend), installed only when missing.
+## Optional system libraries (libusb-1.0 for open3d's mesh backend, g++ for the native build), installed only when
+## missing; `bash tools/install_sysdeps.sh --test` adds the tests' browser (chromium) and virtual display (xvfb).
 sysdeps:
 	@bash tools/install_sysdeps.sh
 
@@ -33,8 +42,9 @@ demo: $(NATIVE)
 	$(VENV)/bin/pbdyn batch scenarios/quickstart.toml --out results/quickstart.sqlite
 	$(VENV)/bin/pbdyn evaluate results/quickstart.sqlite --plots results/quickstart-figures
 
-test: $(NATIVE)
-	@bash tools/install_sysdeps.sh
+## The tests' system packages (the browser, xvfb) are checked on every run and installed when missing.
+test: $(NATIVE) $(TESTS)
+	@bash tools/install_sysdeps.sh --test
 	$(PY) -m pytest -q -p no:cacheprovider -n auto --durations=30
 
 bench: $(NATIVE)

@@ -260,7 +260,12 @@ def run_batch(scenario, out: str | Path, *, workers: int | None = None, schedule
     metrics; rerun_changed: re-fly rows whose planner code changed; retry_errors: re-fly stored error rows;
     shard: "I/N" or (I, N), only the I-th of N contiguous blocks of maps (their stores join with merge_stores);
     lockstep: trials of one map flown together per task (default 72; 1: one per task; rows are the same).
-    Planners must be given by name in the scenario (workers import them)."""
+    Planners must be given by name in the scenario (workers import them). Local workers start by running the
+    calling script again: call it under ``if __name__ == "__main__":`` (at a script's top level it fails at once,
+    one line, pbdyn.experiments.mainguard)."""
+    from pbdyn.experiments.mainguard import check_not_reimported
+
+    check_not_reimported("run_batch")
     from pbdyn.experiments.runner import BatchOptions
     from pbdyn.experiments.runner import run_batch as batch
 
@@ -294,6 +299,9 @@ def generate_maps(out: str | Path | None, *, metric: str | None = None, target: 
     reference success flown by the reference panel lies within ``tolerance`` of it (the predictor proposes,
     pbdyn.experiments.generate.generate_by_success). Returns a GeneratedMaps (maps, document, candidates,
     reachable, coefficients, wall_time_s, flown). Unreachable targets raise ConfigError naming the range."""
+    from pbdyn.experiments.mainguard import check_not_reimported
+
+    check_not_reimported("generate_maps")
     import tomllib
 
     from pbdyn.errors import check_writable_file
@@ -348,6 +356,9 @@ def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: 
     results store ``store`` (default: one in the cache, keyed by what is flown; resumable) and return each map's
     measured difficulty on the anchored scale (pbdyn.experiments.calibrate.MapDifficulty: reference success with a
     95% interval, difficulty in logits with its interval and percentile among the calibration maps)."""
+    from pbdyn.experiments.mainguard import check_not_reimported
+
+    check_not_reimported("calibrate")
     from pbdyn.experiments.calibrate import calibrate as _calibrate
 
     if maps is not None:
@@ -369,6 +380,9 @@ def bench(planner: str, *, gaze: str | None = None, suite: str | Path = "pbdyn-2
     on the frozen ``suite`` (a bundled suite name or a suite folder) into the folder ``out`` (resumable) and write its
     score card there (card.json, card.md, card.html; docs/benchmark.md). Returns the card (a dict, schema
     pbdyn-card/1). ``reproduce``: also compare the flights with the planner's shipped reference results."""
+    from pbdyn.experiments.mainguard import check_not_reimported
+
+    check_not_reimported("bench")
     from pbdyn.benchmark.run import bench as _bench
 
     if scheduler is None:

@@ -17,10 +17,13 @@ import traceback
 import warnings
 from pathlib import Path
 
-from pbdyn import api
+from pbdyn import __version__
 from pbdyn.errors import ConfigError, PbdynError, PbdynWarning, check_writable_file
 
 EXIT_USAGE = 2
+EXIT_PIPE = 141
+"""Exit status when the reader of stdout went away before the output was written (a pager quit early, `| head -c0`):
+128 + SIGPIPE, like a command that signal ends, and nothing on stderr."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -61,6 +64,8 @@ def _finite_float(text: str) -> float:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = _Parser(prog="pbdyn", description="PyBullet testbed for MAV dynamic obstacle avoidance benchmarking.")
+    parser.add_argument("--version", action="version", version=f"pbdyn {__version__}",
+                        help="print pbdyn's version and exit")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     run = sub.add_parser("run", help="fly one trial and print its TrialResult")
@@ -213,6 +218,8 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     if args.replay is not None:
         from pbdyn.analysis.replay import check_output
 
@@ -237,6 +244,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_rollout(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     out = Path(args.out)
     if out.suffix != ".npz":
         raise ConfigError("--out", "must name an .npz file", args.out)
@@ -261,6 +270,8 @@ def cmd_rollout(args: argparse.Namespace) -> int:
 
 
 def cmd_metrics(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     scenario = api.load_scenario(args.scenario)
     backend = api.metric_backend(scenario, args.backend)
     if args.plot is not None:
@@ -301,6 +312,8 @@ def cmd_metrics(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     rows = api.run_demo(args.scenario, n_maps=args.maps, n_pairs=args.pairs, json_out=args.json)
     if args.json:
         sys.stdout.write(json.dumps(rows, sort_keys=True) + "\n")
@@ -308,6 +321,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     if args.workers == 0:
         raise ConfigError("--workers", "must be >= 1", 0)
     if args.limit == 0:
@@ -332,6 +347,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     if args.every == 0:
         raise ConfigError("--every", "must be >= 1", 0)
     s = api.replay(args.trace, args.out, fps=args.fps, every=args.every)
@@ -344,6 +361,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_merge(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     s = api.merge_results(args.out, args.results)
     doc = {"results": str(args.out), "trials": s.trials, "added": s.added, "duplicates": s.duplicates,
            "conflicts": s.conflicts, "maps": s.maps}
@@ -357,6 +376,7 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    from pbdyn import api
     from pbdyn.benchmark import render
     from pbdyn.benchmark.run import DEFAULT_SUITE
 
@@ -398,6 +418,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from pbdyn import api
     from pbdyn.experiments.calibrate import format_difficulties
 
     res = api.calibrate(args.scenario, maps=args.map, store=args.store, workers=args.workers,
@@ -410,6 +431,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     fixed = {k: v for k, v in (("count", args.obstacles), ("radius", args.radius), ("speed", args.speed))
              if v is not None}
     if args.success is not None:
@@ -442,6 +465,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     fmt = "csv" if args.csv is not None else "parquet"
     target = args.csv if args.csv is not None else args.parquet
     n = api.export_results(args.results, target, format=fmt)
@@ -450,6 +475,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from pbdyn import api
+
     report, table, figures = api.evaluate(args.results, plots=args.plots, n_boot=args.bootstrap, pool=args.pool,
                                           html=args.html)
     if args.json:
@@ -480,6 +507,29 @@ def _warning_line(show):
     return showwarning
 
 
+def _stdout_gone() -> bool:
+    """True if stdout is a pipe whose reader has closed it."""
+    try:
+        import select
+
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(event & select.POLLERR for _, event in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _discard_stdout() -> None:
+    """Point stdout at the null device, so that the interpreter's last flush of what is still buffered for the
+    closed pipe prints no "Exception ignored" on stderr."""
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
+    except (AttributeError, OSError, ValueError):
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``pbdyn`` console script. ``PBDYN_DEBUG=1`` in the environment: an error also prints its
     full traceback (before its one line), an internal failure its Python traceback."""
@@ -492,7 +542,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _warning_line(warnings.showwarning)
-            return COMMANDS[args.command](args)
+            status = COMMANDS[args.command](args)
+            sys.stdout.flush()      # here, not at interpreter exit: a reader that went away is handled below
+            return status
     except ConfigError as exc:
         if debug:
             traceback.print_exc()
@@ -508,6 +560,9 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write(f"pbdyn: {str(exc) or 'interrupted'}\n")
         return getattr(exc, "exit_status", 130)
     except Exception as exc:  # an internal failure: one line, details only on request
+        if isinstance(exc, BrokenPipeError) and _stdout_gone():
+            _discard_stdout()
+            return EXIT_PIPE
         if debug:
             raise
         sys.stderr.write(f"pbdyn: internal error: {type(exc).__name__}: {exc} (set PBDYN_DEBUG=1 for details)\n")

@@ -1,6 +1,6 @@
 """Writing output files atomically: a temporary file in the target's folder, renamed over the target only once it
 is complete (no partial result file is ever left behind), with the permissions an ordinary file gets (0o666 minus
-the user's umask)."""
+the user's umask); and where pbdyn keeps its caches (cache_dir)."""
 
 from __future__ import annotations
 
@@ -58,3 +58,13 @@ def atomic_write(path: str | Path, write: Callable[[str], None], *, make_parents
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def cache_dir() -> Path:
+    """pbdyn's cache folder (rollouts, metrics, the native library's check): $PBDYN_CACHE, else
+    $XDG_CACHE_HOME/pbdyn, else ~/.cache/pbdyn."""
+    env = os.environ.get("PBDYN_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "pbdyn"

@@ -98,6 +98,17 @@ def test_missing_file_exit_2(tmp_path):
     assert proc.returncode == 2 and "file not found" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_version_prints_the_package_version_and_exits_0(capsys):
+    import pbdyn
+    from pbdyn.cli import main
+
+    proc = _run(["--version"])
+    assert (proc.returncode, proc.stdout, proc.stderr) == (0, f"pbdyn {pbdyn.__version__}\n", "")
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0 and capsys.readouterr().out == f"pbdyn {pbdyn.__version__}\n"
+
+
 def test_rollout_command_writes_npz(tmp_path):
     out = tmp_path / "map3.npz"
     proc = _run(["rollout", SCENARIOS / "controlled_2d.toml", "--map", "3", "--out", out, "--json"])

@@ -215,12 +215,20 @@ def test_success_by_setup_and_level(store, evaluated, tmp_path):
     assert "Success by level per planner pair" in format_table(report2)
 
 
+def _index(lines: list[str], prefix: str) -> int:
+    return next(i for i, x in enumerate(lines) if x.startswith(prefix))
+
+
 def test_the_text_json_and_html_reports_hold_the_tables(store, evaluated):
     report, text = evaluated
-    old = format_table({k: v for k, v in report.items() if k not in ("paired", "success_by_group")})
-    assert text.startswith(old + "\n")                    # the existing table is unchanged; the new ones follow
-    tail = text[len(old):]
-    assert "Success by setup per planner pair" in tail and "Paired comparisons on the tasks both pairs flew" in tail
+    lines = text.splitlines()
+    without = format_table({k: v for k, v in report.items() if k not in ("paired", "success_by_group")}).splitlines()
+    rest = iter(lines)                                    # the report without the two sections: the same lines in
+    assert all(any(x == y for y in rest) for x in without)    # the same order, the sections' lines put among them
+    setup, sign = _index(lines, "Success by setup per planner pair"), _index(lines, "Sign: ")
+    paired = _index(lines, "Paired comparisons on the tasks both pairs flew")
+    assert _index(lines, "Verdict: ") < setup < sign < _index(lines, "Metric ") < paired   # success first, then stats
+    tail = "\n".join(lines[paired:])
     for c in report["paired"]["comparisons"]:
         line = next(x for x in tail.splitlines() if x.split()[:2] == [c["a"], c["b"]])
         assert line.split()[2:7] == [str(c[k]) for k in ("tasks", "both", "a_only", "b_only", "neither")]
@@ -241,6 +249,69 @@ def test_the_text_json_and_html_reports_hold_the_tables(store, evaluated):
         for label, c in cells.items():
             assert (f'<td class="name">{pair}</td><td class="name">{label}</td><td>1</td><td>{c["trials"]}</td>'
                     f'<td>{c["rate"]:.3f}</td><td>[{c["ci95"][0]:.3f}, {c["ci95"][1]:.3f}]</td>') in html
+
+
+def test_the_text_opens_with_the_success_table_and_a_verdict(store, evaluated):
+    """`pbdyn evaluate` opens with each pair's success (Wilson interval, counted by hand from the store's rows), the
+    trial counts and one verdict line: the pair that succeeds most, and how the best metric compares with the
+    setup baseline; every statistic comes after them."""
+    report, text = evaluated
+    lines = text.splitlines()
+    assert lines[0].startswith("Controlled dataset: paired_small ") and lines[1] == ""
+    assert lines[2].startswith("Success per planner pair and dataset (Wilson 95% interval")
+    flown: dict = {}
+    for r in _rows(store):
+        if r["outcome"] != "error":
+            k, n = flown.get(r["planner_label"], (0, 0))
+            flown[r["planner_label"]] = (k + (r["outcome"] == "success"), n + 1)
+    assert len(flown) == 3
+    for line, (pair, (k, n)) in zip(lines[3:6], sorted(flown.items())):
+        lo, hi = wilson_interval(k, n)
+        assert line.split() == [pair, "paired_small", f"{k / n:.3f}", f"[{lo:.3f},", f"{hi:.3f}]", "+-",
+                                f"{math.sqrt(k / n * (1 - k / n) / n):.3f}", line.split()[7], str(n), "trials,",
+                                "2", "maps"]
+    assert lines[6].startswith("Trials: 36 (0 errors, not rated); outcomes: success ")
+    verdict = lines[7]
+    best = max(flown, key=lambda p: flown[p][0] / flown[p][1])
+    if sorted(k / n for k, n in flown.values())[-2] < flown[best][0] / flown[best][1]:
+        assert verdict.startswith(f"Verdict: {best} succeeds most ({flown[best][0] / flown[best][1]:.3f} [")
+    assert "the metrics cannot rank maps here" in verdict or "the setup baseline" in verdict
+    assert sum(x.startswith("Verdict: ") for x in lines) == 1 and _index(lines, "Sign: ") > 7
+
+
+def _verdict_report(rates: dict, metrics: dict) -> dict:
+    """A minimal report for verdict_line: pair -> (rate, ci95) on dataset "d"; metric rows as given."""
+    return {"controlled_dataset": "d", "metrics": metrics,
+            "success": {"per_pair": {p: {"d": {"rate": r, "ci95": ci}} for p, (r, ci) in rates.items()}}}
+
+
+def test_the_verdict_line():
+    from pbdyn.analysis.report import SETUP_MODEL, verdict_line
+
+    setup = {SETUP_MODEL: {"kind": "baseline", "srcc_mean": 0.5}}
+
+    def metric(srcc, lo, hi):
+        return {"kind": "metric", "srcc_mean": srcc,
+                "vs_baselines": {SETUP_MODEL: {"diff": srcc - 0.5, "ci95": [lo, hi]}}}
+
+    two = {"A": (0.9, [0.8, 0.95]), "B": (0.5, [0.4, 0.6])}
+    v = verdict_line(_verdict_report(two, {**setup, "m1": metric(0.7, 0.05, 0.3), "m2": metric(0.6, -0.1, 0.3)}))
+    assert v == ("Verdict: A succeeds most (0.900 [0.800, 0.950] on d; next B 0.500 [0.400, 0.600], intervals "
+                 "apart); the best metric, m1 (SRCC 0.700), ranks maps better than the setup baseline (setup_model "
+                 "SRCC 0.500; difference +0.200 [0.050, 0.300]).")
+    close = {"A": (0.6, [0.5, 0.7]), "B": (0.55, [0.45, 0.65])}
+    v = verdict_line(_verdict_report(close, {**setup, "m1": metric(0.55, -0.1, 0.2)}))
+    assert "A succeeds most" in v and "intervals overlap" in v and "does not rank maps clearly better than" in v
+    v = verdict_line(_verdict_report(close, {**setup, "m1": metric(0.3, -0.4, -0.1)}))
+    assert "ranks maps worse than the setup baseline" in v
+    v = verdict_line(_verdict_report({"A": (0.6, [0.5, 0.7]), "B": (0.6, [0.5, 0.7])}, setup))
+    assert v == ("Verdict: A, B succeed equally (0.600 [0.500, 0.700] on d); no difficulty metric to compare with "
+                 "the setup baseline.")
+    v = verdict_line(_verdict_report({"A": (0.6, [0.5, 0.7])}, {**setup, "m1": {"kind": "metric", "srcc_mean": None}}))
+    assert v == ("Verdict: A is the only planner pair (0.600 [0.500, 0.700] on d); the metrics cannot rank maps here "
+                 "(too few maps for a rank correlation with success).")
+    v = verdict_line(_verdict_report(two, {**setup, "m1": metric(0.7, None, None)}))
+    assert "is compared without an interval with the setup baseline" in v
 
 
 # ------------------------------------------------------------------------------------------------ synthetic

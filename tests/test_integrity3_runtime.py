@@ -1,6 +1,7 @@
 """Integrity round 3, at run time, each in real subprocesses: a corrupt native library is never loaded; a read-only
 installation with no writable HOME runs quietly; output and cache files follow the umask; batch workers end without
-PyBullet's shutdown traceback; --gui without a display is one line and exit 2.
+PyBullet's shutdown traceback, and run, metrics and evaluate leave stderr empty; --gui without a display is one line
+and exit 2.
 
 Tests that corrupt or lock a package work on a copy of the checkout (pbdyn/, urdf/, scenarios/, setup.cfg), run
 with ``python -m pbdyn`` from the copy's folder, never on the repository's own files."""
@@ -271,7 +272,8 @@ def test_atomic_write_follows_the_umask(tmp_path):
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_a_lockstep_batch_ends_quietly(tmp_path, workers):
     """Every stderr line of `pbdyn batch` is its own progress line: no PyBullet shutdown traceback from the
-    workers' clients (BulletClient.__del__ at interpreter exit)."""
+    workers' clients (BulletClient.__del__ at interpreter exit). `pbdyn evaluate` of its store, `pbdyn run
+    quickstart` and `pbdyn metrics quickstart --map 0` print nothing at all on stderr, shutdown included."""
     done = _python(ROOT, "-m", "pbdyn", "batch", "quickstart", "--out", str(tmp_path / "r.sqlite"), "--limit", "20",
                    "--workers", workers)
     assert done.returncode == 0, done.stderr
@@ -279,6 +281,23 @@ def test_a_lockstep_batch_ends_quietly(tmp_path, workers):
     lines = done.stderr.splitlines()
     assert lines and all(ln.startswith("pbdyn batch: ") for ln in lines), done.stderr
     assert not any(word in done.stderr for word in ("Exception ignored", "Traceback", "Warning"))
+    if workers == "1":    # the commands that read the store, and the everyday ones, leave stderr empty on success
+        for args in (["evaluate", str(tmp_path / "r.sqlite")], ["run", "quickstart"],
+                     ["metrics", "quickstart", "--map", "0"]):
+            done = _python(tmp_path, "-m", "pbdyn", *args)
+            assert done.returncode == 0 and done.stdout, (args, done.returncode, done.stderr)
+            assert done.stderr == "", (args, done.stderr)
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path):
+    """stdout closed by its reader before pbdyn writes (`pbdyn run quickstart | head -0`): exit 141 (128 + SIGPIPE)
+    and nothing on stderr, neither an internal error nor Python's "Exception ignored" at shutdown."""
+    proc = subprocess.Popen([sys.executable, "-m", "pbdyn", "run", "quickstart"], cwd=tmp_path, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    err = proc.stderr.read()
+    proc.stderr.close()
+    assert (proc.wait(timeout=300), err) == (141, b"")
 
 
 def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path):

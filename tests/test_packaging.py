@@ -138,6 +138,78 @@ def test_license_and_citation():
 
 
 # ---------------------------------------------------------------------------------------------------------------
+# make demo / make test: what each installs
+# ---------------------------------------------------------------------------------------------------------------
+def _make_dry_run(folder: Path, target: str, *stamps: str) -> list[str]:
+    """The commands `make -n TARGET` would run in a fresh clone (no .venv; made in ``folder``) holding the
+    repository's Makefile, or with the given stamp files of an earlier install."""
+    import shutil
+
+    if shutil.which("make") is None:
+        pytest.skip("no make on this machine")
+    clone = folder
+    for rel in ("Makefile", "setup.cfg", "pyproject.toml", "tools/install_sysdeps.sh",
+                "pbdyn/planning/native/ruckig_batch.cpp", "pbdyn/planning/native/build.py"):
+        (clone / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / rel, clone / rel)
+    for stamp in stamps:
+        (clone / ".venv").mkdir(exist_ok=True)
+        (clone / ".venv" / stamp).touch()
+    done = subprocess.run(["make", "-n", target], cwd=clone, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.splitlines()
+
+
+def test_make_demo_installs_what_the_demo_needs_and_no_test_tooling(tmp_path):
+    demo = _make_dry_run(tmp_path / "a", "demo")
+    assert "bash tools/install_sysdeps.sh" in demo and ".venv/bin/python -m pip install --quiet -e ." in demo
+    assert not [c for c in demo if "[test]" in c or "--test" in c or "chromium" in c or "playwright" in c], demo
+    assert demo[-2:] == [".venv/bin/pbdyn batch scenarios/quickstart.toml --out results/quickstart.sqlite",
+                         ".venv/bin/pbdyn evaluate results/quickstart.sqlite --plots results/quickstart-figures"]
+    test = _make_dry_run(tmp_path / "b", "test")
+    assert test.index(".venv/bin/python -m pip install --quiet -e '.[test]'") \
+        < test.index("bash tools/install_sysdeps.sh --test") < len(test) - 1
+    assert test[-1].startswith(".venv/bin/python -m pytest ")
+    after_demo = _make_dry_run(tmp_path / "c", "test", ".installed", ".native")   # `make demo`, then `make test`
+    assert after_demo and after_demo[0] == ".venv/bin/python -m pip install --quiet -e '.[test]'"
+
+
+def test_install_sysdeps_lists_the_browser_only_for_the_tests():
+    script = (ROOT / "tools" / "install_sysdeps.sh").read_text()
+    assert subprocess.run(["bash", "-n", str(ROOT / "tools" / "install_sysdeps.sh")]).returncode == 0
+    runtime, tests = script.split("need=()", 1)[1].split('if [ "$test_deps" -eq 1 ]; then', 1)
+    assert "libusb-1.0-0" in runtime and "need+=(g++)" in runtime
+    assert not any(word in runtime for word in ("chromium", "xvfb", "playwright"))
+    assert "need+=(chromium)" in tests and "need+=(chromium-driver)" in tests and "need+=(xvfb)" in tests
+    for args in ([], ["--test"]):
+        done = subprocess.run(["bash", str(ROOT / "tools" / "install_sysdeps.sh"), *args, "--dry-run"],
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0 and done.stdout.startswith("missing: ") and done.stderr == "", done
+        if not args:
+            assert not {"chromium", "chromium-driver", "xvfb"} & set(done.stdout.split()[1:])
+    bad = subprocess.run(["bash", str(ROOT / "tools" / "install_sysdeps.sh"), "--browser"], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 2 and "usage" in bad.stderr
+
+
+def test_the_demo_commands_need_no_test_extras(tmp_path):
+    """`make demo` installs pbdyn without its test extras: the demo's batch and evaluation (with figures) run with
+    pytest, selenium and jsonschema unimportable."""
+    code = ("import sys\nfor m in ('pytest', 'selenium', 'jsonschema', 'xdist'):\n    sys.modules[m] = None\n"
+            "from pbdyn.cli import main\n"
+            "if __name__ == '__main__':\n"
+            f"    assert main(['batch', 'quickstart', '--out', {str(tmp_path / 'q.sqlite')!r}, '--limit', '3',"
+            " '--workers', '1']) == 0\n"
+            f"    assert main(['evaluate', {str(tmp_path / 'q.sqlite')!r}, '--bootstrap', '20', '--plots', "
+            f"{str(tmp_path / 'figs')!r}]) == 0\n")
+    (tmp_path / "demo.py").write_text(code)
+    done = subprocess.run([sys.executable, str(tmp_path / "demo.py")], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert list((tmp_path / "figs").iterdir())
+
+
+# ---------------------------------------------------------------------------------------------------------------
 # the wheel
 # ---------------------------------------------------------------------------------------------------------------
 @pytest.mark.timeout(120)

@@ -47,6 +47,7 @@ import numpy as np
 from pbdyn.analysis.bands import band_fit, band_shares
 from pbdyn.analysis.cv import LEVELS, cv_by_level, cv_summary
 from pbdyn.analysis.normalise import Normaliser, fit_normaliser
+from pbdyn.analysis.paired import wilson_interval
 from pbdyn.analysis.regression import FEATURES, LinearFit, fit_linear, setup_features, setup_key
 from pbdyn.analysis.validation import (Agreement, agreement, agreement_dict, compare, holm_verdicts, verdict,
                                       within_ci)
@@ -281,7 +282,8 @@ def _success_block(st: SuccessTable, datasets: np.ndarray, map_ids: tuple[str, .
             if n[j] > 0:
                 per_pair.setdefault(pair, {})[str(name)] = {
                     "n_trials": int(n[j]), "n_maps": int(r.size), "rate": float(p[j]), "se": float(se[j]),
-                    "se_between_maps": between}
+                    "se_between_maps": between, "successes": int(k[j]),
+                    "ci95": list(wilson_interval(int(k[j]), int(n[j])))}
     return {"per_map": per_map, "per_map_pooled": pooled, "per_pair": per_pair}
 
 
@@ -495,14 +497,88 @@ def beaters(rows: dict, raw: str = "beats_baselines", holm: str = "beats_baselin
     return f"{', '.join(beats)} (after Holm's correction: {', '.join(kept) if kept else 'none'})"
 
 
+def _success_lines(report: dict) -> list[str]:
+    """The success table: each planner pair's success per dataset with its Wilson 95% interval, binomial se and the
+    se between maps; then the trial and outcome counts."""
+    lines = ["Success per planner pair and dataset (Wilson 95% interval; +- binomial se, in parentheses the se "
+             "between maps; error trials not rated):"]
+    for pair, per in report["success"]["per_pair"].items():
+        for ds, s in per.items():
+            ci = s.get("ci95") or [None, None]
+            lines.append(f"  {pair:<40} {ds:<24} {_f(s['rate'])} [{_f(ci[0])}, {_f(ci[1])}] +- {_f(s['se'])} "
+                         f"({_f(s['se_between_maps'])})  {s['n_trials']} trials, {s['n_maps']} maps")
+    lines.append(f"Trials: {report['n_trials']} ({report['n_error_trials']} errors, not rated); outcomes: "
+                 + ", ".join(f"{k} {v}" for k, v in report["outcomes"].items()))
+    return lines
+
+
+def _rate_text(s: dict) -> str:
+    ci = s.get("ci95") or [None, None]
+    return f"{_f(s['rate'])} [{_f(ci[0])}, {_f(ci[1])}]"
+
+
+def verdict_line(report: dict) -> str:
+    """One line: which planner pair succeeds most on the controlled dataset (with its Wilson interval, and whether
+    it is clearly ahead of the next: the intervals apart), and whether the best difficulty metric (highest SRCC)
+    ranks maps better than the setup baseline (setup_model; the 95% interval of their paired SRCC difference)."""
+    ds = report["controlled_dataset"]
+    rated = [(pair, per[ds]) for pair, per in report["success"]["per_pair"].items()
+             if ds in per and per[ds].get("rate") is not None]
+    rated.sort(key=lambda kv: -kv[1]["rate"])
+    if not rated:
+        pairs = f"no planner pair has a rated trial on {ds}"
+    elif len(rated) == 1:
+        pairs = f"{rated[0][0]} is the only planner pair ({_rate_text(rated[0][1])} on {ds})"
+    else:
+        top = [p for p, s in rated if s["rate"] == rated[0][1]["rate"]]
+        if len(top) > 1:
+            pairs = f"{', '.join(top)} succeed equally ({_rate_text(rated[0][1])} on {ds})"
+        else:
+            (best, sb), (nxt, sn) = rated[0], rated[1]
+            lo, hi = (sb.get("ci95") or [None])[0], (sn.get("ci95") or [None, None])[1]
+            apart = "" if lo is None or hi is None else (", intervals apart" if lo > hi else ", intervals overlap")
+            pairs = (f"{best} succeeds most ({_rate_text(sb)} on {ds}; next {nxt} {_rate_text(sn)}{apart})")
+    candidates = [n for n, r in report["metrics"].items() if r.get("kind") != "baseline"]
+    metrics = {n: report["metrics"][n] for n in candidates if report["metrics"][n]["srcc_mean"] is not None}
+    setup = report["metrics"].get(SETUP_MODEL) or {}
+    if not candidates:
+        metric = "no difficulty metric to compare with the setup baseline"
+    elif not metrics:
+        metric = "the metrics cannot rank maps here (too few maps for a rank correlation with success)"
+    elif setup.get("srcc_mean") is None:
+        metric = "no setup baseline to compare the metrics with (it needs maps of several setups)"
+    else:
+        name = max(metrics, key=lambda n: metrics[n]["srcc_mean"])
+        vs = (metrics[name].get("vs_baselines") or {}).get(SETUP_MODEL) or {}
+        ci = vs.get("ci95") or [None, None]
+        diff = f"{SETUP_MODEL} SRCC {_f(setup['srcc_mean'])}; difference {_f(vs.get('diff'), '+.3f')}"
+        if ci[0] is None or ci[1] is None:
+            how, detail = "is compared without an interval with", f"{diff}; 0 bootstrap draws"
+        else:
+            how = ("ranks maps better than" if ci[0] > 0 else "ranks maps worse than" if ci[1] < 0
+                   else "does not rank maps clearly better than")
+            detail = f"{diff} [{_f(ci[0])}, {_f(ci[1])}]"
+        metric = f"the best metric, {name} (SRCC {_f(metrics[name]['srcc_mean'])}), {how} the setup baseline ({detail})"
+    return f"Verdict: {pairs}; {metric}."
+
+
 def format_table(report: dict) -> str:
-    """Text report laid out like thesis table 4-5 (rows: metrics and setup_model; columns: Srcc mean +- std over
-    pairs, bootstrap 95% CI, within-setup Srcc, Cv mean +- std, compute time per map), then the sigma bands
-    (tables 4-6..4-8), the eq. 5-1 regression (table 5-4) and the success-rate summary; then, when the report has
-    them (paired_sections), success per setup and level and the paired comparisons."""
+    """Text report. It opens with the success table (each planner pair's success per dataset with its Wilson 95%
+    interval, the trial and outcome counts) and a verdict line (verdict_line), then success per setup and level when
+    the report has them (paired_sections). The statistics follow: the table laid out like thesis table 4-5 (rows:
+    metrics and setup_model; columns: Srcc mean +- std over pairs, bootstrap 95% CI, within-setup Srcc, Cv mean +-
+    std, compute time per map), the fitted difficulty, the trial level, the sigma bands (tables 4-6..4-8), the eq.
+    5-1 regression (table 5-4) and, when the report has them, the paired comparisons."""
     lines = [f"Controlled dataset: {report['controlled_dataset']}  "
              f"({report['datasets'].get(report['controlled_dataset'], 0)} maps, {len(report['pairs'])} planner "
-             f"pairs, {report['n_boot']} bootstrap draws)", f"Sign: {report['sign_convention']}", ""]
+             f"pairs, {report['n_boot']} bootstrap draws)", ""]
+    lines += _success_lines(report)
+    lines.append(verdict_line(report))
+    if report.get("success_by_group"):
+        from pbdyn.analysis.paired import format_success_by_group
+
+        lines += format_success_by_group(report["success_by_group"])
+    lines += ["", f"Sign: {report['sign_convention']}", ""]
     base = [n for n in (report.get("baselines") or {}).get("rows", []) if n in report["metrics"]]
     best = max(base, key=lambda n: -math.inf if report["metrics"][n]["srcc_mean"] is None
                else report["metrics"][n]["srcc_mean"]) if base else None
@@ -581,16 +657,8 @@ def format_table(report: dict) -> str:
             c = g["coefficients"]
             lines.append(f"  {g['target']} = {_f(c['b0'])} {_term(c['b1'])} n {_term(c['b2'])} r {_term(c['b3'])} v"
                          f"   R^2 {_f(g['r2'])}  ({g['n_maps']} maps; eq. 5-1)")
-    lines += ["", f"Trials: {report['n_trials']} ({report['n_error_trials']} errors, not rated); outcomes: " +
-              ", ".join(f"{k} {v}" for k, v in report["outcomes"].items()),
-              "Success rate per pair and dataset (binomial se; se between maps):"]
-    for pair, per in report["success"]["per_pair"].items():
-        for ds, s in per.items():
-            lines.append(f"  {pair:<40} {ds:<24} {_f(s['rate'])} +- {_f(s['se'])} "
-                         f"({_f(s['se_between_maps'])})  {s['n_trials']} trials, {s['n_maps']} maps")
-    if report.get("success_by_group") or report.get("paired"):
-        from pbdyn.analysis.paired import format_paired, format_success_by_group
+    if report.get("paired"):
+        from pbdyn.analysis.paired import format_paired
 
-        lines += format_success_by_group(report.get("success_by_group") or {})
-        lines += format_paired(report.get("paired") or {})
+        lines += format_paired(report["paired"])
     return "\n".join(lines)

@@ -110,7 +110,7 @@ def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None,
         from pbdyn.analysis.plots import write_plots
 
         figures = write_plots(trials, maps, report, Path(plots))
-    return report, format_table(report) + "\n" + format_scale(report["anchored_scale"]), figures
+    return report, format_table(report) + "\n\n" + format_scale(report["anchored_scale"]), figures
 
 
 def _dims(paths, pool: bool) -> dict:

@@ -255,8 +255,11 @@ class _Measurer:
             import concurrent.futures as cf
             import multiprocessing
 
+            from pbdyn.experiments.mainguard import PoolGuard
+
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
+            self.guard = PoolGuard("generate_maps")
             self.pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
 
     def __call__(self, family: str, cands: list[Candidate]) -> None:
@@ -266,14 +269,21 @@ class _Measurer:
             results = measure(self.scenario, self.metric, entries)
         else:
             chunks = [entries[k::self.workers] for k in range(self.workers)]
-            futures = [self.pool.submit(_measure_task, (self.doc, self.metric, ch)) for ch in chunks if ch]
-            results = [r for f in futures for r in f.result()]
+            from concurrent.futures.process import BrokenProcessPool
+
+            try:
+                futures = [self.pool.submit(_measure_task, (self.doc, self.metric, ch)) for ch in chunks if ch]
+                results = [r for f in futures for r in f.result()]
+            except BrokenProcessPool:
+                self.guard.check()      # a worker re-imported a script calling generate_maps at its top level
+                raise
         for i, value, seed in results:
             cands[i].value, cands[i].seed = value, seed
 
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
+            self.guard.close()
 
 
 # ------------------------------------------------------------------------------------------------ the search

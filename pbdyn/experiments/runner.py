@@ -39,6 +39,7 @@ from pathlib import Path
 from pbdyn import __version__
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError, PbdynError, one_line
+from pbdyn.experiments.mainguard import MainGuardError, PoolGuard, check_not_reimported
 from pbdyn.experiments.store import WORLD_FINGERPRINT_CHARS, ResultsStore, check_store_path, store_error
 from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialGroupTask, TrialTask, enumerate_trials,
                                      run_map_task, run_trial_group_task, run_trial_task, trial_spec, worker_init)
@@ -223,6 +224,7 @@ class _Pool:
         self.client = None
         self.own_client = False
         self.workers = workers
+        self.guard = None           # local pools: a worker re-importing a main script without its guard reports here
         if scheduler is not None:
             self.client = connect(scheduler) if isinstance(scheduler, str) else scheduler
             self.own_client = isinstance(scheduler, str)
@@ -235,6 +237,8 @@ class _Pool:
     def _start(self) -> None:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")
+        if self.guard is None:
+            self.guard = PoolGuard("run_batch")
         ctx = multiprocessing.get_context("spawn")
         self.queue = ctx.Queue()        # rows of lockstep groups, sent by the workers as each trial ends
         self.executor = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=worker_init,
@@ -253,6 +257,12 @@ class _Pool:
     @property
     def dask(self) -> bool:
         return self.client is not None
+
+    def check_broken(self) -> None:
+        """After the pool broke: MainGuardError if a worker died re-importing a main script that calls run_batch at
+        its top level (pbdyn.experiments.mainguard): restarting would only break it again."""
+        if self.guard is not None:
+            self.guard.check()
 
     def restart(self) -> None:
         self.executor.shutdown(wait=False, cancel_futures=True)
@@ -284,6 +294,8 @@ class _Pool:
                     p.join(1.0)
         else:
             self.executor.shutdown(wait=True, cancel_futures=True)
+        if self.guard is not None:
+            self.guard.close()
         if self.own_client:
             self.client.close()
 
@@ -642,7 +654,10 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
 
     Everything that can fail before the first trial -- options, planners, the store's compatibility, every needed
     rollout, the scheduler -- is done before the store is written, so a failed start leaves no new store file
-    and an existing store untouched. The trials are enumerated lazily (--limit N costs O(N))."""
+    and an existing store untouched. The trials are enumerated lazily (--limit N costs O(N)). Called at the top
+    level of a script without ``if __name__ == "__main__":`` (which every spawned worker runs again), it fails with
+    one line, MainGuardError (pbdyn.experiments.mainguard), instead of restarting its workers over and over."""
+    check_not_reimported("run_batch")
     t0 = time.perf_counter()
     workers = options.workers if options.workers is not None else _default_workers()
     if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
@@ -670,13 +685,18 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
     with _stop_on_signals():
         plan = _read_plan(out_path, scenario, trials, total, options)
         files = _rollout_files(scenario, plan.trial_maps + plan.metric_maps, out_path)
+        existed = out_path.exists()
         store = ResultsStore.create(out_path, field="out")
+        remove = False
         try:
             return _run(store, scenario, trials, plan, files, workers, options, command, t0)
         except BatchInterrupted as exc:
             store.commit()
             raise BatchInterrupted(exc.signum, f"batch stopped by {signal.Signals(exc.signum).name}: {store.count()} "
                                    f"trials committed to {out} (re-run the same command to resume)") from None
+        except MainGuardError:
+            remove = not existed and store.count() == 0      # the workers never started: leave no new store
+            raise
         except sqlite3.DatabaseError as exc:
             raise store_error("out", exc, out) from None
         finally:
@@ -684,6 +704,9 @@ def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = Batch
                 store.close()
             except ConfigError:
                 pass
+            if remove:
+                for suffix in ("", "-wal", "-shm", "-journal"):
+                    Path(str(out_path) + suffix).unlink(missing_ok=True)
 
 
 def _rollout_files(scenario: Scenario, maps: list, out: Path) -> dict[str, tuple[str, Path]]:
@@ -828,6 +851,7 @@ def _execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: _Pl
                     maybe_commit()
                 break
             except BrokenProcessPool:
+                pool.check_broken()
                 drain()
                 lost = []
                 for fut, item in in_flight.items():

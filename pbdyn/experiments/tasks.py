@@ -45,7 +45,7 @@ class TrialTask:
     """One trial to fly: its key (the spec's config hash), its TrialSpec and where its map's rollout is."""
 
     key: str
-    spec: object  # pbdyn.sim.trial.TrialSpec (imported lazily: workers import the trial loop on first use)
+    spec: object  # pbdyn.sim.spec.TrialSpec (imported lazily: workers import the trial loop on first use)
     rollout: RolloutRef
 
 
@@ -72,7 +72,7 @@ class MapTask:
 
 def trial_spec(scenario: Scenario, map_spec: MapSpec, planner: PlannerEntry, v_max: float, start, goal):
     """The TrialSpec of one experiment cell."""
-    from pbdyn.sim.trial import TrialSpec
+    from pbdyn.sim.spec import TrialSpec      # the coordinator needs the spec, not the trial loop
 
     return TrialSpec(scenario, map_spec, planner, float(v_max), tuple(map(float, start)), tuple(map(float, goal)))
 

@@ -14,17 +14,17 @@ import functools
 import warnings
 
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.core.extending import intrinsic
 
-from pbdyn.jit import njit
+from pbdyn.jit import intrinsic, njit
 from pbdyn.planning.ruckig_sampling import sample_profiles
 
 
 @intrinsic
 def _fma(typingctx, a, b, c):
     """a * b + c rounded once (IEEE fused multiply-add)."""
+    from llvmlite import ir
+    from numba import types
+
     sig = types.float64(types.float64, types.float64, types.float64)
 
     def codegen(context, builder, signature, args):
@@ -233,6 +233,9 @@ def _call_ruckig_build(typingctx, addr, n, d, cur_v, cur_a, tgt_p, tgt_v, lim_v,
                        duration, result):
     """Call the native library's pbdyn_ruckig_build at ``addr`` (pbdyn.planning.native) with the arrays' data
     pointers (uintp); its return value."""
+    from llvmlite import ir
+    from numba import types
+
     ptr = types.uintp
     sig = types.int32(ptr, types.int64, types.int64, ptr, ptr, ptr, ptr, ptr, ptr, types.float64, types.float64,
                       ptr, ptr, ptr)

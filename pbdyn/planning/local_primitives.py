@@ -225,9 +225,6 @@ class LocalPrimitives:
         self._otg = ruckig.Ruckig(d)
         self._traj = ruckig.Trajectory(d)
         self._input_pool: list = []    # ruckig InputParameters with the fixed fields set (_inputs)
-        self._native = ruckig_build_address()   # the native ruckig batch's entry point, or None (Python package)
-        self._orders = numpy_orders(d)
-        self._counts = np.array([_N_SCALED_REBUILDS, *self._orders, frame_products_known(d)], dtype=np.int64)
         self._no_frames = np.zeros((4, 0, d))
         self._limits_row = np.array([self.limits.v_max, self.limits.a_max, self.jerk_max, self.min_duration,
                                      MAX_PLAN_HORIZON_S, _SCALE_SAFETY, _TOL, 0.0, 0.0])  # t, dt set per view
@@ -241,6 +238,23 @@ class LocalPrimitives:
         self.last_candidates_tried = 0
         self.last_rank: int | None = None
         self.last_target: np.ndarray | None = None
+
+    # Probed on first use, not in __init__: a planner built only to check its parameters (`pbdyn batch`'s
+    # coordinator) loads neither the native library nor numba (pbdyn.jit).
+    @functools.cached_property
+    def _native(self) -> int | None:
+        """The native ruckig batch's entry point, or None (the ruckig Python package)."""
+        return ruckig_build_address()
+
+    @functools.cached_property
+    def _orders(self) -> tuple[int, int]:
+        """(mm_mode, sq_order): numpy's float orders on this machine (candidate_kernels.numpy_orders)."""
+        return numpy_orders(self.dims)
+
+    @functools.cached_property
+    def _counts(self) -> np.ndarray:
+        """search()'s counts: rebuilds, the two orders, whether it computes the frame products itself."""
+        return np.array([_N_SCALED_REBUILDS, *self._orders, frame_products_known(self.dims)], dtype=np.int64)
 
     @property
     def uses_native(self) -> bool:

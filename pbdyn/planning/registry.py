@@ -1,4 +1,7 @@
-"""Planner registry: built-in names -> classes, and user plug-ins given as "package.module:Class" (duck typing)."""
+"""Planner registry: built-in names -> classes, and user plug-ins given as "package.module:Class" (duck typing).
+
+A built-in planner's module is imported when its name is first looked up, so a process loads only the planners it
+flies (the MPC's convex solver, the global planner's search, ... stay unloaded otherwise)."""
 
 from __future__ import annotations
 
@@ -6,25 +9,56 @@ import functools
 import hashlib
 import importlib
 import inspect
+from collections.abc import Iterator, MutableMapping
 from pathlib import Path
 
 from pbdyn.errors import ConfigError, check_finite_params, import_object, one_line, user_location
-from pbdyn.planning.gaze import FullRange, LookAhead, LookGoal, LookGoalUnexplored, Rotating
-from pbdyn.planning.gaze_finean import Finean
-from pbdyn.planning.gaze_owl import Owl
-from pbdyn.planning.global_primitives import GlobalPrimitives
-from pbdyn.planning.local_primitives import LocalPrimitives
-from pbdyn.planning.local_primitives_minjerk import LocalPrimitivesMinJerk
-from pbdyn.planning.mpc import MPC
 from pbdyn.planning.protocols import PlannerContext
-from pbdyn.planning.straight_line import StraightLine
 
-TRAJECTORY_PLANNERS: dict[str, type] = {"local_primitives": LocalPrimitives, "straight_line": StraightLine,
-                                        "mpc": MPC, "global_primitives": GlobalPrimitives,
-                                        "local_primitives_minjerk": LocalPrimitivesMinJerk}
-GAZE_PLANNERS: dict[str, type] = {"lookahead": LookAhead, "fullrange": FullRange, "lookgoal": LookGoal,
-                                  "lookgoal_unexplored": LookGoalUnexplored, "rotating": Rotating,
-                                  "finean": Finean, "owl": Owl}
+
+class _Registry(MutableMapping):
+    """name -> planner class, each built-in given as "module:Class" and imported on first lookup; entries can be
+    added, replaced and removed like a dict's (tests and benchmarks add their own planners)."""
+
+    def __init__(self, entries: dict[str, str]):
+        self._entries: dict[str, object] = dict(entries)
+
+    def __getitem__(self, name: str) -> type:
+        value = self._entries[name]
+        if isinstance(value, str):
+            module, _, attr = value.partition(":")
+            value = getattr(importlib.import_module(module), attr)
+            self._entries[name] = value
+        return value
+
+    def __setitem__(self, name: str, cls: type) -> None:
+        self._entries[name] = cls
+
+    def __delitem__(self, name: str) -> None:
+        del self._entries[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._entries
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({sorted(self._entries)})"
+
+
+_P = "pbdyn.planning."
+TRAJECTORY_PLANNERS: MutableMapping[str, type] = _Registry({
+    "local_primitives": _P + "local_primitives:LocalPrimitives", "straight_line": _P + "straight_line:StraightLine",
+    "mpc": _P + "mpc:MPC", "global_primitives": _P + "global_primitives:GlobalPrimitives",
+    "local_primitives_minjerk": _P + "local_primitives_minjerk:LocalPrimitivesMinJerk"})
+GAZE_PLANNERS: MutableMapping[str, type] = _Registry({
+    "lookahead": _P + "gaze:LookAhead", "fullrange": _P + "gaze:FullRange", "lookgoal": _P + "gaze:LookGoal",
+    "lookgoal_unexplored": _P + "gaze:LookGoalUnexplored", "rotating": _P + "gaze:Rotating",
+    "finean": _P + "gaze_finean:Finean", "owl": _P + "gaze_owl:Owl"})
 
 PLANNER_MODEL_VERSION = "1"
 """Version of the built-in planners' behaviour, recorded in every row's planner_fingerprint: bump it when a

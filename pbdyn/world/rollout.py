@@ -21,7 +21,7 @@ import numpy as np
 from pbdyn import limits
 from pbdyn.config import LATER_FIELDS, Scenario, canonical_json, later_fields, rollout_span_s
 from pbdyn.errors import ConfigError, HorizonError
-from pbdyn.files import create_temp
+from pbdyn.files import cache_dir, create_temp
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
@@ -247,15 +247,6 @@ def _world_rollout(scenario: Scenario, spec: MapSpec, times: np.ndarray, size: n
             "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name, "bodies": list(bodies.names),
             "flight_height": scenario.world.flight_height}
     return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario), meta, bodies)
-
-
-def cache_dir() -> Path:
-    """The rollout cache folder: $PBDYN_CACHE, else $XDG_CACHE_HOME/pbdyn, else ~/.cache/pbdyn."""
-    env = os.environ.get("PBDYN_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "pbdyn"
 
 
 def rollout_file(scenario: Scenario, spec: MapSpec, horizon: float | None = None, *,

@@ -12,6 +12,13 @@ The build records the library's sha256 beside it (``_ruckig_batch.so.sha256``) a
 library whose bytes do not match that record (truncated, corrupted, replaced, or built without one) is never loaded,
 since loading a damaged shared library can end the process with a signal. A library that is present but not used
 is reported in one line on stderr, once per process tree (PBDYN_NATIVE_REPORTED passes the line to child processes).
+
+The probe against the Python package (agrees) runs once per installed build and environment, not in every process:
+a library that passed it leaves a stamp in pbdyn's cache folder (pbdyn.files.cache_dir, ``native/``) named by a
+digest of what the result depends on -- the library's sha256, the ruckig version and the file of its Python
+extension, the numpy and Python versions, the C library, the machine and its CPU's model and flags, and the probe
+itself (agreement_key). A process that finds its stamp skips the probe; the integrity and version checks run every
+time. Where the stamp cannot be written (no writable cache folder) every process probes, as before.
 """
 
 from __future__ import annotations
@@ -20,7 +27,9 @@ import ctypes
 import functools
 import hashlib
 import importlib.metadata
+import importlib.util
 import os
+import platform
 import sys
 from pathlib import Path
 
@@ -49,18 +58,23 @@ def write_checksum(path: Path) -> None:
 def integrity_problem(path: Path) -> str | None:
     """Why the library at ``path`` must not be loaded (it does not match the sha256 its build recorded, or there
     is no record), or None."""
+    return _integrity(path)[0]
+
+
+def _integrity(path: Path) -> tuple[str | None, str]:
+    """(integrity_problem(path), the library's sha256 when it matches its record, else "")."""
     try:
         recorded = checksum_path(path).read_text().split()[0]
     except (OSError, UnicodeDecodeError, IndexError):
-        return "has no valid checksum record beside it (rebuild it with `python -m pbdyn.planning.native.build`)"
+        return "has no valid checksum record beside it (rebuild it with `python -m pbdyn.planning.native.build`)", ""
     try:
         actual = hashlib.sha256(path.read_bytes()).hexdigest()
     except OSError as exc:
-        return f"cannot be read ({exc.strerror or exc})"
+        return f"cannot be read ({exc.strerror or exc})", ""
     if actual != recorded:
         return ("does not match the checksum its build recorded (truncated or corrupted; rebuild it with "
-                "`python -m pbdyn.planning.native.build`)")
-    return None
+                "`python -m pbdyn.planning.native.build`)", "")
+    return None, actual
 
 
 def _report(problem: str) -> None:
@@ -149,13 +163,20 @@ def canonical(prof: np.ndarray) -> np.ndarray:
     return out
 
 
-def agrees(lib: ctypes.CDLL, n: int = 300) -> bool:
+PROBE_N = 300
+"""Inputs per dimension (2 and 3) of the probe against the Python package (agrees)."""
+_PROBE = (20.0, 0.5)   # the probe's jerk limit and minimum duration
+STAMP_VERSION = "1"
+"""Version of the agreement stamp's key (agreement_key): bump it when what the probe covers changes."""
+
+
+def agrees(lib: ctypes.CDLL, n: int = PROBE_N) -> bool:
     """True if the library gives the ruckig package's results bit for bit on probe_inputs (2D and 3D, n each):
     the same accepted inputs, durations and profiles."""
     for d in (2, 3):
         inputs = probe_inputs(d, n)
-        prof, dur, res = build_with_library(lib, inputs, 20.0, 0.5)
-        ref_prof, ref_dur, ref_res = build_with_package(inputs, 20.0, 0.5)
+        prof, dur, res = build_with_library(lib, inputs, *_PROBE)
+        ref_prof, ref_dur, ref_res = build_with_package(inputs, *_PROBE)
         ok = (res == 0) | (res == 1)
         if not np.array_equal(ok, ref_res >= 0):
             return False
@@ -170,7 +191,7 @@ def ruckig_build_address() -> int | None:
     ruckig package (module doc); None otherwise (a present but unusable library is reported once: _report)."""
     if os.environ.get("PBDYN_NATIVE", "1") == "0" or not LIBRARY.is_file():
         return None
-    problem = integrity_problem(LIBRARY)
+    problem, digest = _integrity(LIBRARY)
     if problem is not None:
         _report(problem)
         return None
@@ -185,14 +206,75 @@ def ruckig_build_address() -> int | None:
         _report(f"was built for ruckig {built_for}, ruckig {installed} is installed (rebuild it with "
                 "`python -m pbdyn.planning.native.build`)")
         return None
-    if not agrees(lib):
-        _report("differs from the ruckig Python package on this machine")
-        return None
+    stamp = agreement_stamp(digest, installed)
+    if stamp is None or not stamp.is_file():
+        if not agrees(lib):
+            _report("differs from the ruckig Python package on this machine")
+            return None
+        if stamp is not None:
+            _write_stamp(stamp, digest, installed)
     _KEEP.append(lib)
     return ctypes.cast(lib.pbdyn_ruckig_build, ctypes.c_void_p).value
 
 
 _KEEP: list = []   # the loaded library stays referenced while its address is in use
+
+
+def _cpu() -> str:
+    """The CPU's model and feature flags as the system reports them (Linux: /proc/cpuinfo; else the platform's
+    processor string)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            wanted = {}
+            for line in fh:
+                name, _, value = line.partition(":")
+                name = name.strip()
+                if name in ("model name", "flags", "Features", "CPU implementer", "CPU part") and name not in wanted:
+                    wanted[name] = value.strip()
+                elif not line.strip() and wanted:
+                    break          # the first processor's block is enough
+            return repr(sorted(wanted.items()))
+    except OSError:
+        return platform.processor()
+
+
+def agreement_key(library_sha256: str, ruckig_version: str) -> str:
+    """The digest naming the stamp of a library that passed agrees() (module doc): over the library's sha256, the
+    ruckig version and its extension file (path, size, modification time), numpy's and Python's versions, the C
+    library, the machine and CPU, and the probe (inputs, limits, STAMP_VERSION)."""
+    spec = importlib.util.find_spec("ruckig")
+    origin = getattr(spec, "origin", None) or ""
+    try:
+        st = os.stat(origin)
+        ext = (origin, st.st_size, st.st_mtime_ns)
+    except OSError:
+        ext = (origin, None, None)
+    libc = os.confstr("CS_GNU_LIBC_VERSION") if "CS_GNU_LIBC_VERSION" in getattr(os, "confstr_names", {}) else ""
+    parts = (STAMP_VERSION, library_sha256, ruckig_version, ext, np.__version__, sys.version, sys.platform,
+             platform.machine(), libc, _cpu(), PROBE_N, _PROBE, PROFILE_WIDTH)
+    return hashlib.sha256(repr(parts).encode()).hexdigest()
+
+
+def agreement_stamp(library_sha256: str, ruckig_version: str) -> Path | None:
+    """Where the stamp of a library that passed agrees() here is (module doc); None if it cannot be named."""
+    from pbdyn.files import cache_dir
+
+    try:
+        return cache_dir() / "native" / f"agrees-{agreement_key(library_sha256, ruckig_version)[:40]}"
+    except (OSError, RuntimeError, ValueError):    # no home folder to find the cache in, ...
+        return None
+
+
+def _write_stamp(stamp: Path, library_sha256: str, ruckig_version: str) -> None:
+    """Leave the stamp (atomically); quietly nothing where the cache cannot be written (every process probes)."""
+    from pbdyn.files import atomic_write
+
+    text = (f"{LIBRARY.name} sha256 {library_sha256} agrees with ruckig {ruckig_version} (numpy {np.__version__}, "
+            f"Python {platform.python_version()}) on {PROBE_N} x 2 probe inputs\n")
+    try:
+        atomic_write(stamp, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), make_parents=True)
+    except OSError:
+        pass
 
 
 def status() -> str:
