@@ -212,9 +212,9 @@ def predict_success(scenario, map: int = 0, *, backend: str = "auto") -> dict:
         return predicted_success(predictors, {}, sc.world.dims)
     feats = map_features(sc, spec.index, reference_pairs(sc.task.candidates), backend=resolve_backend(sc, backend))
     pred = predicted_success(predictors, feats, sc.world.dims)
-    if sc.world.dims == 3 and (sc.is_world or spec.setup.get("structure") == "walls"):
-        pred["note"] = ("outside the 3D calibration set, which has no walls and no imported world: the 3D "
-                        "predictor sees the movers' flux only and is likely optimistic here")
+    if sc.world.dims == 3 and sc.is_world:
+        pred["note"] = ("outside the 3D calibration set, which has no imported world: the 3D predictor knows "
+                        "static geometry only as the walls family's, and may be off here")
     return pred
 
 

@@ -133,6 +133,10 @@ def test_pbdyn_metrics_prints_the_predicted_reference_success(tmp_path):
     assert load_predictor(3) is not None and len(line) == 1 and "percentile" in line[0] and "outside" not in line[0]
     res = cli(["metrics", str(CAL_3D), "--map", "25", "--metric", "density"], tmp_path)     # a 3D walls map
     assert res.returncode == 0, res.stderr
+    assert "outside" not in res.stdout and "predicted reference success" in res.stdout
+    world = ROOT / "scenarios" / "worlds" / "imported_3d" / "hangar_0.toml"
+    res = cli(["metrics", str(world), "--metric", "density"], tmp_path)                   # an imported 3D world
+    assert res.returncode == 0, res.stderr
     assert "outside the 3D calibration set" in res.stdout
 
 

@@ -53,7 +53,7 @@ def _candidates() -> dict[str, tuple]:
 CANDIDATES = _candidates()
 CLOSED_FORMS = ("log_flux", "log_density", "log_flux + log_density")
 """The candidates that are closed forms of (n, r, v) and the arena (no simulation of the movers)."""
-CHOSEN = {2: "log_flux + static_share", 3: "log_flux"}
+CHOSEN = {2: "log_flux + static_share", 3: "log_density + static_share"}
 """The shipped models' feature sets per dims: what choose() picks on every calibration map of those dims
 (docs/difficulty-scale.md)."""
 MAE_MARGIN = 0.005

@@ -114,7 +114,7 @@ def _world_candidates(worlds: list[Path]) -> list[dict]:
     return out
 
 
-def _candidates(dims: int, extra: list[Path], worlds: list[Path] = ()) -> tuple[list[dict], dict, dict]:
+def _candidates(dims: int, extra: list[Path], world_files: list[Path] = ()) -> tuple[list[dict], dict, dict]:
     """Every candidate map (key, kind, success, part, map id), the generated maps' TOML entries by key, and each
     generated part's base document (world, root seed): the calibration maps make part "generated", each --extra file
     a part of its own ("extra<i>"; its maps' seeds follow its root seed)."""
@@ -153,7 +153,7 @@ def _candidates(dims: int, extra: list[Path], worlds: list[Path] = ()) -> tuple[
             world, map_id = mid.split("/")
             out.append({"key": f"world/{world}", "kind": "world:" + world.rstrip("_0123456789"), "success": s,
                         "part": world, "map_id": map_id, "scenario": f"{worlds}/{world}"})
-    out += _world_candidates(list(worlds))
+    out += _world_candidates(list(world_files))
     for c in out:
         c["level"] = level_of(c["success"])
     return out, entries, bases
