@@ -255,10 +255,10 @@ def test_the_api_benches_and_returns_the_card(api_card):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("planner", ["local_primitives", "mpc"])
-def test_reference_results_of_the_2d_suite_reproduce_bit_for_bit(planner, tmp_path):
-    res = _bench([planner, "--suite", "pbdyn-2d-v1", "--out", str(tmp_path / planner), "--reproduce"],
-                 timeout=5400)
+@pytest.mark.parametrize("suite,planner", [("pbdyn-2d-v1", "local_primitives"), ("pbdyn-2d-v1", "mpc"),
+                                           ("pbdyn-3d-v1", "local_primitives")])
+def test_reference_results_of_the_full_suites_reproduce_bit_for_bit(suite, planner, tmp_path):
+    res = _bench([planner, "--suite", suite, "--out", str(tmp_path / planner), "--reproduce"], timeout=5400)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "bit for bit" in res.stdout
 
