@@ -27,6 +27,7 @@ MINI = "pbdyn-2d-mini"
 SUITE_HASHES = {
     "pbdyn-2d-mini": "1ebf60b5ddf4865644a88b0182b6863b73f1e92794ace2bf3d8fec2f9ce7a8bb",
     "pbdyn-2d-v1": "cdf42b856533c2df2cbd1f907d54fe566ddc189d67ed1eff18343eb28e83613a",
+    "pbdyn-3d-v1": "46f419e083d62c1363216616c8da9570453f2aaae48a681f64781e1552ec315f",
 }
 """The shipped suites' identities: a changed hash means the suite changed, which a frozen suite never does (a new
 suite gets a new name or version)."""
