@@ -155,7 +155,9 @@ def _make_dry_run(folder: Path, target: str, *stamps: str) -> list[str]:
     for stamp in stamps:
         (clone / ".venv").mkdir(exist_ok=True)
         (clone / ".venv" / stamp).touch()
-    done = subprocess.run(["make", "-n", target], cwd=clone, capture_output=True, text=True, timeout=60)
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MAKELEVEL", "MFLAGS", "MAKEOVERRIDES")}
+    done = subprocess.run(["make", "--no-print-directory", "-n", target], cwd=clone, capture_output=True, text=True,
+                          timeout=60, env=env)   # under `make test` the outer make's flags would add directory lines
     assert done.returncode == 0, done.stderr
     return done.stdout.splitlines()
 
