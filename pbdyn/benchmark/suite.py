@@ -165,13 +165,13 @@ def flight_levels(paths) -> dict[str, dict[str, int]]:
     for path in paths:
         st = ResultsStore.open(path)
         try:
-            doc, held = _json.loads(st.get_meta("scenario") or "{}"), {r["map_id"] for r in st.results()}
+            name = str(_json.loads(st.get_meta("scenario") or "{}").get("name") or "")
+            suite_name, _, part = name.rpartition(".")
+            if suite_name not in names:          # not a suite's flight store: its rows are not read
+                continue
+            held = {r["map_id"] for r in st.results()}
         finally:
             st.close()
-        name = str(doc.get("name") or "")
-        suite_name, _, part = name.rpartition(".")
-        if suite_name not in names:
-            continue
         suite = load_suite(suite_name)
         levels = {m["map_id"]: int(m["level"]) for m in suite.maps if m["part"] == part and m.get("level")}
         if levels and held <= set(levels):
