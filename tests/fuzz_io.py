@@ -299,10 +299,11 @@ def _outpath(category: str, suffix: str) -> str:
 
 def outpath_case(index: int, assets: Assets) -> Case:
     """One output-writing command with an output path of one category."""
-    rng = _rng("outpath", index)
-    cmd = str(rng.choice(["replay", "plot", "csv", "parquet", "plots", "html", "rollout", "trace", "merge",
-                          "batch"]))
-    category = str(rng.choice(PATH_CATEGORIES))
+    commands = ("replay", "plot", "csv", "parquet", "plots", "html", "rollout", "trace", "merge", "batch")
+    # 10 commands x 11 categories: indices 0..109 give every pair once (10 and 11 are coprime), so the default run's
+    # first 20 cases already try every command twice and every category
+    cmd = commands[index % len(commands)]
+    category = PATH_CATEGORIES[index % len(PATH_CATEGORIES)]
     suffix = {"replay": ".png", "plot": ".png", "csv": ".csv", "parquet": ".parquet", "plots": "", "html": ".html",
               "rollout": ".npz", "trace": ".npz", "merge": ".sqlite", "batch": ".sqlite"}[cmd]
     out = _outpath(category, suffix)

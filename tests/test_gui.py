@@ -104,7 +104,7 @@ def on_end(self, env, agent):
     seen["slept"] = self.slept
 gui.GuiView.on_end = on_end
 t0 = time.perf_counter()
-res = pbdyn.run_trial("quickstart", map=4, gui=True, observers=[Watch()])
+res = pbdyn.run_trial("quickstart", map=4, start=(4.0, 4.0), goal=(20.0, 20.0), v_max=6.0, gui=True, observers=[Watch()])
 t1 = time.perf_counter()
 print(json.dumps({"wall": t1 - t0, "flight": res.flight_time_s, "outcome": res.outcome, **seen}))
 '''
