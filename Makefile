@@ -5,6 +5,9 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 TESTS  := $(VENV)/.installed-test
 NATIVE := $(VENV)/.native
+## setuptools announces an editable install of a package_dir mapping (urdf/, scenarios/ -> data packages) with a
+## warning for developers about same-named folders; the install is correct and the notice is noise to a user.
+EDITABLE := PYTHONWARNINGS="ignore:Editable installation"
 
 .PHONY: demo test bench sysdeps native clean
 
@@ -14,12 +17,12 @@ $(STAMP): setup.cfg pyproject.toml
 	@bash tools/install_sysdeps.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e .
+	$(EDITABLE) $(PY) -m pip install --quiet -e .
 	touch $(STAMP)
 
 ## The test extras (pytest, selenium, ...), once per install of the package.
 $(TESTS): $(STAMP)
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(EDITABLE) $(PY) -m pip install --quiet -e '.[test]'
 	touch $(TESTS)
 
 ## Built (or tried: a failed build leaves the Python package in use) after the install and whenever its source changes.

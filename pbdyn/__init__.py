@@ -13,7 +13,7 @@ _API = ("load_scenario", "map_info", "rollout", "run_trial", "compute_metrics", 
         "Results", "export_results", "evaluate", "check_planner", "run_demo")
 _OTHER = {"ConfigError": "pbdyn.errors", "PbdynError": "pbdyn.errors", "PbdynWarning": "pbdyn.errors",
           "TrialResult": "pbdyn.sim.result",
-          "Outcome": "pbdyn.sim.outcome", "Scenario": "pbdyn.config"}
+          "Outcome": "pbdyn.outcome", "Scenario": "pbdyn.config"}
 
 __all__ = ["__version__", *_API, *_OTHER]
 

@@ -44,7 +44,7 @@ def test_page_code_fences_are_tagged_known_ways(page):
 
 
 def _check_api(ns, tmp_path, out):
-    from pbdyn.sim.outcome import OUTCOMES
+    from pbdyn.outcome import OUTCOMES
 
     assert ns["result"].outcome in OUTCOMES
     assert ns["metrics"]["survivability"]["n_samples"] > 0
@@ -56,7 +56,7 @@ def _check_api(ns, tmp_path, out):
 
 
 def _check_planners(ns, tmp_path, out):
-    from pbdyn.sim.outcome import OUTCOMES
+    from pbdyn.outcome import OUTCOMES
 
     assert ns["result"].outcome in OUTCOMES
     assert "__main__:BeeLine" in out and "plan contract respected" in out          # check_planner's reports
@@ -82,7 +82,7 @@ def _check_limits(ns, tmp_path, out):
 
 
 def _check_architecture(ns, tmp_path, out):
-    from pbdyn.sim.outcome import OUTCOMES
+    from pbdyn.outcome import OUTCOMES
 
     assert ns["result"].outcome in OUTCOMES and ns["ro"].dims == 2
 

@@ -5,9 +5,10 @@ Every import in every pbdyn module is checked with ``ast`` - module level, insid
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
 Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, files (atomic writes),
-limits (resource limits), urdf (URDF validation), resources, jit (numba's njit, its cache never in the way), config |
-world | perception | planning | metrics (beside perception and planning: it sees rollouts only) | sim | analysis |
-experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown by the batch runner, score
+limits (resource limits), urdf (URDF validation), resources, jit (numba's njit, its cache never in the way), outcome
+(how a trial ends: the vocabulary sim/ writes and analysis/ reads), config | world | perception | planning | metrics
+(beside perception and planning: it sees rollouts only) | sim, and analysis beside it (it reads stored rows, never a
+trial) | experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown by the batch runner, score
 cards) | api (the one door) | cli, gym, __main__, and the package
 root pbdyn/__init__.py, which re-exports the api.
 """
@@ -22,7 +23,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "jit", "config")
+_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "jit", "outcome", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
@@ -34,13 +35,14 @@ RULES: dict[str, tuple[str, ...]] = {
     "urdf": ("usercode", "errors"),
     "resources": ("usercode", "errors"),
     "jit": (),
+    "outcome": (),
     "config": ("usercode", "errors", "files", "limits", "urdf", "resources"),
     "world": _BASE,
     "perception": _BASE + ("world",),
     "planning": _BASE + ("world", "perception"),
     "metrics": _BASE + ("world",),
     "sim": _BELOW_SIM,
-    "analysis": _BASE + ("metrics", "sim"),
+    "analysis": _BASE + ("metrics",),
     "experiments": _BELOW_EXPERIMENTS,
     "benchmark": _BELOW_API,
     "api": _BELOW_API + ("benchmark",),

@@ -1,4 +1,4 @@
-"""One source of truth for metric and outcome names: pbdyn.metrics.catalog and pbdyn.sim.outcome.
+"""One source of truth for metric and outcome names: pbdyn.metrics.catalog and pbdyn.outcome.
 
 The catalog must agree with the registry's functions, and no other module of pbdyn/ or tools/ may write a literal
 list of two or more metric names or outcome names (derive it from the table / the enum instead).
@@ -14,11 +14,11 @@ from pbdyn.analysis import report, success
 from pbdyn.experiments import tasks
 from pbdyn.metrics import cached, catalog
 from pbdyn.metrics.registry import METRICS
-from pbdyn.sim.outcome import FAILURES, OUTCOMES, Outcome
+from pbdyn.outcome import FAILURES, OUTCOMES, Outcome
 
 ROOT = Path(__file__).resolve().parents[1]
 
-OWNERS = {"metric": "pbdyn/metrics/catalog.py", "outcome": "pbdyn/sim/outcome.py"}
+OWNERS = {"metric": "pbdyn/metrics/catalog.py", "outcome": "pbdyn/outcome.py"}
 ALLOWED = {("tools/bench/bench_metrics.py", "PROGRAM")}
 """(file, assigned name) of literals allowed to hold several names: measured data keyed by metric, not a list."""
 

@@ -22,7 +22,7 @@ from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.agent import Agent, planner_context
 from pbdyn.sim.contract import check_plan
 from pbdyn.sim.env import TrialEnv
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.sim.trial import make_trial_spec
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout

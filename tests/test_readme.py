@@ -144,7 +144,7 @@ def test_readme_stays_a_first_visit():
 
 def test_readme_python_examples_run(tmp_path, monkeypatch, capsys):
     ns = run_examples(README_PATH, tmp_path, monkeypatch)
-    from pbdyn.sim.outcome import OUTCOMES
+    from pbdyn.outcome import OUTCOMES
 
     assert ns["result"].outcome in OUTCOMES
     out = capsys.readouterr().out

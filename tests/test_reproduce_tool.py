@@ -20,7 +20,7 @@ from pbdyn.errors import ConfigError
 from pbdyn.experiments.store import ResultsStore
 from pbdyn.metrics.catalog import TABLE_ORDER
 from pbdyn.planning.registry import GAZE_PLANNERS, TRAJECTORY_PLANNERS
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.sim.result import TrialResult
 from pbdyn.world.maps import enumerate_maps
 from tests.conftest import SCENARIOS

@@ -370,7 +370,7 @@ def test_imported_world_set_is_what_its_tool_writes_clear_of_the_candidates_and_
     writes; every world keeps its static bodies' real shapes >= 3 m from every start/goal candidate, has moving
     bodies, and one world of each family flies a trial to an outcome."""
     from pbdyn.experiments.tasks import trial_spec
-    from pbdyn.sim.outcome import Outcome
+    from pbdyn.outcome import Outcome
     from pbdyn.sim.trial import run_trial
 
     out = subprocess.run([sys.executable, str(ROOT / "tools" / "make_worlds.py"), "--check"],
@@ -430,7 +430,7 @@ def test_imported_3d_worlds_load_clear_of_the_candidates_span_easy_to_hard_and_f
     computed for world 0 of each family only, to keep the test short."""
     from pbdyn.experiments.tasks import trial_spec
     from pbdyn.sim import trial as trial_mod
-    from pbdyn.sim.outcome import Outcome
+    from pbdyn.outcome import Outcome
 
     real_task_metrics = trial_mod.task_metrics
     movers: dict[str, list] = {}

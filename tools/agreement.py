@@ -49,7 +49,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 
 RATE_OUTCOMES: tuple[str, ...] = tuple(o.value for o in Outcome if o is not Outcome.ERROR)
 """Outcomes whose pooled rate is reported (every outcome of a flown trial)."""

@@ -31,7 +31,7 @@ import pandas as pd  # noqa: E402
 
 from pbdyn.errors import ConfigError  # noqa: E402
 from pbdyn.experiments.store import ResultsStore  # noqa: E402
-from pbdyn.sim.outcome import Outcome  # noqa: E402
+from pbdyn.outcome import Outcome  # noqa: E402
 from pbdyn.world.maps import PROGRAM_PX_PER_M, PROGRAM_WALL_M  # noqa: E402
 
 RECORD_OUTCOMES = (("Success", Outcome.SUCCESS.value), ("Dynamic Collision", Outcome.DYNAMIC_COLLISION.value),

@@ -62,7 +62,7 @@ from pbdyn.experiments.evaluate import evaluate_stores  # noqa: E402
 from pbdyn.experiments.runner import BatchInterrupted, BatchOptions, run_batch  # noqa: E402
 from pbdyn.experiments.store import ResultsStore  # noqa: E402
 from pbdyn.metrics.catalog import TABLE_ORDER  # noqa: E402
-from pbdyn.sim.outcome import Outcome  # noqa: E402
+from pbdyn.outcome import Outcome  # noqa: E402
 from tools.agreement import agreement, format_markdown, format_side_by_side, json_ready  # noqa: E402
 
 DATASETS = ROOT / "scenarios" / "datasets"

@@ -18,7 +18,7 @@ from pbdyn.analysis.cv import LEVELS, difficulty_level
 from pbdyn.analysis.regression import setup_features
 from pbdyn.analysis.report import difficulty_table
 from pbdyn.analysis.success import grouped_rate, trial_arrays
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 
 
 def _cells(group: np.ndarray, hit: np.ndarray, n_groups: int) -> list[dict]:

@@ -20,7 +20,7 @@ from pbdyn.analysis.regression import setup_features
 from pbdyn.analysis.report import difficulty_table
 from pbdyn.analysis.success import grouped_rate, success_table, trial_arrays
 from pbdyn.errors import ConfigError
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 
 _CENTRES = np.arange(LEVELS) + 0.5
 

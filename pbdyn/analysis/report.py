@@ -55,7 +55,7 @@ from pbdyn.analysis.success import (OUTCOMES, SuccessTable, rate_and_se, success
                                    within_setup_reliability)
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.catalog import BASELINES, INFO, TABLE_ORDER
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 
 METRIC_ORDER = TABLE_ORDER
 """Row order of table 4-5 (pbdyn.metrics.catalog); other metrics found in the maps follow in name order, then

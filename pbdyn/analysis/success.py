@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbdyn.errors import ConfigError
-from pbdyn.sim.outcome import OUTCOMES, Outcome  # OUTCOMES: outcome names as stored; "error" marks a trial that raised
+from pbdyn.outcome import OUTCOMES, Outcome  # OUTCOMES: outcome names as stored; "error" marks a trial that raised
 
 
 @dataclass(frozen=True)

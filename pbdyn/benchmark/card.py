@@ -29,11 +29,11 @@ from datetime import datetime, timezone
 import numpy as np
 
 from pbdyn.analysis.paired import paired_comparison, wilson_interval
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 
 CARD_SCHEMA = "pbdyn-card/1"
 OUTCOMES = tuple(o.value for o in Outcome)
-"""The outcomes a card counts, in pbdyn.sim.outcome.Outcome's order (success first)."""
+"""The outcomes a card counts, in pbdyn.outcome.Outcome's order (success first)."""
 CVAR_SHARE = 0.2
 ABILITY_BOOT = 1000
 TASK_FIELDS = ("part", "map_id", "start", "goal", "mav_speed", "outcome", "flight_time_s", "path_length_m",

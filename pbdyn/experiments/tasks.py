@@ -24,7 +24,7 @@ import numpy as np
 from pbdyn.config import PlannerEntry, Scenario, canonical_json
 from pbdyn.errors import one_line
 from pbdyn.metrics.catalog import BATCH
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.world.maps import MapSpec, enumerate_maps, sequence_index
 
 METRIC_SET = BATCH

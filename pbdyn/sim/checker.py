@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pbdyn.config import Scenario
 from pbdyn.errors import ConfigError
 from pbdyn.sim.contract import PlanViolation
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.sim.spec import make_trial_spec, plugin_name, with_planner_objects
 from pbdyn.sim.trial import run_trial
 

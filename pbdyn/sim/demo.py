@@ -7,7 +7,7 @@ import time
 from collections import Counter
 
 from pbdyn.config import Scenario
-from pbdyn.sim.outcome import OUTCOMES
+from pbdyn.outcome import OUTCOMES
 from pbdyn.sim.trial import make_trial_spec, run_trial
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import get_rollout

@@ -24,7 +24,7 @@ from pbdyn.perception.tracks import readonly
 from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.collision import (DynamicContact, sampled_dynamic, sampled_static, shape_dynamic, swept_dynamic,
                                  swept_dynamic_many, swept_static)
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.sim.start import trial_start
 from pbdyn.world.bullet import PyBulletWorld

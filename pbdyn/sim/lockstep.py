@@ -25,7 +25,7 @@ from pbdyn.perception.tracker import TrackerBank, TrackIdError
 from pbdyn.sim.agent import Agent
 from pbdyn.sim.env import TrialEnv, check_dynamic_many
 from pbdyn.sim.observers import SPLITS
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.sim.result import TrialResult
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.world.bullet import PyBulletWorld

@@ -17,7 +17,7 @@ from pbdyn.planning.registry import pair_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
 from pbdyn.sim.env import TrialEnv, make_world
 from pbdyn.sim.observers import SPLITS, ProfileObserver, StepRecord, TraceObserver
-from pbdyn.sim.outcome import Outcome
+from pbdyn.outcome import Outcome
 from pbdyn.sim.result import TrialResult
 from pbdyn.sim.spec import TrialSpec, make_trial_spec
 from pbdyn.world.bullet import PyBulletWorld

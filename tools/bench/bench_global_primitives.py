@@ -31,7 +31,7 @@ from pbdyn.config import load_scenario, parse_scenario  # noqa: E402
 from pbdyn.planning import registry  # noqa: E402
 from pbdyn.planning.global_primitives import GlobalPrimitives  # noqa: E402
 from pbdyn.sim.demo import demo_pairs  # noqa: E402
-from pbdyn.sim.outcome import OUTCOMES  # noqa: E402
+from pbdyn.outcome import OUTCOMES  # noqa: E402
 from pbdyn.sim.trial import SPLITS, make_trial_spec, run_trial  # noqa: E402
 from pbdyn.world.maps import enumerate_maps  # noqa: E402
 from pbdyn.world.rollout import build_rollout  # noqa: E402

@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 
 from pbdyn.api import open_results, run_batch  # noqa: E402
 from tools.bench.bench_common import machine  # noqa: E402
-from pbdyn.sim.outcome import Outcome  # noqa: E402
+from pbdyn.outcome import Outcome  # noqa: E402
 from tools.reproduce import REFERENCE_OUTCOMES, REFERENCE_RATES, REFERENCE_SPEEDS  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "thesis" / "controlled_2d.toml"

@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT))
 from pbdyn.config import parse_scenario  # noqa: E402
 from pbdyn.experiments.runner import BatchOptions, run_batch  # noqa: E402
 from pbdyn.experiments.store import ResultsStore  # noqa: E402
-from pbdyn.sim.outcome import Outcome  # noqa: E402
+from pbdyn.outcome import Outcome  # noqa: E402
 
 PAIRS = ({"trajectory": "local_primitives", "gaze": "fullrange"},
          {"trajectory": "local_primitives", "gaze": "lookahead"})
