@@ -26,8 +26,8 @@ $(TESTS): $(STAMP)
 	touch $(TESTS)
 
 ## Built (or tried: a failed build leaves the Python package in use) after the install and whenever its source changes.
-$(NATIVE): $(STAMP) pbdyn/planning/native/ruckig_batch.cpp pbdyn/planning/native/build.py
-	-$(PY) -m pbdyn.planning.native.build
+$(NATIVE): $(STAMP) pbdyn/planning/primitives/native/ruckig_batch.cpp pbdyn/planning/primitives/native/build.py
+	-$(PY) -m pbdyn.planning.primitives.native.build
 	touch $(NATIVE)
 
 ## Optional system libraries (libusb-1.0 for open3d's mesh backend, g++ for the native build), installed only when
@@ -35,10 +35,11 @@ $(NATIVE): $(STAMP) pbdyn/planning/native/ruckig_batch.cpp pbdyn/planning/native
 sysdeps:
 	@bash tools/install_sysdeps.sh
 
-## The native ruckig batch (pbdyn/planning/native): ruckig's calculator built from the installed version's sources
-## with a C++ compiler; optional (without it the planners use the ruckig Python package: same results, slower).
+## The native ruckig batch (pbdyn/planning/primitives/native): ruckig's calculator built from the installed
+## version's sources with a C++ compiler; optional (without it the planners use the ruckig Python package: same
+## results, slower).
 native: $(STAMP)
-	$(PY) -m pbdyn.planning.native.build
+	$(PY) -m pbdyn.planning.primitives.native.build
 
 ## The first study: a resumable batch on the quickstart scenario, its maps' metrics, the evaluation table and figures.
 demo: $(NATIVE)
@@ -55,4 +56,4 @@ bench: $(NATIVE)
 
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache pbdyn/planning/native/_ruckig_batch.so*
+	rm -rf $(VENV) build *.egg-info .pytest_cache pbdyn/planning/primitives/native/_ruckig_batch.so*

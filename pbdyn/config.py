@@ -19,10 +19,11 @@ from typing import Any, ClassVar, Mapping
 
 from pbdyn import limits, resources
 from pbdyn.errors import ConfigError, check_finite_params
+from pbdyn.motion.registry import MODELS
+from pbdyn.motion.rvo import RVOParams
 from pbdyn.urdf import check_urdf
 
 
-MOTIONS = ("cvm", "rvo")
 BODY_MOTIONS = ("static", "constant_velocity", "waypoints")
 """Built-in motions of an imported body; any other value must be "package.module:function"."""
 COLLISION_CHECKS = ("swept", "sampled")
@@ -175,24 +176,6 @@ class WorldConfig:
 
 
 @dataclass(frozen=True)
-class RVOParams:
-    """ORCA parameters (``[obstacles.rvo]``, pbdyn.world.rvo): time_horizon tau (s) for neighbours, wall_time_horizon
-    tau_w (s; None = dt), candidate set n_headings (None: N_HEADINGS_2D / N_HEADINGS_3D) x n_speeds, neighbour_dist
-    (m, pairs farther apart than this between surfaces are ignored; None = tau * (v_i + v_j) + 1 m; not a scenario
-    key), contact_iterations (0 disables the last-resort contact step)."""
-
-    N_HEADINGS_2D: ClassVar[int] = 32
-    N_HEADINGS_3D: ClassVar[int] = 64
-
-    time_horizon: float = 2.0
-    wall_time_horizon: float | None = None
-    n_headings: int | None = None
-    n_speeds: int = 6
-    neighbour_dist: float | None = None
-    contact_iterations: int = 4
-
-
-@dataclass(frozen=True)
 class StructureConfig:
     """How a map is built at fixed (n, r, v) (pbdyn.world.structure; docs/scenarios.md "Structured worlds").
 
@@ -205,7 +188,8 @@ class StructureConfig:
     radius_spread, speed_spread: coefficients of variation of mean-preserving gamma distributions of the radii and
     speeds (0: the setup's values and obstacles.radius_jitter). walls: static walls across the arena (boxes
     ``wall_thickness`` m thick, full height in 3D), each split by ``gaps_per_wall`` gaps ``wall_gap`` m wide, placed
-    clear of the start/goal candidates. motion: None (the scenario's) or "cvm" / "rvo"."""
+    clear of the start/goal candidates. motion: None (the scenario's) or a motion model's name
+    (pbdyn.motion.registry.MODELS)."""
 
     LAYOUTS: ClassVar[tuple[str, ...]] = ("uniform", "clustered")
     HEADINGS: ClassVar[tuple[str, ...]] = ("uniform", "even", "crossing")
@@ -270,8 +254,9 @@ class ObstacleConfig:
     N heads along -(cos 2 pi k / N, sin 2 pi k / N); 3D: the negated Fibonacci lattice of N directions).
     layout: "pbdyn" (pbdyn.world.maps.spawn_obstacles) or "program" (the thesis program's own maps: its random stream
     seeded by root_seed + replicate, its draws and rejections; pbdyn.world.maps.spawn_program; 2D, even headings,
-    exact speeds, no structures). wall_turn (CVM): "specular" (closed-form reflection) or "program" (an obstacle
-    whose next centre would cross r from a wall turns away in that step; pbdyn.world.motion.cvm_program_turn)."""
+    exact speeds, no structures). motion: a motion model's name (pbdyn.motion.registry.MODELS); rvo: the "rvo"
+    model's table (pbdyn.motion.rvo.RVOParams). wall_turn (CVM): "specular" (closed-form reflection) or "program" (an
+    obstacle whose next centre would cross r from a wall turns away in that step; pbdyn.motion.cvm.cvm_program_turn)."""
 
     HEADINGS: ClassVar[tuple[str, ...]] = ("uniform", "even")
     LAYOUTS: ClassVar[tuple[str, ...]] = ("pbdyn", "program")
@@ -675,8 +660,8 @@ def _grid_values(value: Any, name: str, *, integer: bool = False, allow_range: b
 
 def _parse_obstacles(doc: Mapping) -> ObstacleConfig:
     t = _table(doc, "obstacles")
-    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", "rvo", "headings",
-            "structure", "structures", "layout", "wall_turn", "maps")
+    keys = ("count", "radius", "speed", "radius_jitter", "motion", "maps_per_setup", "root_seed", *_motion_tables(),
+            "headings", "structure", "structures", "layout", "wall_turn", "maps")
     _no_unknown(t, keys, "obstacles")
     if "maps" in t:
         return _parse_map_list(t)
@@ -695,7 +680,7 @@ def _parse_obstacles_grid(t: Mapping) -> ObstacleConfig:
         rmin = r.min if isinstance(r, Range) else r
         if rmin - jitter <= 0:
             raise ConfigError("obstacles.radius_jitter", f"must be < the smallest radius ({rmin:g})", jitter)
-    motion = _string(t, "motion", "obstacles", d["motion"], MOTIONS)
+    motion = _string(t, "motion", "obstacles", d["motion"], tuple(MODELS))
     for i, n in enumerate(count):
         limits.check_limit(f"obstacles.count[{i}]" if isinstance(t.get("count"), list) else "obstacles.count",
                            "obstacles", n, limits.MAX_OBSTACLES, n)
@@ -707,26 +692,7 @@ def _parse_obstacles_grid(t: Mapping) -> ObstacleConfig:
     seed = _integer(t, "root_seed", "obstacles", d["root_seed"], lo=0)
     order = tuple(k for k in t if k in d["grid_order"])
     order += tuple(k for k in d["grid_order"] if k not in order)
-    rt = _table(t, "rvo", "obstacles")
-    if rt and motion != "rvo":
-        raise ConfigError("obstacles.rvo", 'is only used with motion = "rvo"', dict(rt), show_value=False)
-    _no_unknown(rt, ("time_horizon", "wall_time_horizon", "n_headings", "n_speeds", "contact_iterations"),
-                "obstacles.rvo")
-    rd = _defaults(RVOParams)
-    rvo = RVOParams(
-        time_horizon=_number(rt, "time_horizon", "obstacles.rvo", rd["time_horizon"], lo=0.0, lo_open=True),
-        wall_time_horizon=_number(rt, "wall_time_horizon", "obstacles.rvo", rd["wall_time_horizon"], lo=0.0,
-                                  lo_open=True),
-        n_headings=_integer(rt, "n_headings", "obstacles.rvo", rd["n_headings"], lo=4),
-        n_speeds=_integer(rt, "n_speeds", "obstacles.rvo", rd["n_speeds"], lo=1),
-        contact_iterations=_integer(rt, "contact_iterations", "obstacles.rvo", rd["contact_iterations"], lo=0),
-    )
-    n_head = rvo.n_headings or max(RVOParams.N_HEADINGS_2D, RVOParams.N_HEADINGS_3D)
-    limits.check_limit("obstacles.rvo.n_headings" if "n_headings" in rt else "obstacles.rvo.n_speeds",
-                       "candidate velocities per obstacle (n_headings x n_speeds)", n_head * rvo.n_speeds,
-                       limits.MAX_RVO_CANDIDATES, rvo.n_headings if "n_headings" in rt else rvo.n_speeds)
-    limits.check_limit("obstacles.rvo.contact_iterations", "contact iterations", rvo.contact_iterations,
-                       limits.MAX_RVO_CONTACT_ITERATIONS, rvo.contact_iterations)
+    tables = _parse_motion_tables(t, motion)
     headings = _string(t, "headings", "obstacles", d["headings"], ObstacleConfig.HEADINGS)
     structure, structures = _parse_structures(t, motion)
     if structure:
@@ -748,8 +714,37 @@ def _parse_obstacles_grid(t: Mapping) -> ObstacleConfig:
                "cannot be combined with structures" if structure else "")
         if why:
             raise ConfigError("obstacles.layout", f'"program" {why}', layout)
-    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, rvo, headings, structure,
-                          structures, layout, wall_turn)
+    return ObstacleConfig(count, radius, speed, jitter, motion, maps, seed, order, headings=headings,
+                          structure=structure, structures=structures, layout=layout, wall_turn=wall_turn, **tables)
+
+
+def _motion_tables() -> tuple[str, ...]:
+    """The names of the motion models' own tables ([obstacles.<table>], pbdyn.motion.registry)."""
+    return tuple(m.table for m in MODELS.values() if m.table is not None)
+
+
+def _parse_motion_tables(t: Mapping, motion: str) -> dict[str, Any]:
+    """Every motion model's own table [obstacles.<table>] parsed into its params_type (pbdyn.motion.registry): each
+    key checked against the model's table_keys (type, lower bound), omitted keys at the dataclass defaults, then
+    the model's check_params. A table of a model that is not ``motion`` is refused. Returns table name -> params
+    (the ObstacleConfig fields of the same names)."""
+    out = {}
+    for model in MODELS.values():
+        if model.table is None:
+            continue
+        where = f"obstacles.{model.table}"
+        given = _table(t, model.table, "obstacles")
+        if given and motion != model.name:
+            raise ConfigError(where, f'is only used with motion = "{model.name}"', dict(given), show_value=False)
+        _no_unknown(given, tuple(k.name for k in model.table_keys), where)
+        d = _defaults(model.params_type)
+        values = {k.name: _integer(given, k.name, where, d[k.name], lo=k.lo) if k.integer
+                  else _number(given, k.name, where, d[k.name], lo=k.lo, lo_open=k.lo_open)
+                  for k in model.table_keys}
+        params = model.params_type(**values)
+        model.check_params(params, given, where)
+        out[model.table] = params
+    return out
 
 
 def _parse_map_list(t: Mapping) -> ObstacleConfig:
@@ -837,7 +832,7 @@ def _parse_structure(name: str, t: Mapping, where: str) -> StructureConfig:
     _no_unknown(t, allowed, where)
     layout = _string(t, "layout", where, d["layout"], StructureConfig.LAYOUTS)
     headings = _optional_choice(t, "headings", where, d["headings"], StructureConfig.HEADINGS)
-    motion = _optional_choice(t, "motion", where, d["motion"], MOTIONS)
+    motion = _optional_choice(t, "motion", where, d["motion"], tuple(MODELS))
     frac = _number(t, "static_fraction", where, d["static_fraction"], lo=0.0)
     if frac > 1.0:
         raise ConfigError(_name(where, "static_fraction"), "must be in [0, 1]", frac)
@@ -1301,7 +1296,7 @@ def _static_distance(s: StaticObstacleConfig, point: tuple[float, ...]) -> float
 
 def _check_static_candidates(static: tuple[StaticObstacleConfig, ...], task: TaskConfig, drone: DroneConfig) -> None:
     """ConfigError if a start/goal candidate's MAV overlaps a static obstacle (no trial could start or end there;
-    imported worlds refuse the same, pbdyn.world.imported.check_candidates)."""
+    imported worlds refuse the same, pbdyn.world.imported.bodies.check_candidates)."""
     for i, s in enumerate(static):
         for j, c in enumerate(task.candidates):
             if _static_distance(s, c) < drone.radius:

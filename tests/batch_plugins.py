@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.primitives.local import LocalPrimitives
 
 
 class FlakyPlanner(LocalPrimitives):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from pbdyn.config import Scenario
+from pbdyn.motion.cvm import cvm_fold
 from pbdyn.world.maps import enumerate_maps, static_bodies
-from pbdyn.world.motion import cvm_fold
 from pbdyn.world.rollout import Rollout, default_horizon
 
 

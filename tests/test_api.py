@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import pbdyn
-from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.primitives.local import LocalPrimitives
 from tests.conftest import SCENARIOS, pbdyn_cmd
 
 
@@ -28,7 +28,7 @@ def test_import_pbdyn_exports_the_api():
 def test_run_trial_takes_a_name_a_label_a_plugin_string_a_class_or_an_instance():
     by_name = pbdyn.run_trial("quickstart", planner="local_primitives", gaze="lookahead", map=1)
     by_label = pbdyn.run_trial("quickstart", planner="lookahead+local_primitives", map=1)
-    by_plugin = pbdyn.run_trial("quickstart", planner="pbdyn.planning.local_primitives:LocalPrimitives",
+    by_plugin = pbdyn.run_trial("quickstart", planner="pbdyn.planning.primitives.local:LocalPrimitives",
                                 gaze="lookahead", map=1)
     by_class = pbdyn.run_trial("quickstart", planner=LocalPrimitives, gaze="lookahead", map=1)
     sc = pbdyn.load_scenario("quickstart")
@@ -41,7 +41,7 @@ def test_run_trial_takes_a_name_a_label_a_plugin_string_a_class_or_an_instance()
     assert by_name.to_dict() == {**by_label.to_dict(), **{k: v for k, v in by_name.to_dict().items() if "wall" in k}}
     for other in (by_plugin, by_class, by_instance):
         assert _core(other.to_dict()) == _core(by_name.to_dict())
-    assert by_class.planner == by_instance.planner == "pbdyn.planning.local_primitives:LocalPrimitives"
+    assert by_class.planner == by_instance.planner == "pbdyn.planning.primitives.local:LocalPrimitives"
     assert by_class.config_hash != by_name.config_hash
 
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from pbdyn.api import load_scenario, run_trial
-from pbdyn.planning.astar_compiled import lqmt_batch, numpy_modes
-from pbdyn.planning.astar_heuristic import _RATIOS, lqmt_lower_bound
-from pbdyn.planning.global_primitives import GlobalPrimitives
+from pbdyn.planning.primitives.compiled.astar import lqmt_batch, numpy_modes
+from pbdyn.planning.primitives.astar_heuristic import _RATIOS, lqmt_lower_bound
+from pbdyn.planning.primitives.global_astar import GlobalPrimitives
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.view import MAVLimits
 
@@ -113,7 +113,7 @@ def test_auto_search_is_compiled_exactly_where_the_kernel_repeats_numpy(dims):
 def test_auto_search_falls_back_to_python_where_numpy_sums_otherwise(monkeypatch):
     """A machine whose BLAS the probes do not recognise: "auto" runs the Python search, "compiled" still the kernel,
     and a trial flown with the default equals one flown with search "python"."""
-    import pbdyn.planning.astar_compiled as ac
+    import pbdyn.planning.primitives.compiled.astar as ac
 
     real = ac.numpy_modes
     monkeypatch.setattr(ac, "numpy_modes", lambda *a: (*real(*a)[:4], False))

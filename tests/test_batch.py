@@ -592,7 +592,7 @@ def test_a_reused_client_and_world_fly_exactly_like_fresh_ones(tmp_path):
              for m in maps for label in ("lookahead+local_primitives", "fullrange+straight_line")]
     rollouts = {m.map_id: build_rollout(sc, m) for m in maps}
     fresh = [run_trial(s, rollouts[s.map_spec.map_id]).without_wall_times() for s in specs]
-    from pbdyn.world.bullet import new_client
+    from pbdyn.world.pybullet_client import new_client
 
     reused, world, client, prev = [], None, new_client(), None
     for s in specs:

@@ -8,7 +8,7 @@ import pytest
 
 from pbdyn.perception.grid import OccupancyGrid
 from pbdyn.perception.tracks import Tracks
-from pbdyn.planning.candidate_kernels import fma, numpy_orders, peaks, world_and_screen
+from pbdyn.planning.primitives.compiled.candidate_kernels import fma, numpy_orders, peaks, world_and_screen
 from pbdyn.planning.checks import WALL_MARGIN_CAP, _track_hits, _wall_hits
 from pbdyn.planning.view import MAVLimits, View
 
@@ -36,8 +36,9 @@ def _samples(rng, n, d):
     return s, counts
 
 
-def _numpy_peaks(samples, counts, dt):
-    """The limit peaks as the planner computed them with numpy before they were compiled."""
+def peaks_reference(samples, counts, dt):
+    """The reference twin of peaks: the limit peaks as the planner computed them with numpy before they were
+    compiled."""
     sq = np.einsum("nkij,nkij->nki", samples[:, 1:, 1:], samples[:, 1:, 1:]).max(axis=1)
     p, v = samples[:, :, 0], samples[:, :, 1]
     dv = v[:, 1:] - v[:, :-1]
@@ -56,7 +57,7 @@ def test_peaks_equal_numpy(d):
     rng = np.random.default_rng(d)
     samples, counts = _samples(rng, 300, d)
     v_peak, a_peak = peaks(samples, counts, DT, numpy_orders(d)[1])
-    want_v, want_a = _numpy_peaks(samples, counts, DT)
+    want_v, want_a = peaks_reference(samples, counts, DT)
     assert np.array_equal(v_peak, want_v) and np.array_equal(a_peak, want_a)
 
 
@@ -68,6 +69,23 @@ def _view(rng, d, n_tracks):
                 acceleration=rng.normal(size=d), yaw=0.0, goal=np.full(d, 19.0), goal_radius=1.0,
                 limits=MAVLimits(radius=0.3, v_max=4.0, a_max=4.0, yaw_rate=3.0), bounds_lo=lo, bounds_hi=hi,
                 grid=OccupancyGrid(lo, hi, 1.0), tracks=tracks)
+
+
+def world_and_screen_reference(view, frame, counts, bases, margin):
+    """The reference twin of world_and_screen, as the planner evaluated it with numpy: the samples in the world frame
+    [C, K, 3 (p, v, a), d] (sample 0 the view's state) and whether samples 1.. of each candidate meet a wall or a
+    track's prediction [C] (pbdyn.planning.checks)."""
+    world = frame @ bases[:, None]
+    world[:, :, 0] += view.position
+    world[:, 0] = view.position, view.velocity, view.acceleration
+    bad = np.zeros(len(counts), dtype=bool)
+    for c, k in enumerate(counts):
+        times = view.t + DT * np.arange(k)
+        hit = _wall_hits(view, world[c, 1:k, 0], margin).any()
+        if len(view.tracks):
+            hit |= _track_hits(view, world[c, 1:k, 0], times[1:] - view.t, margin).any()
+        bad[c] = hit
+    return world, bad
 
 
 @pytest.mark.parametrize("d", [2, 3])
@@ -86,16 +104,10 @@ def test_world_and_screen_equal_numpy(d, n_tracks):
         p, v, a, bad = world_and_screen(frame, counts, bases, view.position, view.velocity, view.acceleration,
                                         view.bounds_lo + wall_r, view.bounds_hi - wall_r, view.tracks.position,
                                         view.tracks.velocity, reach * reach, view.t, DT, mm_mode, sq_order)
-        world = frame @ bases[:, None]                                   # the planner's numpy evaluation
-        world[:, :, 0] += view.position
-        world[:, 0] = view.position, view.velocity, view.acceleration
+        world, want_bad = world_and_screen_reference(view, frame, counts, bases, margin)
         for c, k in enumerate(counts):
             assert np.array_equal(p[c, :k], world[c, :k, 0]) and np.array_equal(v[c, :k], world[c, :k, 1])
             assert np.array_equal(a[c, :k], world[c, :k, 2])
-            times = view.t + DT * np.arange(k)
-            want = _wall_hits(view, p[c, 1:k], margin).any()
-            if n_tracks:
-                want |= _track_hits(view, p[c, 1:k], times[1:] - view.t, margin).any()
-            assert bad[c] == want
-            n_hit += int(want)
+            assert bad[c] == want_bad[c]
+            n_hit += int(want_bad[c])
     assert 0 < n_hit < 240                                                # both outcomes exercised

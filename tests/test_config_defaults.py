@@ -15,10 +15,11 @@ from pathlib import Path
 import pytest
 
 from pbdyn import config as C
+from pbdyn.motion.rvo import RVOParams
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SECTIONS = {"": C.Scenario, "world": C.WorldConfig, "obstacles": C.ObstacleConfig, "obstacles.rvo": C.RVOParams,
+SECTIONS = {"": C.Scenario, "world": C.WorldConfig, "obstacles": C.ObstacleConfig, "obstacles.rvo": RVOParams,
             "obstacles.structures.name": C.StructureConfig,
             "static_obstacles": C.StaticObstacleConfig, "drone": C.DroneConfig, "sensor": C.SensorConfig,
             "tracking": C.TrackingConfig, "task": C.TaskConfig, "planners": C.PlannerEntry}
@@ -132,10 +133,10 @@ def test_readme_table_lists_every_scenario_key():
 THREE_D = {("world", "size"): C.WorldConfig.SIZE_3D,
            ("sensor", "resolution_deg"): C.SensorConfig.RESOLUTION_3D_DEG,
            ("sensor", "vfov_deg"): C.SensorConfig.VFOV_3D_DEG,
-           ("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_3D}
+           ("obstacles.rvo", "n_headings"): RVOParams.N_HEADINGS_3D}
 """Defaults that differ in 3D (docs/scenarios.md "Scenario reference" (3D ...)): ClassVars of the dataclass."""
 
-BY_DIMS = {("obstacles.rvo", "n_headings"): C.RVOParams.N_HEADINGS_2D, ("sensor", "vfov_deg"): None}
+BY_DIMS = {("obstacles.rvo", "n_headings"): RVOParams.N_HEADINGS_2D, ("sensor", "vfov_deg"): None}
 """Fields whose default is None, resolved per dims: the 2D value (None: 3D only)."""
 
 GRIDS = {("obstacles", "count"), ("obstacles", "radius"), ("obstacles", "speed"), ("drone", "v_max")}

@@ -13,9 +13,10 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import FREE, UNKNOWN, OccupancyGrid
 from pbdyn.perception.sensor import in_fov
 from pbdyn.planning import registry
-from pbdyn.planning.gaze import LookGoal, LookGoalUnexplored, rate_candidates
-from pbdyn.planning.gaze_finean import Finean
-from pbdyn.planning.gaze_owl import Owl
+from pbdyn.planning.gaze.finean import Finean
+from pbdyn.planning.gaze.owl import Owl
+from pbdyn.planning.gaze.rules import LookGoal, LookGoalUnexplored
+from pbdyn.planning.gaze.yaw import rate_candidates
 from pbdyn.planning.protocols import GazePlanner, PlannerContext
 from pbdyn.planning.straight_line import StraightLine
 from pbdyn.planning.trajectory import Trajectory

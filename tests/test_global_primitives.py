@@ -12,10 +12,10 @@ from pbdyn.config import parse_scenario
 from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import FREE, OCCUPIED, OccupancyGrid
 from pbdyn.planning import registry
-from pbdyn.planning.astar_heuristic import lqmt_lower_bound
-from pbdyn.planning.astar_static import StaticScreen
+from pbdyn.planning.primitives.astar_heuristic import lqmt_lower_bound
+from pbdyn.planning.primitives.astar_static import StaticScreen
 from pbdyn.planning.checks import static_clear, trajectory_clear, within_limits
-from pbdyn.planning.global_primitives import GlobalPrimitives, acceleration_grid
+from pbdyn.planning.primitives.global_astar import GlobalPrimitives, acceleration_grid
 from pbdyn.planning.protocols import PlannerContext, TrajectoryPlanner
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, Tracks, View

@@ -61,8 +61,9 @@ def test_clearance_skips_only_points_far_from_every_occupied_cell():
     assert g.clearance(p, 2.5)[0] == 2.5
 
 
-def _clearance_brute_force(g: OccupancyGrid, pts: np.ndarray, cap: float) -> np.ndarray:
-    """Exact point-to-box distance to every OCCUPIED cell, capped at ``cap``: the definition, with no search."""
+def clearance_reference(g: OccupancyGrid, pts: np.ndarray, cap: float) -> np.ndarray:
+    """The reference twin of OccupancyGrid.clearance (m): the exact point-to-box distance to every OCCUPIED cell,
+    capped at ``cap``: the definition, with no search."""
     cmin = g.origin + np.argwhere(g.cells == OCCUPIED) * g.res                        # [M, d]
     out = np.full(pts.shape[0], float(cap))
     if cmin.shape[0] == 0:
@@ -85,8 +86,8 @@ def test_clearance_equals_the_definition_bit_for_bit():
         pts = rng.uniform(-2.0, size + 2.0, size=(400, d))
         pts[:50] = np.round(pts[:50] / res) * res                                   # on cell faces
         for cap in (0.4, 1.0, 1.5, 2.0, 2.5, 3.7):
-            assert np.array_equal(g.clearance(pts, cap), _clearance_brute_force(g, pts, cap)), (it, cap)
-            assert np.array_equal(g.collides(pts, cap), _clearance_brute_force(g, pts, cap + res) < cap)
+            assert np.array_equal(g.clearance(pts, cap), clearance_reference(g, pts, cap)), (it, cap)
+            assert np.array_equal(g.collides(pts, cap), clearance_reference(g, pts, cap + res) < cap)
 
 
 def test_near_occupied_mask_equals_shift_or_dilation():
@@ -100,6 +101,6 @@ def test_near_occupied_mask_equals_shift_or_dilation():
         g.cells[(0,) * d] = OCCUPIED
         occ = g.cells == OCCUPIED
         for h in (0, 1, 2, 3, 40):
-            assert np.array_equal(g._near(h, occ, {}), OccupancyGrid._near_numpy(h, occ)), (it, h)
+            assert np.array_equal(g._near(h, occ, {}), OccupancyGrid._near_reference(h, occ)), (it, h)
         padded = g._padded(4, occ, {}).reshape(tuple(n + 8 for n in g.shape))
         assert np.array_equal(padded, np.pad(occ, 4))

@@ -24,7 +24,7 @@ import pytest
 
 from pbdyn.config import load_scenario, parse_scenario
 from pbdyn.errors import ConfigError
-from pbdyn.experiments import runner
+from pbdyn.experiments import cluster, dispatch, runner
 from pbdyn.experiments.runner import BatchOptions, run_batch
 from pbdyn.experiments.store import ResultsStore
 from pbdyn.experiments.tasks import enumerate_trials, trial_spec
@@ -292,7 +292,7 @@ def test_a_full_disk_during_a_batch_is_one_line_exit_2_and_keeps_committed_rows(
         return store
 
     monkeypatch.setattr(ResultsStore, "create", classmethod(small_disk))
-    monkeypatch.setattr(runner, "COMMIT_INTERVAL_S", 0.0)
+    monkeypatch.setattr(dispatch, "COMMIT_INTERVAL_S", 0.0)
     status = pbdyn_cli.main(["batch", "quickstart", "--out", str(out), "--limit", "12", "--workers", "1",
                              "--no-metrics"])
     err = [line for line in capsys.readouterr().err.strip().splitlines() if not line.startswith("pbdyn batch: ")]
@@ -308,8 +308,8 @@ def test_a_full_disk_during_a_batch_is_one_line_exit_2_and_keeps_committed_rows(
 # ------------------------------------------------------------------------------------------------ 4. scheduler
 @pytest.fixture
 def fast_probe(monkeypatch):
-    monkeypatch.setattr(runner, "PROBE_TIMEOUT_S", 1.0)
-    monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 4.0)
+    monkeypatch.setattr(cluster, "PROBE_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 4.0)
 
 
 def _listener() -> socket.socket:
@@ -324,7 +324,7 @@ def test_a_silent_port_is_refused_within_the_bound(fast_probe):
         address = f"tcp://127.0.0.1:{s.getsockname()[1]}"
         t0 = time.perf_counter()
         with pytest.raises(ConfigError) as info:
-            runner.connect(address)
+            cluster.connect(address)
         assert time.perf_counter() - t0 < 4.0
     assert info.value.field == "scheduler" and "no Dask handshake" in str(info.value)
 
@@ -349,7 +349,7 @@ def test_an_http_server_is_refused_without_a_huge_allocation(fast_probe):
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
         with pytest.raises(ConfigError) as info:
-            runner.connect(f"tcp://127.0.0.1:{server.server_address[1]}")
+            cluster.connect(f"tcp://127.0.0.1:{server.server_address[1]}")
     finally:
         server.shutdown()
         server.server_close()
@@ -365,7 +365,7 @@ def test_an_http_server_is_refused_without_a_huge_allocation(fast_probe):
 def test_malformed_and_tls_addresses_are_one_line_errors(address, needle):
     t0 = time.perf_counter()
     with pytest.raises(ConfigError) as info:
-        runner.connect(address)
+        cluster.connect(address)
     assert info.value.field == "scheduler" and needle in str(info.value) and "\n" not in str(info.value)
     assert time.perf_counter() - t0 < 1.0
 
@@ -373,14 +373,14 @@ def test_malformed_and_tls_addresses_are_one_line_errors(address, needle):
 def test_a_real_local_cluster_is_reached_by_address(tmp_path):
     from dask.distributed import LocalCluster
 
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
-        client = runner.connect(cluster.scheduler_address)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as local:
+        client = cluster.connect(local.scheduler_address)
         try:
-            assert client.scheduler_info()["address"] == cluster.scheduler_address
+            assert client.scheduler_info()["address"] == local.scheduler_address
         finally:
             client.close()
         s = run_batch(load_scenario(SCENARIOS / "quickstart.toml"), tmp_path / "d.sqlite",
-                      BatchOptions(scheduler=cluster.scheduler_address, limit=1, metrics=False, progress=False))
+                      BatchOptions(scheduler=local.scheduler_address, limit=1, metrics=False, progress=False))
     assert s.ran == 1 and s.errors == 0
 
 

@@ -6,11 +6,12 @@ under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a l
 
 Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, files (atomic writes),
 limits (resource limits), urdf (URDF validation), resources, jit (numba's njit, its cache never in the way), outcome
-(how a trial ends: the vocabulary sim/ writes and analysis/ reads), config | world | perception | planning | metrics
-(beside perception and planning: it sees rollouts only) | sim, and analysis beside it (it reads stored rows, never a
-trial) | experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown by the batch runner, score
-cards) | api (the one door) | cli, gym, __main__, and the package
-root pbdyn/__init__.py, which re-exports the api.
+(how a trial ends: the vocabulary sim/ writes and analysis/ reads), motion (the obstacle motion models and their
+registry: config validates their names and tables, world's rollouts run them), config | world | perception |
+planning | metrics (beside perception and planning: it sees rollouts only) | sim, and analysis beside it (it reads
+stored rows, never a trial) | experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown
+by the batch runner, score cards) | api (the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py,
+which re-exports the api.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "jit", "outcome", "config")
+_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "jit", "outcome", "motion", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
@@ -36,7 +37,8 @@ RULES: dict[str, tuple[str, ...]] = {
     "resources": ("usercode", "errors"),
     "jit": (),
     "outcome": (),
-    "config": ("usercode", "errors", "files", "limits", "urdf", "resources"),
+    "motion": ("usercode", "errors", "limits"),
+    "config": ("usercode", "errors", "files", "limits", "urdf", "resources", "motion"),
     "world": _BASE,
     "perception": _BASE + ("world",),
     "planning": _BASE + ("world", "perception"),
@@ -71,7 +73,7 @@ def _module_name(path: Path) -> str:
 
 
 def _unit_of_module(dotted: str) -> str | None:
-    """'pbdyn.world.rvo' -> 'world'; 'pbdyn' -> 'pbdyn'; a non-pbdyn module -> None."""
+    """'pbdyn.world.maps' -> 'world'; 'pbdyn' -> 'pbdyn'; a non-pbdyn module -> None."""
     parts = dotted.split(".")
     if parts[0] != "pbdyn":
         return None
@@ -149,11 +151,11 @@ def test_every_pbdyn_import_follows_the_rules():
 
 def test_the_rules_are_a_one_way_order():
     """No cycles; nothing below the api may import api, cli, gym, __main__ or the package root; config and
-    errors sit at the bottom, on usercode (stdlib only)."""
+    errors sit at the bottom, on usercode (stdlib only); config reads only the base modules and the motion models."""
     for unit, allowed in RULES.items():
         if unit not in _TOP:
             assert not set(allowed) & set(_TOP), f"{unit} may import {sorted(set(allowed) & set(_TOP))}"
-    assert set(RULES["config"]) <= {"usercode", "errors", "files", "limits", "urdf", "resources"}
+    assert set(RULES["config"]) <= {"usercode", "errors", "files", "limits", "urdf", "resources", "motion"}
     assert RULES["errors"] == ("usercode",) and RULES["usercode"] == ()
     done: set[str] = set()
 

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-NATIVE = Path("pbdyn") / "planning" / "native" / "_ruckig_batch.so"
-STATUS = "from pbdyn.planning import native; print(native.status())"
+NATIVE = Path("pbdyn") / "planning" / "primitives" / "native" / "_ruckig_batch.so"
+STATUS = "from pbdyn.planning.primitives import native; print(native.status())"
 
 
 def _copy_checkout(dest: Path, *, caches: bool = True) -> Path:
@@ -60,7 +60,7 @@ def checkout(tmp_path_factory):
                                                                                           "__init__.py")
     lib = dest / NATIVE
     if not (lib.is_file() and lib.with_name(lib.name + ".sha256").is_file()):
-        from pbdyn.planning.native.build import BuildError, build
+        from pbdyn.planning.primitives.native.build import BuildError, build
 
         try:
             build(output=lib)
@@ -147,7 +147,7 @@ def test_a_batch_with_a_corrupt_library_says_so_once(checkout, tmp_path):
 
 def test_the_checksum_check(tmp_path):
     """No record: "rebuild"; a record of these bytes: loadable; one byte less: refused."""
-    from pbdyn.planning import native
+    from pbdyn.planning.primitives import native
 
     lib = tmp_path / "lib.so"
     lib.write_bytes(b"\x7fELF" + bytes(range(256)) * 8)
@@ -161,7 +161,7 @@ def test_the_checksum_check(tmp_path):
 def test_the_build_certifies_only_a_library_that_runs(checkout, tmp_path):
     """The build's probe runs a library in a child process: a good one passes, a truncated one (SIGBUS there) and
     garbage are refused with a BuildError, and the caller survives."""
-    from pbdyn.planning.native.build import BuildError, probe
+    from pbdyn.planning.primitives.native.build import BuildError, probe
 
     good = tmp_path / "good.so"
     good.write_bytes(checkout[1])

@@ -11,7 +11,7 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import OCCUPIED
 from pbdyn.planning import registry
 from pbdyn.planning.checks import batch_conflicts, grid_conflicts, program_grid_conflicts, trajectory_clear
-from pbdyn.planning.local_primitives_minjerk import (LocalPrimitivesMinJerk, min_jerk_coefficients,
+from pbdyn.planning.primitives.minjerk import (LocalPrimitivesMinJerk, min_jerk_coefficients,
                                                      min_jerk_matrix, min_jerk_states, program_duration,
                                                      program_sample_counts)
 from pbdyn.planning.trajectory import Trajectory
@@ -262,7 +262,7 @@ def test_choice_is_exactly_the_first_clear_candidate_in_rank_order(physical, v_m
 def test_memory_bounded_chunks_choose_the_same_candidate(monkeypatch):
     """Candidates are evaluated in chunks of at most _MAX_BATCH_FLOATS candidate x sample x track entries: tiny
     chunks give the same choices as one batch."""
-    import pbdyn.planning.local_primitives_minjerk as mod
+    import pbdyn.planning.primitives.minjerk as mod
 
     ctx = _ctx()
     rng = np.random.default_rng(3)
@@ -416,25 +416,27 @@ def _fly_program(sc, rollout, start, goal, planner_cls=LocalPrimitivesMinJerk, v
     context has physical False): (outcome, min clearance, peak plan speeds, peak plan accelerations), the peaks
     per step over each returned plan (the agent clips the executed v and a to the limits)."""
     from pbdyn.sim.agent import Agent, planner_context
-    from pbdyn.sim.env import TrialEnv
+    from pbdyn.sim.batch import TrialBatch
     from pbdyn.sim.spec import make_trial_spec
 
     spec = make_trial_spec(sc, first_map(sc), planner="local_primitives_minjerk", gaze=gaze, start=start, goal=goal,
                            v_max=v_max)
     planner = planner_cls(replace(planner_context(spec), physical=False))
     agent = Agent(spec, planner, None, physical=False)
-    env = TrialEnv(spec, rollout, fov_deg=agent.fov_deg)
+    # the thesis' rules executed as its program did: the core's guard checks the form only (docs/profiles.md)
+    batch = TrialBatch([spec], rollout, fov_deg=[agent.fov_deg], profile="thesis_program")
+    env = batch.states[0]
     speeds, accs = [], []
     try:
-        env.reset()
+        batch.start()
         while not env.done:
             decision = agent.act(env.view(agent.trajectory))
             assert decision.violation is None and decision.plan_ok
             speeds.append(np.linalg.norm(agent.trajectory.v, axis=1).max())
             accs.append(np.linalg.norm(agent.trajectory.a, axis=1).max())
-            env.step(decision.action)
+            batch.step({0: decision.action})
     finally:
-        env.close()
+        batch.close()
     return env.outcome.value, env.min_clearance, np.array(speeds), np.array(accs)
 
 
@@ -541,7 +543,7 @@ def test_program_rank_is_the_programs_cost_order_with_its_sorts_ties():
     """The program ranked theta = 5k deg by (wrapped theta - phi)^2 with phi = degrees(atan2) of its pixel goal
     vector; where costs tie (phi a multiple of 45 deg) its numpy 1.23.4 argsort fixed the order of each tied pair
     (PROGRAM_TIE_ORDERS, written by tools/program_tables.py)."""
-    from pbdyn.planning.local_primitives_minjerk import PROGRAM_TIE_ORDERS, program_rank
+    from pbdyn.planning.primitives.minjerk import PROGRAM_TIE_ORDERS, program_rank
     theta = np.arange(0, 360, 5)
 
     def costs(phi):
@@ -578,7 +580,7 @@ def test_program_end_velocities_keep_the_programs_floating_point_residue():
     of ulps whose direction the end velocity takes: 3 m short of a goal at y = 4 m (40 px) the straight candidate
     (180 deg, 30 sin(pi) = 3.7e-15 px, more than half an ulp of 40) ends pointing along -y; at y = 25 m (250 px) the
     residue vanishes and the candidate is rejected; off the goal both arithmetics agree."""
-    from pbdyn.planning.local_primitives_minjerk import program_end_velocities, program_unit_vectors
+    from pbdyn.planning.primitives.minjerk import program_end_velocities, program_unit_vectors
     unit = program_unit_vectors()
     np.testing.assert_array_equal(unit[18], [np.cos(np.pi / 2), 1.0])
     v = program_end_velocities(np.array([6.0, 3.0]), np.array([3.0, 3.0]), unit[[36, 35]], 3.0, 3.0)

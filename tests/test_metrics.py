@@ -21,9 +21,9 @@ from pbdyn.metrics.sampling import grid_samples
 from pbdyn.metrics.survivability import global_survivability, survival_times, survivability
 from pbdyn.metrics.traversability import dynamic_traversability, neighbour_steps, traversability
 from pbdyn.metrics.vo import velocity_set, vo_feasibility
+from pbdyn.motion.cvm import cvm_fold
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.maps import enumerate_maps
-from pbdyn.world.motion import cvm_fold
 from pbdyn.world.rollout import Rollout, build_rollout
 from tests.conftest import SCENARIOS
 
@@ -446,9 +446,9 @@ def test_survivability_decreases_with_count_radius_and_speed():
 
 @pytest.mark.parametrize("dims", [2, 3])
 def test_compiled_sampled_survival_equals_the_numpy_reference(dims):
-    """survival_times' "sampled" mode (compiled, first hit per point) gives _survival_chunked's numpy floats exactly,
-    for points that are hit at once, later, or never, from several start times."""
-    from pbdyn.metrics.survivability import _survival_chunked
+    """survival_times' "sampled" mode (compiled, first hit per point) gives the numpy floats of its reference twin
+    _survival_reference exactly, for points that are hit at once, later, or never, from several start times."""
+    from pbdyn.metrics.survivability import _survival_reference
     from tests.helpers import handmade_rollout, open_scenario
 
     rng = np.random.default_rng(11 + dims)
@@ -463,8 +463,8 @@ def test_compiled_sampled_survival_equals_the_numpy_reference(dims):
         got = survival_times(ro, pts, start_time=start, t_max=t_max, mav_radius=0.4)
         k0 = ro.step_index(start)
         n = int(round(t_max / ro.dt))
-        want = _survival_chunked(pts, ro.positions[k0:k0 + n + 1], (ro.radii + 0.4) ** 2, ro.dt, t_max, "sampled",
-                                 np.full(pts.shape[0], t_max))
+        want = _survival_reference(pts, ro.positions[k0:k0 + n + 1], (ro.radii + 0.4) ** 2, ro.dt, t_max,
+                                   "sampled", np.full(pts.shape[0], t_max))
         assert np.array_equal(got, want)
         seen.update({"now" if t == 0 else "never" if t == t_max else "later" for t in got.tolist()})
     assert seen == {"now", "later", "never"}

@@ -14,8 +14,8 @@ from pbdyn.config import parse_scenario
 from pbdyn.errors import HorizonError
 from pbdyn.metrics.bullet_backend import ExtraBody, global_survival_bullet, survival_times_bullet
 from pbdyn.metrics.sampling import grid_samples
-from pbdyn.world.bullet import urdf_path
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.imported.urdf_loading import urdf_path
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import Rollout, build_rollout
 

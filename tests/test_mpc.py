@@ -11,8 +11,8 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import FREE, OccupancyGrid
 from pbdyn.planning import registry
 from pbdyn.planning.checks import trajectory_clear, within_limits
-from pbdyn.planning.mpc import MPC
-from pbdyn.planning.mpc_problem import INACTIVE_RHS
+from pbdyn.planning.mpc.planner import MPC
+from pbdyn.planning.mpc.problem import INACTIVE_RHS
 from pbdyn.planning.protocols import PlannerContext, TrajectoryPlanner
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.demo import demo_pairs

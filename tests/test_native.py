@@ -1,5 +1,5 @@
-"""The native ruckig batch (pbdyn.planning.native) and the compiled candidate search built on it, against their
-references: the ruckig Python package, and the local planner's Python chunk loop, bit for bit."""
+"""The native ruckig batch (pbdyn.planning.primitives.native) and the compiled candidate search built on it, against
+their references: the ruckig Python package, and the local planner's Python chunk loop, bit for bit."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pbdyn.planning import native
-from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.primitives import native
+from pbdyn.planning.primitives.local import LocalPrimitives
 from tests.test_planners import _context, _random_views
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,7 +25,7 @@ def library(tmp_path_factory):
     (needs a C++ compiler and the package index); skipped, with the reason, when neither is possible."""
     path = native.LIBRARY
     if not path.is_file():
-        from pbdyn.planning.native.build import BuildError, build
+        from pbdyn.planning.primitives.native.build import BuildError, build
 
         try:
             path = build(output=tmp_path_factory.mktemp("native") / "_ruckig_batch.so")
@@ -41,7 +41,7 @@ def test_library_builds_what_the_ruckig_package_builds(library, d):
     inputs = native.probe_inputs(d, 1000, seed=7)
     for jerk, min_duration in ((20.0, 0.5), (5.0, 1.8)):
         prof, dur, res = native.build_with_library(library, inputs, jerk, min_duration)
-        ref_prof, ref_dur, ref_res = native.build_with_package(inputs, jerk, min_duration)
+        ref_prof, ref_dur, ref_res = native.build_with_package_reference(inputs, jerk, min_duration)
         ok = (res == 0) | (res == 1)
         assert np.array_equal(ok, ref_res >= 0) and 0 < ok.sum() < len(ok)
         assert np.array_equal(res[ok], ref_res[ok])
@@ -103,7 +103,7 @@ def test_a_trial_flies_the_same_with_and_without_the_library(library):
 
 
 def test_switched_off_by_the_environment():
-    code = "from pbdyn.planning import native; print(native.status()); print(native.ruckig_build_address())"
+    code = "from pbdyn.planning.primitives import native; print(native.status()); print(native.ruckig_build_address())"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           env=dict(os.environ, PBDYN_NATIVE="0"))
     assert done.stdout.splitlines() == ["native ruckig batch: off (PBDYN_NATIVE=0)", "None"]
@@ -115,7 +115,8 @@ def test_build_tool_says_what_went_wrong_in_one_line(tmp_path):
     cases = [(["--sdist", str(tmp_path / "missing.tar.gz")], {}, "sdist: no such file"),
              ([], {"CXX": str(tmp_path / "no-such-compiler")}, "no-such-compiler was not found")]
     for args, env, words in cases:
-        done = subprocess.run([sys.executable, "-m", "pbdyn.planning.native.build", "--output", str(out), *args],
+        done = subprocess.run([sys.executable, "-m", "pbdyn.planning.primitives.native.build", "--output", str(out),
+                               *args],
                               capture_output=True, text=True, env=dict(os.environ, **env), timeout=600)
         lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
         assert done.returncode == 1 and len(lines) == 1 and words in lines[0], done.stderr
@@ -126,7 +127,8 @@ def test_build_tool_says_what_went_wrong_in_one_line(tmp_path):
 def test_compiled_frame_products_equal_numpys_where_the_planner_uses_them(d):
     """Where the probe lets search() compute the candidates' frame inputs (frame_products_known), they equal
     numpy's products on fresh random frames, states and fan-sized stacks; elsewhere the planner keeps numpy's."""
-    from pbdyn.planning.candidate_search import frame_inputs, frame_products_known
+    from pbdyn.planning.primitives.compiled.candidate_search import (frame_inputs, frame_inputs_reference,
+                                                                     frame_products_known)
 
     planner = LocalPrimitives(_context(d))
     assert planner._counts[3] == int(frame_products_known(d))
@@ -139,7 +141,6 @@ def test_compiled_frame_products_equal_numpys_where_the_planner_uses_them(d):
         targets = state[0] + 3.0 * planner.directions[rng.integers(0, planner.n_candidates, n)]
         vels = rng.normal(size=(n, d))
         got = frame_inputs(bases, targets, vels, state)
-        want = (bases @ state[1], bases @ state[2], (bases @ (targets - state[0])[:, :, None])[:, :, 0],
-                (bases @ vels[:, :, None])[:, :, 0])
+        want = frame_inputs_reference(bases, targets, vels, state[0], state[1], state[2])
         for i in range(4):
             assert np.array_equal(got[i], want[i])

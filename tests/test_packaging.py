@@ -149,7 +149,7 @@ def _make_dry_run(folder: Path, target: str, *stamps: str) -> list[str]:
         pytest.skip("no make on this machine")
     clone = folder
     for rel in ("Makefile", "setup.cfg", "pyproject.toml", "tools/install_sysdeps.sh",
-                "pbdyn/planning/native/ruckig_batch.cpp", "pbdyn/planning/native/build.py"):
+                "pbdyn/planning/primitives/native/ruckig_batch.cpp", "pbdyn/planning/primitives/native/build.py"):
         (clone / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / rel, clone / rel)
     for stamp in stamps:
@@ -164,16 +164,17 @@ def _make_dry_run(folder: Path, target: str, *stamps: str) -> list[str]:
 
 def test_make_demo_installs_what_the_demo_needs_and_no_test_tooling(tmp_path):
     demo = _make_dry_run(tmp_path / "a", "demo")
-    assert "bash tools/install_sysdeps.sh" in demo and ".venv/bin/python -m pip install --quiet -e ." in demo
+    quiet = 'PYTHONWARNINGS="ignore:Editable installation" '     # setuptools' notice for developers, not users
+    assert "bash tools/install_sysdeps.sh" in demo and quiet + ".venv/bin/python -m pip install --quiet -e ." in demo
     assert not [c for c in demo if "[test]" in c or "--test" in c or "chromium" in c or "playwright" in c], demo
     assert demo[-2:] == [".venv/bin/pbdyn batch scenarios/quickstart.toml --out results/quickstart.sqlite",
                          ".venv/bin/pbdyn evaluate results/quickstart.sqlite --plots results/quickstart-figures"]
     test = _make_dry_run(tmp_path / "b", "test")
-    assert test.index(".venv/bin/python -m pip install --quiet -e '.[test]'") \
+    assert test.index(quiet + ".venv/bin/python -m pip install --quiet -e '.[test]'") \
         < test.index("bash tools/install_sysdeps.sh --test") < len(test) - 1
     assert test[-1].startswith(".venv/bin/python -m pytest ")
     after_demo = _make_dry_run(tmp_path / "c", "test", ".installed", ".native")   # `make demo`, then `make test`
-    assert after_demo and after_demo[0] == ".venv/bin/python -m pip install --quiet -e '.[test]'"
+    assert after_demo and after_demo[0] == quiet + ".venv/bin/python -m pip install --quiet -e '.[test]'"
 
 
 def test_install_sysdeps_lists_the_browser_only_for_the_tests():
@@ -224,7 +225,7 @@ def test_wheel_carries_models_and_bundled_scenarios(tmp_path):
     expected |= {p.relative_to(ROOT).as_posix() for p in (ROOT / "pbdyn").rglob("*.py")}
     assert {"pbdyn/models/quadrotor.urdf", "pbdyn/scenarios/quickstart.toml", "pbdyn/scenarios/worlds/meshes/gem.obj",
             "pbdyn/scenarios/worlds/urdf/gem.urdf", "pbdyn/scenarios/datasets/controlled_2d.toml"} <= expected
-    expected.add("pbdyn/planning/native/ruckig_batch.cpp")       # the native batch's source, built on the target
+    expected.add("pbdyn/planning/primitives/native/ruckig_batch.cpp")   # the native batch's source, built on the target
     assert not expected - names, sorted(expected - names)
     assert not [n for n in names if n.endswith(".so")]              # never a library built for this machine
     tops = {n.split("/")[0] for n in names}

@@ -11,8 +11,9 @@ import pytest
 from pbdyn.perception.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from pbdyn.perception.perceive import Perception
 from pbdyn.perception.sensor import in_fov, ray_directions
-from pbdyn.world.bullet import PyBulletWorld, pybullet
+from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.pybullet_client import pybullet
 
 ARENA3 = (20.0, 20.0, 10.0)
 MAV = np.array([5.0, 10.0, 5.0])
@@ -206,8 +207,9 @@ def test_culled_ray_casting_equals_casting_every_ray(dims):
 
 
 # ------------------------------------------------------------------------------------------ free space
-def _reference_free_cells(grid, o, dirs, reach, range_m):
-    """Per-ray loop: cells of the samples at min(t_j, reach - 1e-9 res), t_j = j range / n, n = ceil(4 range / res)."""
+def free_cells_reference(grid, o, dirs, reach, range_m):
+    """The reference twin of Perception.free_cells, a per-ray loop: the flat cells of the samples at
+    min(t_j, reach - 1e-9 res), t_j = j range / n, n = ceil(4 range / res) (m)."""
     res = grid.res
     n = int(math.ceil(range_m / (res / 4.0)))
     t_cells = np.linspace(0.0, range_m, n + 1) / res
@@ -247,7 +249,7 @@ def test_vectorised_free_marking_equals_a_per_ray_reference(dims, res):
             det = perc.sense(o, yaw)
             reach = np.where(det.hits >= 0, det.ranges, np.inf)
             dirs = perc.directions(yaw)
-            ref = _reference_free_cells(grid, o, dirs, reach, 8.0)
+            ref = free_cells_reference(grid, o, dirs, reach, 8.0)
             assert np.array_equal(perc.free_cells(o, dirs.T, reach), ref)
             static = w.is_static_body[det.hits]
             occ = grid.flat_index(o + dirs[static] * (det.ranges[static] + 1e-3)[:, None])
@@ -259,8 +261,9 @@ def test_vectorised_free_marking_equals_a_per_ray_reference(dims, res):
 
 @pytest.mark.parametrize("dims", [2, 3])
 def test_compiled_scan_completion_equals_numpy(dims):
-    """Perception.complete (compiled) leaves the grid, its version and the detections exactly as _complete_numpy
-    does, scan after scan, with walls, static boxes and obstacles hit and the sensor outside the arena once."""
+    """Perception.complete (compiled) leaves the grid, its version and the detections exactly as its reference twin
+    _complete_reference does, scan after scan, with walls, static boxes and obstacles hit and the sensor outside the
+    arena once."""
     rng = np.random.default_rng(40 + dims)
     size = np.array([20.0, 14.0] if dims == 2 else [20.0, 14.0, 9.0])
     statics = [StaticBody("box", (12.0, 7.0, 4.5)[:dims] if dims == 3 else (12.0, 7.0), size=(1.5, 3.0, 2.0)[:dims],
@@ -281,7 +284,7 @@ def test_compiled_scan_completion_equals_numpy(dims):
             scan = percs[0].begin(o, yaw)
             hits, frac = w.cast_fan_rays(scan.fan)
             got = percs[0].complete(scan, hits, frac)
-            want = percs[1]._complete_numpy(scan, hits, frac)
+            want = percs[1]._complete_reference(scan, hits, frac)
             assert np.array_equal(grids[0].cells, grids[1].cells) and grids[0].version == grids[1].version
             assert np.array_equal(got.ids, want.ids) and got.ids.dtype == want.ids.dtype
             assert np.array_equal(got.centers, want.centers) and np.array_equal(got.ranges, want.ranges)

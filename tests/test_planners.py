@@ -10,8 +10,9 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import FREE, OCCUPIED, OccupancyGrid
 from pbdyn.planning import registry
 from pbdyn.planning.checks import WALL_MARGIN_CAP, first_conflict, trajectory_clear, within_limits
-from pbdyn.planning.gaze import FullRange, LookAhead, wrap_angle
-from pbdyn.planning.local_primitives import LocalPrimitives
+from pbdyn.planning.gaze.rules import FullRange, LookAhead
+from pbdyn.planning.gaze.yaw import wrap_angle
+from pbdyn.planning.primitives.local import LocalPrimitives
 from pbdyn.planning.protocols import GazePlanner, PlannerContext, TrajectoryPlanner
 from pbdyn.planning.straight_line import StraightLine
 from pbdyn.planning.trajectory import Trajectory
@@ -184,7 +185,7 @@ def test_local_primitives_primitive_ends_at_candidate_with_end_velocity():
 def test_local_primitives_goal_within_step_is_first_candidate_at_rest(minjerk):
     from dataclasses import replace
 
-    from pbdyn.planning.local_primitives_minjerk import LocalPrimitivesMinJerk
+    from pbdyn.planning.primitives.minjerk import LocalPrimitivesMinJerk
 
     ctx = replace(_context(), physical=not minjerk)
     planner = (LocalPrimitivesMinJerk if minjerk else LocalPrimitives)(ctx)
@@ -507,7 +508,7 @@ def test_local_primitives_chunked_plan_equals_one_by_one_bit_for_bit(dims):
         got = planner.plan(view)
         tried, rank = planner.last_candidates_tried, planner.last_rank
         proven = planner.none_can_be_clear(view)
-        ref = planner.plan_one_by_one(view)
+        ref = planner.plan_reference(view)
         assert (got is None) == (ref is None)
         if ref is None:
             outcomes["proven" if proven else "none"] += 1
@@ -532,13 +533,13 @@ def test_local_primitives_proof_of_no_candidate():
     assert planner.none_can_be_clear(view)
     assert planner.plan(view) is None and planner.last_candidates_tried == 1
     assert planner.last_candidates_built <= 1 + 3                         # the best one (and its rebuilds) only
-    assert planner.plan_one_by_one(view) is None and planner.last_candidates_built > 0
+    assert planner.plan_reference(view) is None and planner.last_candidates_built > 0
     far = make_tracks(np.array([[25.0, 30.0]]), np.zeros((1, 2)), 1.0)
     view = _view(ctx, [25.0, 25.0], [45.0, 25.0], v, tracks=far)
     assert not planner.none_can_be_clear(view)
     assert planner.plan(view) is not None
     wall = _view(ctx, [1.05, 25.0], [45.0, 25.0], np.array([-2.0, 0.0]))   # flying into the wall at 2 m/s
-    assert planner.none_can_be_clear(wall) and planner.plan_one_by_one(wall) is None
+    assert planner.none_can_be_clear(wall) and planner.plan_reference(wall) is None
 
 
 @pytest.mark.parametrize("dims", [2, 3])
@@ -551,7 +552,7 @@ def test_local_primitives_compiled_proof_decides_as_numpy(dims):
     fired = 0
     for view in _random_views(ctx, rng, 300):
         got = planner.none_can_be_clear(view)
-        assert got == planner._none_can_be_clear_numpy(view)
+        assert got == planner._none_can_be_clear_reference(view)
         fired += got
     assert 0 < fired < 300
     # an obstacle straight ahead at the decisive distance of sample 1 (gap + ball = reach), nudged both ways
@@ -567,14 +568,21 @@ def test_local_primitives_compiled_proof_decides_as_numpy(dims):
             centre[0] += reach - ball + nudge
             tracks = make_tracks(centre[None], np.zeros((1, dims)), radius)
             view = _view(ctx, p, np.full(dims, 30.0), v, tracks=tracks)
-            assert planner.none_can_be_clear(view) == planner._none_can_be_clear_numpy(view)
+            assert planner.none_can_be_clear(view) == planner._none_can_be_clear_reference(view)
+
+
+def goal_angles_reference(directions, to_goal):
+    """The reference twin of goal_angles_argmin's angles (rad): numpy's np.round(np.arccos(np.clip(cos, -1, 1)), 12)
+    of the cosines between unit ``directions`` [n, d] and ``to_goal`` [d]."""
+    x = directions @ (to_goal / math.sqrt(float(to_goal @ to_goal)))
+    return np.round(np.arccos(np.clip(x, -1.0, 1.0)), 12)
 
 
 @pytest.mark.parametrize("dims", [2, 3])
 def test_goal_angles_are_numpys_rounded_arccos_of_the_clipped_cosines(dims):
     """goal_angles computes np.round(np.arccos(np.clip(cos, -1, 1)), 12) in place: the same floats, including the
     clip's edges, exact ties after rounding and directions straight at or away from the goal."""
-    from pbdyn.planning.local_primitives import candidate_directions, goal_angles, goal_angles_argmin
+    from pbdyn.planning.primitives.local import candidate_directions, goal_angles, goal_angles_argmin
 
     rng = np.random.default_rng(7)
     dirs = candidate_directions(dims, 72, 15.0)
@@ -583,8 +591,7 @@ def test_goal_angles_are_numpys_rounded_arccos_of_the_clipped_cosines(dims):
     goals += [np.full(dims, np.nan)]
     for g in goals:
         got = goal_angles(dirs, g)
-        x = dirs @ (g / math.sqrt(float(g @ g)))
-        want = np.round(np.arccos(np.clip(x, -1.0, 1.0)), 12)
+        want = goal_angles_reference(dirs, g)
         assert np.array_equal(got, want, equal_nan=True)
         angles, i = goal_angles_argmin(dirs, g)
         assert np.array_equal(angles, want, equal_nan=True) and i == int(np.argmin(want))
@@ -597,7 +604,7 @@ def test_goal_angles_are_numpys_rounded_arccos_of_the_clipped_cosines(dims):
 
 def test_clip_rate_is_numpys_clip_of_a_float():
     """The gaze planners' scalar clip gives np.clip's value bit for bit, signed zeros, limits and NaN included."""
-    from pbdyn.planning.gaze import clip_rate
+    from pbdyn.planning.gaze.yaw import clip_rate
 
     rng = np.random.default_rng(3)
     values = list(rng.normal(size=2000) * 3.0) + [0.0, -0.0, 1.4, -1.4, 1.4 + 1e-16, math.inf, -math.inf, math.nan]
@@ -611,18 +618,19 @@ def test_clip_rate_is_numpys_clip_of_a_float():
 
 
 def test_the_environments_views_equal_views_built_field_by_field():
-    """TrialEnv.view (View.of_owned: no dataclass __init__, shared read-only goal and bounds) gives what View(...)
+    """TrialState.view (View.of_owned: no dataclass __init__, shared read-only goal and bounds) gives what View(...)
     gives for the same values: every field equal, arrays read-only, and the state arrays copies of the env's."""
     import dataclasses
 
-    from pbdyn.sim.env import TrialEnv
+    from pbdyn.sim.batch import TrialBatch
     from pbdyn.sim.spec import make_trial_spec
     from tests.helpers import first_map, handmade_rollout, open_scenario
 
     sc = open_scenario(obstacles={"count": 1})
-    env = TrialEnv(make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 40.0)),
-                   handmade_rollout(sc, [[20.0, 20.0]], [[0.0, 1.0]], [1.0]))
-    env.reset()
+    batch = TrialBatch([make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 40.0))],
+                       handmade_rollout(sc, [[20.0, 20.0]], [[0.0, 1.0]], [1.0]))
+    batch.start()
+    env = batch.states[0]
     traj = Trajectory(0.0, env.dt, np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)))
     got = env.view(traj)
     sensor = sc.sensor
@@ -639,7 +647,7 @@ def test_the_environments_views_equal_views_built_field_by_field():
     assert not np.shares_memory(got.position, env.position) and not np.shares_memory(got.goal, env.goal)
     with pytest.raises(dataclasses.FrozenInstanceError):
         got.t = 1.0
-    env.close()
+    batch.close()
 
 
 def test_trajectory_of_owned_equals_the_checked_constructor():

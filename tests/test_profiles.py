@@ -207,16 +207,15 @@ def test_the_program_rule_respawns_around_the_flown_start_only():
 
 
 def test_start_yaw_faces_the_goal_or_the_given_angle():
-    from pbdyn.sim.env import TrialEnv
+    from pbdyn.sim.batch import TrialBatch
 
     for task, want in (({}, math.atan2(21.0, 42.0)), ({"start_yaw_deg": 90.0}, math.pi / 2),
                        ({"start_yaw_deg": -270.0}, math.pi / 2), ({"start_yaw_deg": "goal"}, math.atan2(21.0, 42.0))):
         sc = open_scenario(task=task)
         spec = make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 25.0))
-        env = TrialEnv(spec, handmade_rollout(sc, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)))
-        env.reset()
-        assert env.yaw == pytest.approx(want), task
-        env.close()
+        with TrialBatch([spec], handmade_rollout(sc, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))) as batch:
+            batch.start()
+            assert batch.states[0].yaw == pytest.approx(want), task
     assert _scenario("thesis_program").task.start_yaw_deg == 90.0
 
 
@@ -224,16 +223,16 @@ def test_start_yaw_faces_the_goal_or_the_given_angle():
 def test_obstacles_at_next_senses_the_obstacles_one_step_ahead(where, k):
     """The program moved its obstacles before the MAV sensed: with sensor.obstacles_at = "next" the scan at t_k
     measures the centres at t_k+1; the collision check still uses t_k+1 against the MAV at t_k+1."""
-    from pbdyn.sim.env import TrialEnv
+    from pbdyn.sim.batch import TrialBatch
 
     sc = open_scenario(obstacles={"count": 1}, sensor={"obstacles_at": where, "fov_deg": 360.0})
     rollout = handmade_rollout(sc, [[10.0, 4.0]], [[0.0, 3.0]], [1.0])
     spec = make_trial_spec(sc, first_map(sc), start=(4.0, 4.0), goal=(46.0, 4.0))
-    env = TrialEnv(spec, rollout)
-    env.reset()
-    np.testing.assert_allclose(env.detections.centers, rollout.at(k)[0])
-    np.testing.assert_allclose(env.tracks.position, rollout.at(k)[0])
-    env.close()
+    with TrialBatch([spec], rollout) as batch:
+        batch.start()
+        env = batch.states[0]
+        np.testing.assert_allclose(env.detections.centers, rollout.at(k)[0])
+        np.testing.assert_allclose(env.tracks.position, rollout.at(k)[0])
     assert _scenario("thesis_program").sensor.obstacles_at == "next"
 
 
@@ -282,8 +281,8 @@ def test_a_store_holds_one_profile_and_evaluate_refuses_to_pool_profiles(tmp_pat
 
 
 def test_thesis_program_gives_built_in_planners_their_program_parameters():
-    from pbdyn.planning.global_primitives import GlobalPrimitives
-    from pbdyn.planning.mpc import MPC
+    from pbdyn.planning.primitives.global_astar import GlobalPrimitives
+    from pbdyn.planning.mpc.planner import MPC
     from pbdyn.sim.agent import Agent
 
     for profile in ("physical", "thesis_program"):
@@ -303,11 +302,10 @@ def test_thesis_program_gives_built_in_planners_their_program_parameters():
                              "planners": [{"trajectory": "local_primitives_minjerk", "gaze": "lookahead"}]})
         agent = Agent(make_trial_spec(sc, get_map(sc, 0), start=(4.0, 4.0), goal=(46.0, 4.0)))
         assert agent.gaze.at_rest == ("hold" if profile == "thesis_program" else "plan")
-        from pbdyn.sim.env import TrialEnv
-        env = TrialEnv(agent.spec, build_rollout(sc, get_map(sc, 0)), fov_deg=agent.fov_deg)
-        env.reset()                                   # at rest facing +y; the goal lies along +x
-        d = agent.act(env.view(agent.trajectory))
-        env.close()
+        from pbdyn.sim.batch import TrialBatch
+        with TrialBatch([agent.spec], build_rollout(sc, get_map(sc, 0)), fov_deg=[agent.fov_deg]) as batch:
+            batch.start()                             # at rest facing +y; the goal lies along +x
+            d = agent.act(batch.view(0, agent.trajectory))
         assert (d.action.yaw_rate == 0.0) == (profile == "thesis_program")
 
 
@@ -336,7 +334,7 @@ def test_program_brake_and_pixel_positions():
     """thesis_program executes plans as the program did: positions on its 0.1 m pixels; a failed plan brakes as its
     Drone2D.brake (stop when |v| <= a_max dt, else v -= a_max dt v/|v| and p += v_new dt; a kept)."""
     from pbdyn.sim.agent import Agent, program_brake
-    from pbdyn.sim.env import TrialEnv
+    from pbdyn.sim.batch import TrialBatch
 
     p, a = np.array([10.0, 10.0]), np.array([3.0, -1.0])
     p1, v1, a1 = program_brake(p, np.array([3.0, 4.0]), a, 4.0, 0.1)
@@ -351,16 +349,17 @@ def test_program_brake_and_pixel_positions():
     spec = make_trial_spec(sc, get_map(sc, 0), planner="local_primitives_minjerk", gaze="lookahead",
                            start=(4.0, 4.0), goal=(46.0, 46.0))
     agent = Agent(spec)
-    env = TrialEnv(spec, build_rollout(sc, get_map(sc, 0)), fov_deg=agent.fov_deg)
-    env.reset()
+    batch = TrialBatch([spec], build_rollout(sc, get_map(sc, 0)), fov_deg=[agent.fov_deg])
+    batch.start()
+    env = batch.states[0]
     off_grid = 0
     for _ in range(30):
         d = agent.act(env.view(agent.trajectory))
-        env.step(d.action)
+        batch.step({0: d.action})
         pix = env.position * 10.0
         np.testing.assert_array_equal(pix, np.round(pix))
         off_grid += int(np.any(np.abs(agent.trajectory.p[1] * 10.0 - np.round(agent.trajectory.p[1] * 10.0)) > 1e-6))
-    env.close()
+    batch.close()
     assert off_grid > 0          # the plans themselves are not on the pixel grid
 
 

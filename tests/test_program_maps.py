@@ -12,8 +12,8 @@ import pytest
 
 from pbdyn.config import parse_scenario
 from pbdyn.errors import ConfigError
+from pbdyn.motion.cvm import cvm_fold, cvm_program_turn
 from pbdyn.world.maps import PROGRAM_METRICS_START, enumerate_maps, program_stream, spawn_obstacles
-from pbdyn.world.motion import cvm_fold, cvm_program_turn
 from pbdyn.world.rollout import build_rollout, rollout_key
 
 ROOT = Path(__file__).resolve().parents[1]

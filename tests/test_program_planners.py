@@ -14,14 +14,14 @@ import pytest
 from pbdyn.config import parse_scenario
 from pbdyn.perception.grid import FREE, OCCUPIED, OccupancyGrid
 from pbdyn.planning import registry
-from pbdyn.planning.global_primitives import (GlobalPrimitives, program_accel_values, program_heuristic,
+from pbdyn.planning.primitives.global_astar import (GlobalPrimitives, program_accel_values, program_heuristic,
                                               program_keys)
-from pbdyn.planning.mpc import MPC
+from pbdyn.planning.mpc.planner import MPC
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.view import MAVLimits, Tracks, View
 from pbdyn.sim.agent import Agent, planner_context
 from pbdyn.sim.contract import check_plan
-from pbdyn.sim.env import TrialEnv
+from pbdyn.sim.batch import TrialBatch
 from pbdyn.outcome import Outcome
 from pbdyn.sim.trial import make_trial_spec
 from pbdyn.world.maps import enumerate_maps
@@ -173,18 +173,20 @@ def _fly_program(trajectory: str, start, goal):
     planner = registry.build_planner(cls, replace(planner_context(spec), physical=False),
                                      dict(spec.planner.trajectory_params), "planners[0].trajectory_params")
     agent = Agent(spec, planner, physical=False)
-    env = TrialEnv(spec, build_rollout(sc, map_spec), fov_deg=agent.fov_deg)
+    # executed as the program did: the core's guard checks the form only (docs/profiles.md)
+    batch = TrialBatch([spec], build_rollout(sc, map_spec), fov_deg=[agent.fov_deg], profile="thesis_program")
+    env = batch.states[0]
     planned = 0
     try:
-        env.reset()
+        batch.start()
         while not env.done:
             decision = agent.act(env.view(agent.trajectory))
             assert decision.violation is None, decision.violation
             planned += decision.planned
-            env.step(decision.action)
+            batch.step({0: decision.action})
         return env.outcome, env.steps, planned, planner
     finally:
-        env.close()
+        batch.close()
 
 
 @pytest.mark.parametrize("trajectory", ["global_primitives", "mpc"])

@@ -7,8 +7,8 @@ import pytest
 
 from pbdyn.config import load_scenario, parse_scenario
 from pbdyn.errors import HorizonError
+from pbdyn.motion.cvm import cvm_fold
 from pbdyn.world.maps import enumerate_maps
-from pbdyn.world.motion import cvm_fold
 from pbdyn.world.rollout import Rollout, build_rollout, cache_dir, get_rollout, rollout_key
 from tests.conftest import SCENARIOS
 

@@ -145,8 +145,9 @@ def test_imported_world_routes_avoid_the_shelves(warehouse):
     assert detours[2] == 1.0                                 # the middle row is an open aisle
 
 
-def _scipy_grid_distance(free: np.ndarray, a: tuple, b: tuple) -> float:
-    """The reference: scipy's Dijkstra on the 8/26-connected graph of the free nodes (cells)."""
+def grid_distance_reference(free: np.ndarray, a: tuple, b: tuple) -> float:
+    """The reference twin of grid_path's length (cells): scipy's Dijkstra on the 8/26-connected graph of the free
+    nodes."""
     shape = free.shape
     idx = np.indices(shape).reshape(len(shape), -1).T
     rows, cols, w = [], [], []
@@ -172,7 +173,7 @@ def test_grid_search_matches_scipy_dijkstra(shape):
     nodes = np.argwhere(free)
     for _ in range(6):
         a, b = (tuple(int(x) for x in nodes[k]) for k in rng.choice(len(nodes), 2, replace=False))
-        want = _scipy_grid_distance(free, a, b)
+        want = grid_distance_reference(free, a, b)
         got, path = grid_path(grid, a, b)
         assert got == pytest.approx(want, rel=1e-12) if np.isfinite(want) else not np.isfinite(got)
         if np.isfinite(want):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import ruckig
 
-from pbdyn.planning.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles
+from pbdyn.planning.primitives.compiled.ruckig_sampling import PROFILE_WIDTH, profile_row, sample_profiles
 
 DT = 0.1
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from pbdyn.config import parse_scenario
+from pbdyn.motion.cvm import cvm_fold
+from pbdyn.motion.rvo import RVOParams, orca_halfspaces, rvo_rollout
 from pbdyn.world.maps import enumerate_maps, spawn_obstacles
-from pbdyn.world.motion import cvm_fold
 from pbdyn.world.rollout import build_rollout
-from pbdyn.world.rvo import RVOParams, orca_halfspaces, rvo_rollout
 
 
 def _in_vo(v, p, big_r, tau):

@@ -15,8 +15,9 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception import marching
 from pbdyn.perception.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 from pbdyn.perception.perceive import Perception
-from pbdyn.world.bullet import PyBulletWorld, urdf_path
+from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.imported.urdf_loading import urdf_path
 from tests.conftest import SCENARIOS
 
 ARENA = (30.0, 20.0)
@@ -37,8 +38,9 @@ def sensor(world, model="marching", fov=90.0, **kw):
                       **kw), grid
 
 
-def reference_scan(world, directions, o, range_m, step, rule="ray"):
-    """A plain per-ray, per-point loop of the marching rule: (free points, occupied points, seen obstacle ids).
+def march_reference(world, directions, o, range_m, step, rule="ray"):
+    """The reference twin of the marching sensor (pbdyn.perception.marching.march), a plain per-ray, per-point loop
+    of the marching rule: (free points, occupied points, seen obstacle ids).
     rule "program": ``step`` along the ray's dominant axis, and the first point at/after the range is still tested
     for obstacles, bodies and walls (the program's loop), never marked free."""
     free, occupied, seen = [], [], set()
@@ -169,7 +171,7 @@ def test_grid_and_detections_match_a_per_point_reference_on_random_scenes(fov, r
             grid.cells[:] = UNKNOWN
             det = perc.sense(o, yaw)
             kinds |= {w.body_kind(int(b))[0] for b in det.hits}
-            free, occ, seen = reference_scan(w, perc.directions(yaw), o, 8.0, 0.9, rule)
+            free, occ, seen = march_reference(w, perc.directions(yaw), o, 8.0, 0.9, rule)
             assert det.ids.tolist() == seen
             np.testing.assert_array_equal(det.centers, w.obstacle_positions[seen])
             np.testing.assert_array_equal(grid.cells, expected_cells(grid, free, occ))
@@ -198,7 +200,7 @@ def test_3d_spheres_rows_and_reference():
             grid.cells[:] = UNKNOWN
             det = perc.sense(o, yaw)
             kinds |= {w.body_kind(int(b))[0] for b in det.hits}
-            free, occ, seen = reference_scan(w, perc.directions(yaw), o, 8.0, 0.9)
+            free, occ, seen = march_reference(w, perc.directions(yaw), o, 8.0, 0.9)
             assert det.ids.tolist() == seen and len(seen) > 0
             np.testing.assert_array_equal(grid.cells, expected_cells(grid, free, occ))
         assert kinds == {"none", "dynamic", "static", "wall"}

@@ -53,13 +53,14 @@ def test_the_planner_registry_loads_only_the_planners_asked_for():
     code = textwrap.dedent("""
         import sys
         from pbdyn.planning import registry
-        assert 'pbdyn.planning.mpc' not in sys.modules and 'pbdyn.planning.global_primitives' not in sys.modules
+        assert 'pbdyn.planning.mpc.planner' not in sys.modules
+        assert 'pbdyn.planning.primitives.global_astar' not in sys.modules
         assert sorted(registry.TRAJECTORY_PLANNERS) == ['global_primitives', 'local_primitives',
                                                         'local_primitives_minjerk', 'mpc', 'straight_line']
         cls = registry.resolve_trajectory_planner('straight_line')
         from pbdyn.planning.straight_line import StraightLine
         assert cls is StraightLine and registry.GAZE_PLANNERS['lookahead'].__name__ == 'LookAhead'
-        assert 'pbdyn.planning.mpc' not in sys.modules
+        assert 'pbdyn.planning.mpc.planner' not in sys.modules
     """)
     assert _loaded(code) == set()
 
@@ -70,7 +71,7 @@ def test_building_the_quickstart_planners_loads_neither_numba_nor_the_native_lib
     code = textwrap.dedent("""
         import pbdyn
         from pbdyn.experiments.runner import check_planners
-        from pbdyn.planning import native
+        from pbdyn.planning.primitives import native
         check_planners(pbdyn.load_scenario('quickstart'))
         assert native.ruckig_build_address.cache_info().currsize == 0
     """)
@@ -141,8 +142,9 @@ def test_deferred_njit_compiles_on_first_call_and_swaps_in_the_dispatcher(tmp_pa
 # ----------------------------------------------------------------------------------------------- native probe
 @pytest.fixture
 def native_fresh(monkeypatch, tmp_path):
-    """pbdyn.planning.native with its per-process answer forgotten, the cache in tmp_path, and agrees() counted."""
-    from pbdyn.planning import native
+    """pbdyn.planning.primitives.native with its per-process answer forgotten, the cache in tmp_path, and agrees()
+    counted."""
+    from pbdyn.planning.primitives import native
 
     if not (native.LIBRARY.is_file() and native.integrity_problem(native.LIBRARY) is None):
         pytest.skip("the native ruckig batch is not built here")

@@ -1,4 +1,4 @@
-"""User code at pbdyn's boundary (pbdyn.usercode, pbdyn/world/imported.py): motion functions that return garbage,
+"""User code at pbdyn's boundary (pbdyn.usercode, pbdyn/world/imported/bodies.py): motion functions that return garbage,
 raise or exit, hang or print; planner plug-ins that print. Every case is a one-line ConfigError naming the field
 (CLI exit 2) or a clean result, and pbdyn's stdout only ever carries its own output."""
 
@@ -20,7 +20,7 @@ from pbdyn import cli
 from pbdyn import usercode
 from pbdyn.config import parse_scenario
 from pbdyn.errors import ConfigError, one_line, shorten
-from pbdyn.world import imported
+from pbdyn.world.imported import bodies as imported
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout
 

@@ -14,10 +14,10 @@ from pbdyn import limits
 from pbdyn.config import load_scenario, parse_scenario
 from pbdyn.errors import ConfigError
 from pbdyn.planning import registry
-from pbdyn.planning.gaze import LookAhead
-from pbdyn.planning.global_primitives import GlobalPrimitives
-from pbdyn.planning.local_primitives import LocalPrimitives
-from pbdyn.planning.mpc import MPC
+from pbdyn.planning.gaze.rules import LookAhead
+from pbdyn.planning.primitives.global_astar import GlobalPrimitives
+from pbdyn.planning.primitives.local import LocalPrimitives
+from pbdyn.planning.mpc.planner import MPC
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.straight_line import StraightLine
 from pbdyn.planning.view import MAVLimits

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from pbdyn.errors import ConfigError
-from pbdyn.world.bullet import (PyBulletWorld, RAY_BATCH, load_scaled_urdf, scale_urdf_text, urdf_path,
-                                what_if_pose)
+from pbdyn.world.bullet import PyBulletWorld, RAY_BATCH, what_if_pose
 from pbdyn.world.geometry import StaticBody
+from pbdyn.world.imported.urdf_loading import load_scaled_urdf, scale_urdf_text, urdf_path
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ from tests.conftest import ROOT, SCENARIOS, pbdyn_cmd
 from pbdyn.config import load_scenario, parse_scenario
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.registry import compute
-from pbdyn.world.imported import waypoint_loop
+from pbdyn.world.imported.bodies import waypoint_loop
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import Rollout, build_rollout, rollout_key
 
@@ -344,7 +344,7 @@ def test_trials_collide_with_moving_bodies_by_their_real_shapes(offset, collides
 
 def test_rays_see_moving_bodies_by_their_real_shapes():
     """A ray that passes inside the cart's bounding circle but beside the cart misses it; one through it hits."""
-    from pbdyn.sim.env import make_world
+    from pbdyn.sim.state import make_world
     from pbdyn.sim.trial import make_trial_spec
 
     sc = world([{"name": "cart", "urdf": BOX, "scale": [2.0, 1.0, 3.0], "position": [25.0, 25.0, 1.5],

@@ -40,8 +40,8 @@ def cases() -> list[tuple[str, int, str, str, tuple, tuple]]:
     return out
 
 
-def fly_cases() -> list[dict]:
-    """Fly every case; each row is TrialResult.without_wall_times() plus the case."""
+def fly_cases(every: int = 1) -> list[dict]:
+    """Fly every ``every``-th case; each row is TrialResult.without_wall_times() plus the case."""
     from pbdyn.config import load_scenario
     from pbdyn.sim.trial import make_trial_spec, run_trial
     from pbdyn.world.maps import get_map
@@ -49,7 +49,7 @@ def fly_cases() -> list[dict]:
 
     rows = []
     scenarios: dict = {}
-    for name, m, traj, gaze, start, goal in cases():
+    for name, m, traj, gaze, start, goal in cases()[::every]:
         sc = scenarios.setdefault(name, load_scenario(ROOT / "scenarios" / name))
         ms = get_map(sc, m)
         spec = make_trial_spec(sc, ms, planner=traj, gaze=gaze, start=tuple(start), goal=tuple(goal))

@@ -157,7 +157,7 @@ def interrupts(t, **_):
 
 
 # ------------------------------------------------------------------------------------------------ planners
-from pbdyn.planning.gaze import FullRange  # noqa: E402
+from pbdyn.planning.gaze.rules import FullRange  # noqa: E402
 from pbdyn.planning.straight_line import StraightLine  # noqa: E402
 
 

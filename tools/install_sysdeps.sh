@@ -3,7 +3,8 @@
 #
 #   tools/install_sysdeps.sh           what pbdyn itself uses (`make demo`):
 #     libusb-1.0    open3d (extra "mesh") loads it at import time;
-#     g++           builds the native ruckig batch (pbdyn/planning/native; optional: planners are faster with it).
+#     g++           builds the native ruckig batch (pbdyn/planning/primitives/native; optional: planners are
+#                   faster with it).
 #   tools/install_sysdeps.sh --test    those, and what only the tests use (`make test`):
 #     chromium, chromium-driver   the HTML report's browser test (tests/test_html_report.py);
 #     xvfb          a virtual display for the PyBullet GUI test (tests/test_gui.py).

@@ -13,7 +13,7 @@
    each tied pair is that sort's; numpy >= 1.25 (SIMD sorting) orders ties differently.
 
 The tool rebuilds both as the program computed them (docs/thesis-program.md "Trajectory planners") and prints them;
-pbdyn.planning.local_primitives_minjerk holds its output. It refuses to run under another numpy version.
+pbdyn.planning.primitives.minjerk holds its output. It refuses to run under another numpy version.
 """
 
 from __future__ import annotations

@@ -59,7 +59,8 @@ import pandas as pd  # noqa: E402
 from pbdyn.config import parse_scenario  # noqa: E402
 from pbdyn.errors import ConfigError  # noqa: E402
 from pbdyn.experiments.evaluate import evaluate_stores  # noqa: E402
-from pbdyn.experiments.runner import BatchInterrupted, BatchOptions, run_batch  # noqa: E402
+from pbdyn.experiments.runner import BatchOptions, run_batch  # noqa: E402
+from pbdyn.experiments.signals import BatchInterrupted  # noqa: E402
 from pbdyn.experiments.store import ResultsStore  # noqa: E402
 from pbdyn.metrics.catalog import TABLE_ORDER  # noqa: E402
 from pbdyn.outcome import Outcome  # noqa: E402

@@ -1,6 +1,6 @@
 """Local worker pools and a script without ``if __name__ == "__main__":``.
 
-pbdyn's worker processes start with multiprocessing's "spawn" method (pbdyn.experiments.runner, generate): each
+pbdyn's worker processes start with multiprocessing's "spawn" method (pbdyn.experiments.pool, generate): each
 new process imports the parent's main script again, as the module ``__mp_main__``, before it does any work. A
 script that calls run_batch (or calibrate, generate_maps, bench: anything that starts a local pool) at its top level,
 not under ``if __name__ == "__main__":``, therefore calls it again in every worker while that worker is still

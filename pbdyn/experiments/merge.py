@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pbdyn.errors import ConfigError
+from pbdyn.experiments.signals import BatchInterrupted, stop_on_signals
 from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore, check_store_path, read_only_uri, store_error
 
 _MAP_COLUMNS = ("map_id", "map_index", "map_key", "setup_json", "seed", "rollout_key", "dataset",
@@ -70,15 +71,13 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
             raise ConfigError("out", "holds another scenario than the stores to merge (use a new --out file)",
                               str(out))
     check_same_code(([(out_path, "out")] if existed else []) + [(p, "RESULTS") for p in inputs])
-    from pbdyn.experiments.runner import BatchInterrupted, _stop_on_signals
-
     if existed:
         target = out_path
     else:
         remove_stale_temps(out_path)
         target = out_path.with_name(f"{temp_prefix(out_path)}{os.getpid()}")
         _remove(target)
-    with _stop_on_signals():       # SIGTERM and SIGINT unwind through the clean-up below
+    with stop_on_signals():        # SIGTERM and SIGINT unwind through the clean-up below
         try:
             summary = _merge_into(target, scenario, inputs)
             if not existed:

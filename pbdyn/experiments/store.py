@@ -20,7 +20,7 @@ disk I/O errors, locked past the timeout, a full disk) become one-line ConfigErr
 are not UTF-8 or not JSON) likewise.
 
 Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_delay_s, max_speed_mps,
-max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.runner.check_scenario); 4 added
+max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.extend.check_scenario); 4 added
 trials.world_fingerprint (the first 16 hex digits of the row's map rollout key, which covers the world's code and
 files: pbdyn.world.rollout.rollout_key) and the meta key "world" (pbdyn.world.rollout.world_description); 5 added
 trials.path_length_m. Older stores are read as they are (a column they lack reads as

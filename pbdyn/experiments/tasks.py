@@ -51,8 +51,8 @@ class TrialTask:
 
 @dataclass(frozen=True)
 class TrialGroupTask:
-    """Trials of one map flown together in lockstep (pbdyn.sim.lockstep): their keys and TrialSpecs, in order, and
-    where the map's rollout is."""
+    """Trials of one map flown together as one trial batch (pbdyn.sim.trial.fly): their keys and TrialSpecs, in
+    order, and where the map's rollout is."""
 
     keys: tuple
     specs: tuple
@@ -273,7 +273,7 @@ def _world(task: TrialTask, spec, ro):
             world.close()                      # leaves the worker's client connected
         _CACHE["world"] = (None, None)
         if _CACHE["client"] is None:
-            from pbdyn.world.bullet import new_client
+            from pbdyn.world.pybullet_client import new_client
 
             _CACHE["client"] = new_client()    # one client per worker, reset for every map
             atexit.register(close_worker_world)
@@ -291,7 +291,7 @@ def close_worker_world() -> None:
     if world is not None:
         world.close()
     if client is not None:
-        from pbdyn.world.bullet import stdout_to_stderr
+        from pbdyn.world.pybullet_client import stdout_to_stderr
 
         with stdout_to_stderr():
             client.disconnect()
@@ -342,13 +342,13 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
 
 
 def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> list[tuple[str, dict, str | None]]:
-    """Fly a group of trials of one map in lockstep in this worker: per trial, in order, what run_trial_task
+    """Fly a group of trials of one map as one trial batch in this worker: per trial, in order, what run_trial_task
     returns for it (its row, or an "error" row and message if that trial raised). Each row is also put on the
     worker's row queue (worker_init) the moment its trial ends, so the coordinator can commit it before the whole
-    group is done. If the shared part of the lockstep loop fails (world, ray batch), the trials not yet ended are
+    group is done. If the shared part of the batch's loop fails (world, ray batch), the trials not yet ended are
     flown one by one with run_trial_task instead."""
     _limit_threads()
-    from pbdyn.sim.lockstep import run_lockstep
+    from pbdyn.sim.trial import fly
 
     singles = [TrialTask(k, s, task.rollout) for k, s in zip(task.keys, task.specs)]
     queue = _CACHE.get("queue")
@@ -370,7 +370,7 @@ def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> lis
     try:
         ro = _rollout(task.rollout, data)
         world = _world(singles[0], task.specs[0], ro)
-        run_lockstep(task.specs, ro, world, on_result=ended)
+        fly(task.specs, ro, world=world, on_result=ended)
     except Exception:
         _CACHE["world"] = (None, None)
         for i, t in enumerate(singles):

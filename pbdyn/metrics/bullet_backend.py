@@ -30,7 +30,8 @@ import numpy as np
 
 from pbdyn.errors import ConfigError, check_positive, HorizonError
 from pbdyn.metrics.sampling import step_window
-from pbdyn.world.bullet import bullet_client, load_scaled_urdf, pybullet, silenced_stdout, stdout_to_stderr
+from pbdyn.world.imported.urdf_loading import load_scaled_urdf
+from pbdyn.world.pybullet_client import bullet_client, pybullet, silenced_stdout, stdout_to_stderr
 
 QUERY_GROUP = 0x200
 """Collision filter group of the query (MAV) spheres."""
@@ -48,7 +49,7 @@ _IDENTITY = (0.0, 0.0, 0.0, 1.0)
 class ExtraBody:
     """A moving body of any shape for survival_times_bullet (imported worlds; world frame, m).
 
-    urdf: URDF file; scale: (sx, sy, sz) applied at load (see pbdyn.world.bullet.load_scaled_urdf).
+    urdf: URDF file; scale: (sx, sy, sz) applied at load (see pbdyn.world.imported.urdf_loading.load_scaled_urdf).
     pose: either positions [T, 3] (m) sampled at the rollout's steps (row k = time k dt; 2D bodies give their real z),
     or a function t (s) -> position [3], or -> (position [3], quaternion xyzw [4]).
     orientations: optional quaternions [T, 4] (xyzw) with array poses (default identity).

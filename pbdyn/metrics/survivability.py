@@ -115,9 +115,9 @@ def survival_times(rollout, points, *, mav_radius: float = 1.0, t_max: float = 1
 
     The first time an obstacle overlaps the MAV (centre distance < r_i + mav_radius), capped at t_max.
     mode "sampled": first step k >= 0 with overlap, t = k dt (thesis; compiled, each point stopping at its first hit:
-    _first_overlap, whose numpy reference is _survival_chunked); "exact": first contact with linear motion between
-    steps (closed form), never later than "sampled" (numpy, chunked in time; samples already hit are dropped from
-    later chunks). HorizonError if start_time + t_max is past the horizon.
+    _first_overlap, whose numpy reference twin is _survival_reference); "exact": first contact with linear motion
+    between steps (closed form), never later than "sampled" (numpy, chunked in time; samples already hit are dropped
+    from later chunks). HorizonError if start_time + t_max is past the horizon.
     """
     if mode not in MODES:
         raise ConfigError("mode", f"must be one of {', '.join(MODES)}", mode)
@@ -135,12 +135,12 @@ def survival_times(rollout, points, *, mav_radius: float = 1.0, t_max: float = 1
         _first_overlap(np.ascontiguousarray(pts), np.ascontiguousarray(window, dtype=float),
                        np.ascontiguousarray(reach2, dtype=float), float(dt), t_max, out)
         return out
-    return _survival_chunked(pts, window, reach2, dt, t_max, mode, out)
+    return _survival_reference(pts, window, reach2, dt, t_max, mode, out)
 
 
-def _survival_chunked(pts, window, reach2, dt, t_max, mode, out):
-    """survival_times in numpy, chunked in time (the "exact" mode, and the reference of the compiled "sampled"
-    mode, _first_overlap); fills and returns ``out`` (t_max where nothing overlaps)."""
+def _survival_reference(pts, window, reach2, dt, t_max, mode, out):
+    """survival_times in numpy, chunked in time: the "exact" mode, and the reference twin of the compiled "sampled"
+    mode (_first_overlap: the same floats); fills and returns ``out`` (s; t_max where nothing overlaps)."""
     alive = np.arange(pts.shape[0])
     first = 0
     n_steps, n_obs, dims = window.shape[0] - 1, window.shape[1], window.shape[2]

@@ -117,8 +117,8 @@ class OccupancyGrid:
         return mask
 
     @staticmethod
-    def _near_numpy(h: int, occ: np.ndarray) -> np.ndarray:
-        """_near's mask by shift-ORs in numpy (the reference of the compiled _dilate)."""
+    def _near_reference(h: int, occ: np.ndarray) -> np.ndarray:
+        """_near's mask by shift-ORs in numpy: the reference twin of the compiled _dilate (the same mask)."""
         mask = occ.copy()
         for axis in range(mask.ndim):          # a separable square dilation: shift-OR along each axis
             src = mask.copy()
@@ -305,7 +305,7 @@ def _occupied_equals(cells, occ):
 def _dilate(occ, shape, h):
     """The cells [flat, C order, of ``shape``] within Chebyshev index distance h of a True cell of ``occ``: per axis
     in turn, every True cell marks its neighbours up to h cells away along that axis (a separable square
-    dilation; OccupancyGrid._near_numpy is the reference)."""
+    dilation; OccupancyGrid._near_reference is its reference twin)."""
     mask = occ.copy()
     nd = shape.shape[0]
     stride = 1

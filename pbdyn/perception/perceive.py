@@ -274,7 +274,7 @@ class Perception:
         world, grid = self.world, self.grid
         o, dirs_t = scan.origin, scan.dirs_t
         if not grid.cells.flags.c_contiguous:
-            return self._complete_numpy(scan, hits, frac)
+            return self._complete_reference(scan, hits, frac)
         ranges, ids, newly_occupied = _complete_scan(
             grid.cells.reshape(-1), np.asarray(grid.shape, dtype=np.int64), o, grid.origin, grid.res, dirs_t,
             self._t_cells, np.asarray(hits, dtype=np.int64), frac, self.range_m, world.is_static_body,
@@ -286,8 +286,9 @@ class Perception:
             centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
         return Detections(ids, centers, int(hits.shape[0]), hits, ranges)
 
-    def _complete_numpy(self, scan: "PendingScan", hits: np.ndarray, frac: np.ndarray) -> Detections:
-        """complete() in numpy (the reference of _complete_scan; used for a grid whose cells are not contiguous)."""
+    def _complete_reference(self, scan: "PendingScan", hits: np.ndarray, frac: np.ndarray) -> Detections:
+        """complete() in numpy: the reference twin of the compiled _complete_scan (the same grid and detections),
+        used for a grid whose cells are not contiguous."""
         world, grid = self.world, self.grid
         o, dirs_t = scan.origin, scan.dirs_t
         ranges = frac * self.range_m
@@ -373,11 +374,12 @@ def _mark_free_samples(cells, shape, oc, dirs_t, lim, t_cells):
 @njit(cache=True, nogil=True)
 def _complete_scan(cells, shape, o, origin, res, dirs_t, t_cells, hits, frac, range_m, is_static, dynamic_index,
                    n_obstacles):
-    """Perception.complete's grid update and detections in compiled code, with _complete_numpy's float operations:
-    ranges = frac * range_m; the free-space samples of every ray up to its hit (_mark_free_samples), then the cell
-    (grid.index: floor((p - origin) / res), clipped) of o + u (range + OCCUPIED_NUDGE) of every ray ending on a
-    static body or wall marked OCCUPIED; the obstacles hit, ascending. Body ids index is_static / dynamic_index
-    (-1, no body, their last entry). Returns (ranges [R], obstacle ids, whether a cell became OCCUPIED)."""
+    """Perception.complete's grid update and detections in compiled code, with the float operations of its reference
+    twin Perception._complete_reference: ranges = frac * range_m; the free-space samples of every ray up to its hit
+    (_mark_free_samples), then the cell (grid.index: floor((p - origin) / res), clipped) of o + u (range +
+    OCCUPIED_NUDGE) of every ray ending on a static body or wall marked OCCUPIED; the obstacles hit, ascending. Body ids
+    index is_static / dynamic_index (-1, no body, their last entry). Returns (ranges [R], obstacle ids, whether a cell
+    became OCCUPIED)."""
     d, n_rays = dirs_t.shape
     if hits.shape[0] != n_rays or frac.shape[0] != n_rays or o.shape[0] != d or origin.shape[0] != d:
         raise ValueError("complete: mismatched scan shapes")

@@ -213,7 +213,7 @@ class TrackIdError(ValueError):
 
 class TrackerBank:
     """The state of up to ``capacity`` KalmanTracks of one model in shared arrays, so that the trackers of lockstep
-    trials (pbdyn.sim.lockstep) step together: ``step`` does, for every tracker given, exactly what its own step()
+    trials of a trial batch (pbdyn.sim.batch) step together: ``step`` does, for every tracker given, exactly what its own step()
     does -- the same float operations on every track (element-wise, or per track's matrices) -- in one array
     evaluation over all their tracks. An attached tracker keeps working on its own (its arrays are views into the
     bank's)."""

@@ -52,13 +52,13 @@ class _Registry(MutableMapping):
 
 _P = "pbdyn.planning."
 TRAJECTORY_PLANNERS: MutableMapping[str, type] = _Registry({
-    "local_primitives": _P + "local_primitives:LocalPrimitives", "straight_line": _P + "straight_line:StraightLine",
-    "mpc": _P + "mpc:MPC", "global_primitives": _P + "global_primitives:GlobalPrimitives",
-    "local_primitives_minjerk": _P + "local_primitives_minjerk:LocalPrimitivesMinJerk"})
+    "local_primitives": _P + "primitives.local:LocalPrimitives", "straight_line": _P + "straight_line:StraightLine",
+    "mpc": _P + "mpc.planner:MPC", "global_primitives": _P + "primitives.global_astar:GlobalPrimitives",
+    "local_primitives_minjerk": _P + "primitives.minjerk:LocalPrimitivesMinJerk"})
 GAZE_PLANNERS: MutableMapping[str, type] = _Registry({
-    "lookahead": _P + "gaze:LookAhead", "fullrange": _P + "gaze:FullRange", "lookgoal": _P + "gaze:LookGoal",
-    "lookgoal_unexplored": _P + "gaze:LookGoalUnexplored", "rotating": _P + "gaze:Rotating",
-    "finean": _P + "gaze_finean:Finean", "owl": _P + "gaze_owl:Owl"})
+    "lookahead": _P + "gaze.rules:LookAhead", "fullrange": _P + "gaze.rules:FullRange",
+    "lookgoal": _P + "gaze.rules:LookGoal", "lookgoal_unexplored": _P + "gaze.rules:LookGoalUnexplored",
+    "rotating": _P + "gaze.rules:Rotating", "finean": _P + "gaze.finean:Finean", "owl": _P + "gaze.owl:Owl"})
 
 PLANNER_MODEL_VERSION = "1"
 """Version of the built-in planners' behaviour, recorded in every row's planner_fingerprint: bump it when a

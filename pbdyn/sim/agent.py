@@ -21,7 +21,7 @@ from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.contract import PlanViolation, check_plan, plan_violations
-from pbdyn.sim.env import Action, vector_norm
+from pbdyn.sim.state import Action, vector_norm
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.usercode import quiet_user_code, user_stdout
 

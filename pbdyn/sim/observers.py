@@ -17,7 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from pbdyn.files import create_temp
-from pbdyn.sim.env import SENSE_SPLITS
+from pbdyn.sim.state import SENSE_SPLITS
 from pbdyn.world.shapes import still_body_outlines
 
 SPLITS = SENSE_SPLITS + ("wall_planning_s", "wall_gaze_s", "wall_collision_s")

@@ -14,8 +14,9 @@ from functools import cached_property
 
 from pbdyn.config import PlannerEntry, Scenario, canonical_json, check_v_max, later_fields, warn_stopping
 from pbdyn.errors import ConfigError
+from pbdyn.motion.registry import MODELS
 from pbdyn.planning.registry import resolve_gaze_planner, resolve_trajectory_planner
-from pbdyn.world.imported import bodies_fingerprint
+from pbdyn.world.imported.bodies import bodies_fingerprint
 from pbdyn.world.maps import MapSpec, stable_hash64
 
 
@@ -73,8 +74,8 @@ def _scenario_part(scenario: Scenario) -> dict:
         return got[1]
     sc = scenario.to_dict()
     skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures", "maps"}
-    if sc["obstacles"]["motion"] != "rvo":
-        skip.add("rvo")
+    motion = sc["obstacles"]["motion"]
+    skip |= {m.table for name, m in MODELS.items() if m.table and name != motion}   # other models' tables
     skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
     obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
     drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}

@@ -1,29 +1,32 @@
-"""One trial (docs/design.md "One trial step", thesis Algorithm 1): a short loop over the steppable core.
+"""Flying trials (docs/architecture.md "The trial core", thesis Algorithm 1): the one loop over the trial core.
 
-The environment (pbdyn.sim.env.TrialEnv) owns steps (1)-(3), (6) and (7); the agent (pbdyn.sim.agent.Agent) owns
-steps (4)-(5), braking and the plan contract; observers (pbdyn.sim.observers) record traces and profiles and pace
-the GUI. ``run_trial`` wires them together and turns the ended trial into its TrialResult.
+``fly`` flies N >= 1 trials of one map together: the core (pbdyn.sim.batch.TrialBatch) owns steps (1)-(3), (6) and
+(7), shared across the trials; one agent per trial (pbdyn.sim.agent.Agent) owns steps (4)-(5), braking and the plan
+contract; observers (pbdyn.sim.observers) record traces and profiles and pace the GUI, per trial. ``run_trial`` is a
+batch of one. Each ended trial becomes its TrialResult.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from pbdyn.outcome import Outcome
 from pbdyn.planning.registry import pair_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
-from pbdyn.sim.env import TrialEnv, make_world
+from pbdyn.sim.batch import TrialBatch
 from pbdyn.sim.observers import SPLITS, ProfileObserver, StepRecord, TraceObserver
-from pbdyn.outcome import Outcome
 from pbdyn.sim.result import TrialResult
 from pbdyn.sim.spec import TrialSpec, make_trial_spec
+from pbdyn.sim.state import TrialState, make_world
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
-__all__ = ["SPLITS", "TrialEnv", "TrialSpec", "brake", "build_planners", "make_trial_spec", "make_world",
+__all__ = ["SPLITS", "TrialBatch", "TrialSpec", "brake", "build_planners", "fly", "make_trial_spec", "make_world",
            "run_trial"]
 
 
@@ -31,7 +34,7 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
               gui_sleep: float = 0.0, profile: dict | None = None, world: PyBulletWorld | None = None,
               trajectory_planner=None, gaze_planner=None, observers: list | None = None,
               gui_follow: bool = False) -> TrialResult:
-    """Fly one trial and return its TrialResult.
+    """Fly one trial (a batch of one) and return its TrialResult; what the trial raised is raised.
 
     gui: show the PyBullet GUI (pbdyn.sim.gui.GuiView: the arena framed, or followed with ``gui_follow``; field of
     view, plan and goal as debug lines; paced to real time when gui_sleep > 0). trace_path: save a per-step trace
@@ -42,9 +45,6 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
     trajectory_planner, gaze_planner: a planner class or instance used instead of the spec's named one (the
     row keeps the spec's names). observers: extra observers (pbdyn.sim.observers.Observer).
     """
-    wall0 = time.perf_counter()
-    agent = Agent(spec, trajectory_planner, gaze_planner)
-    env = TrialEnv(spec, rollout, gui=gui, fov_deg=agent.fov_deg, world=world)
     watchers = list(observers or [])
     if profile is not None:
         watchers.append(ProfileObserver(profile))
@@ -54,44 +54,189 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
         from pbdyn.sim.gui import GuiView
 
         watchers.append(GuiView(spec.scenario.world.dt, follow=gui_follow, real_time=gui_sleep > 0))
-    timings = {"wall_setup_s": time.perf_counter() - wall0, **{name: 0.0 for name in SPLITS}}
-    step_walls: list[float] = []
-    plan_walls: list[float] = []
-    try:
-        env.reset()
-        while not env.done:
-            c0 = time.perf_counter()
-            sensed = env.sense_timings
-            view = env.view(agent.trajectory)
-            decision = agent.act(view)
-            if decision.violation is not None:
-                env.end(Outcome.INVALID_PLAN, decision.violation.reason)
-                break
-            act = decision.action
-            record_at = (env.t, env.position, env.velocity, env.acceleration, env.yaw, env.tracks,
-                         env.detections.ids)
-            env.step(act)
-            splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, env.collision_wall_s)
-            for name, value in zip(SPLITS, splits):
-                timings[name] += value
-            plan_walls.append(decision.planning_wall_s)
-            step_walls.append(time.perf_counter() - c0)   # the whole step (its sensing is the next one's: as long)
-            if watchers:
-                t, p, v, a, yaw, tracks, ids = record_at
-                rate = min(max(act.yaw_rate, -env.limits.yaw_rate), env.limits.yaw_rate)
-                record = StepRecord(t, p, v, a, yaw, rate, decision.planned, decision.plan_ok, tracks, ids, splits)
-                for w in watchers:
-                    w.on_step(env, agent, decision, record)
-        for w in watchers:
-            w.on_end(env, agent)
-        grid_discovered = env.grid.discovered()
-        tracked = int(env.tracker.ever_tracked)
-        tracked_time = float(env.tracker.tracked_time_s)
-    finally:
-        env.close()
-    step_summary(timings, step_walls, plan_walls)
-    return _result(spec, rollout, env, agent, grid_discovered, tracked, tracked_time,
-                   time.perf_counter() - wall0, timings)
+    return fly([spec], rollout, world=world, gui=gui, observers=[watchers],
+               planners=[(trajectory_planner, gaze_planner)], raise_errors=True)[0]
+
+
+def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None, gui: bool = False,
+        observers: Sequence[list] | None = None, planners: Sequence[tuple] | None = None,
+        step_walls: list | None = None, on_result=None, raise_errors: bool = False) -> list:
+    """Fly ``specs`` (trials of one map and scenario, in any mix of planner pairs, MAV speeds and start/goal pairs)
+    together on ``rollout``: one TrialBatch, one Agent per trial. Returns, per spec in order, its TrialResult or the
+    Exception that ended it (a planner or trial that raises ends only its own trial; ``raise_errors``: the first such
+    exception is raised instead, once the batch is closed).
+
+    world: make_world of that map to use (left open); else the batch makes its own (``gui``: shown; a batch of one).
+    observers: per trial, a list of observers (pbdyn.sim.observers.Observer). planners: per trial, (trajectory,
+    gaze) classes or instances used instead of the spec's named ones (None: the spec's). step_walls: a list that
+    receives, per spec in order, the wall time (s) of each of its steps: its own parts, its share of the shared work
+    and of the rest of the tick (_share_rest), so that the steps account for the loop's time. on_result(index,
+    result_or_exception) is called as each trial ends (batch workers stream rows)."""
+    n = len(specs)
+    out = _Results(n, on_result)
+    watchers = [list(w) for w in observers] if observers is not None else [[] for _ in range(n)]
+    given = list(planners) if planners is not None else [(None, None)] * n
+    agents: list[Agent | None] = [None] * n
+    agent_s = [0.0] * n
+    for i, spec in enumerate(specs):
+        t0 = time.perf_counter()
+        try:
+            agents[i] = Agent(spec, *given[i])
+        except Exception as exc:
+            if raise_errors:
+                raise
+            out[i] = exc
+        agent_s[i] = time.perf_counter() - t0
+    flying = [i for i in range(n) if agents[i] is not None]
+    logs: dict[int, _Log] = {}
+    if flying:
+        t0 = time.perf_counter()
+        batch = TrialBatch([specs[i] for i in flying], rollout, world=world, gui=gui,
+                           fov_deg=[agents[i].fov_deg for i in flying])
+        world_share = (time.perf_counter() - t0 - sum(batch.setup_s)) / len(flying)
+        try:
+            for b, i in enumerate(flying):
+                logs[i] = _Log(agent_s[i] + batch.setup_s[b] + world_share)
+            _Flight(batch, flying, specs, rollout, agents, watchers, logs, out).run()
+        finally:
+            batch.close()
+    if raise_errors:
+        for v in out.items:
+            if isinstance(v, BaseException):
+                raise v
+    if step_walls is not None:
+        step_walls.extend(logs[i].step_walls if i in logs else [] for i in range(n))
+    return list(out.items)
+
+
+class _Log:
+    """One trial's wall times: setup, the SPLITS summed over its steps, each step's wall time and planning time."""
+
+    def __init__(self, setup_s: float):
+        self.timings = {"wall_setup_s": setup_s, **{name: 0.0 for name in SPLITS}}
+        self.step_walls: list[float] = []
+        self.plan_walls: list[float] = []
+
+
+class _Results:
+    """The per-trial results of a flight; setting one also reports it to ``on_result``."""
+
+    def __init__(self, n: int, on_result=None):
+        self.items: list = [None] * n
+        self.on_result = on_result
+
+    def __setitem__(self, i: int, value) -> None:
+        self.items[i] = value
+        if self.on_result is not None:
+            self.on_result(i, value)
+
+
+class _Flight:
+    """The loop of fly(): each tick, every running trial's agent decides (steps (4)-(5)), the batch steps them all
+    ((6)-(7) and the next sensing), the observers watch, and the trials that ended become results."""
+
+    def __init__(self, batch: TrialBatch, flying: list[int], specs, rollout: Rollout, agents: list, watchers: list,
+                 logs: dict, out: _Results):
+        self.batch, self.flying, self.specs, self.rollout = batch, flying, specs, rollout
+        self.agents, self.watchers, self.logs, self.out = agents, watchers, logs, out
+        self.reported: set[int] = set()
+
+    def run(self) -> None:
+        batch, flying = self.batch, self.flying
+        window = time.perf_counter()             # a tick's window: from its sensing to the next tick's sensing
+        batch.start()
+        self._errors()
+        results_s = 0.0                          # the results made in the window: not part of its steps
+        while not batch.done:
+            acting = []
+            for b in list(batch.running):        # (4)-(5): every trial decides
+                agent = self.agents[flying[b]]
+                try:
+                    decision = agent.act(batch.states[b].view(agent.trajectory))
+                except Exception as exc:
+                    batch.fail(b, exc)
+                    continue
+                if decision.violation is not None:
+                    batch.end(b, Outcome.INVALID_PLAN, decision.violation.reason)
+                else:
+                    acting.append((b, decision))
+            states = batch.states
+            before = {b: (states[b].sense_timings, self._record_at(b)) for b, _ in acting}
+            ended = batch.step({b: d.action for b, d in acting})   # (6)-(7), then the next tick's (1)-(3)
+            self._errors()
+            stepped = []
+            for b, decision in acting:
+                if b in batch.errors or b in batch.refused:
+                    continue
+                sensed, record_at = before[b]
+                log = self.logs[flying[b]]
+                splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, states[b].collision_wall_s)
+                for name, value in zip(SPLITS, splits):
+                    log.timings[name] += value
+                log.step_walls.append(sum(splits))
+                log.plan_walls.append(decision.planning_wall_s)
+                stepped.append(b)
+                if record_at is not None:
+                    self._watch(b, decision, record_at, splits)
+            _share_rest([self.logs[flying[b]] for b in stepped], batch.sensed_at - window - results_s)
+            window = batch.sensed_at
+            t0 = time.perf_counter()
+            for b in ended:
+                self._finish(b)
+            results_s = time.perf_counter() - t0
+
+    def _errors(self) -> None:
+        """Report the trials that raised since the last look."""
+        for b, exc in self.batch.errors.items():
+            if b not in self.reported:
+                self.reported.add(b)
+                self.out[self.flying[b]] = exc
+
+    def _record_at(self, b: int):
+        """What trial b's observers get of t_k (taken before the step), or None without observers."""
+        if not self.watchers[self.flying[b]]:
+            return None
+        st = self.batch.states[b]
+        return st.t, st.position, st.velocity, st.acceleration, st.yaw, st.tracks, st.detections.ids
+
+    def _watch(self, b: int, decision, record_at: tuple, splits: tuple) -> None:
+        i = self.flying[b]
+        st, agent = self.batch.states[b], self.agents[i]
+        t, p, v, a, yaw, tracks, ids = record_at
+        lim = st.limits.yaw_rate
+        rate = min(max(decision.action.yaw_rate, -lim), lim)
+        record = StepRecord(t, p, v, a, yaw, rate, decision.planned, decision.plan_ok, tracks, ids, splits)
+        for w in self.watchers[i]:
+            w.on_step(st, agent, decision, record)
+
+    def _finish(self, b: int) -> None:
+        """The ended trial b's observers' on_end, then its TrialResult (or the exception that raised on the way)."""
+        i = self.flying[b]
+        st, agent, log = self.batch.states[b], self.agents[i], self.logs[i]
+        try:
+            for w in self.watchers[i]:
+                w.on_end(st, agent)
+            grid_discovered = st.grid.discovered()
+            tracked = int(st.tracker.ever_tracked)
+            tracked_time = float(st.tracker.tracked_time_s)
+            step_summary(log.timings, log.step_walls, log.plan_walls)
+            wall = log.timings["wall_setup_s"] + sum(log.step_walls)
+            self.out[i] = _result(self.specs[i], self.rollout, st, agent, grid_discovered, tracked, tracked_time,
+                                  wall, log.timings)
+        except Exception as exc:
+            self.out[i] = exc
+
+
+def _share_rest(stepped: list[_Log], tick_s: float) -> None:
+    """Make the steps of one tick account for all of its time (s; the results made in it excluded): what the
+    trials' step splits did not measure (views, the act wrapper, each step's bookkeeping, grouping, the trials
+    started) is shared out equally among the trials that stepped."""
+    if not stepped:
+        return
+    rest = (tick_s - sum(log.step_walls[-1] for log in stepped)) / len(stepped)
+    if rest > 0.0:
+        for log in stepped:
+            log.step_walls[-1] += rest
 
 
 def step_summary(timings: dict, step_walls: list, plan_walls: list) -> None:
@@ -103,7 +248,7 @@ def step_summary(timings: dict, step_walls: list, plan_walls: list) -> None:
     timings["wall_planning_p99_s"] = float(np.percentile(plan_walls, 99)) if plan_walls else 0.0
 
 
-def _result(spec: TrialSpec, rollout: Rollout, env: TrialEnv, agent: Agent, grid_discovered: int, tracked: int,
+def _result(spec: TrialSpec, rollout: Rollout, env: TrialState, agent: Agent, grid_discovered: int, tracked: int,
             tracked_time: float, wall: float, timings: dict) -> TrialResult:
     sc = spec.scenario
     ms = spec.map_spec
@@ -194,7 +339,7 @@ def limits_exceeded(max_speed: float, max_accel: float, v_max: float, a_max: flo
     return "; ".join(out)
 
 
-def _reason(env: TrialEnv) -> str:
+def _reason(env: TrialState) -> str:
     """The outcome's reason, with a note when the "first_clear" start rule found no clear start."""
     if env.start.clear:
         return env.reason

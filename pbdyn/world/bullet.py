@@ -17,6 +17,9 @@ then static bodies, then walls.
 Sensor fans go through cast_fan, which sends Bullet only the rays that can meet a body (fan_candidates: bounding
 spheres of the obstacles, AABBs of static bodies, the arena box for the walls); the others are known misses, so
 the results equal casting every ray, at a fraction of the cost (Bullet's ray test costs ~0.5-1.5 us per ray).
+
+Bodies are loaded from URDF files scaled at load (pbdyn.world.imported.urdf_loading); the client, its quiet import
+and the GUI's display check are pbdyn.world.pybullet_client's.
 """
 
 from __future__ import annotations
@@ -26,59 +29,17 @@ import functools
 import math
 import operator
 import os
-import sys
-import tempfile
-import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from pbdyn import resources
 from pbdyn.errors import ConfigError, check_positive
 from pbdyn.jit import njit
-from pbdyn.urdf import check_urdf
-from pbdyn.usercode import flush_c_stdout as _flush_c_stdout
-from pbdyn.usercode import stdout_fd_to as _stdout_to
 from pbdyn.world.geometry import StaticBody
-
-
-def stdout_to_stderr():
-    """Redirect file descriptor 1 to descriptor 2 for the duration (PyBullet prints on import, connect, loadURDF)."""
-    return _stdout_to(2)
-
-
-def silenced_stdout():
-    """Send file descriptor 1 to /dev/null for the duration (PyBullet's connect prints a bare "argv[0]=" banner that
-    carries no information)."""
-    return _stdout_to(None)
-
-
-@contextlib.contextmanager
-def _quiet_import() -> Iterator[None]:
-    """Silence file descriptors 1 and 2 while PyBullet imports (its build-time banner carries no information;
-    import errors still raise as Python exceptions)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    _flush_c_stdout()
-    saved = [os.dup(1), os.dup(2)]
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        os.dup2(devnull, 2)
-        yield
-    finally:
-        _flush_c_stdout()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, devnull):
-            os.close(fd)
-
-
-with _quiet_import():
-    import pybullet
-    from pybullet_utils import bullet_client
+from pbdyn.world.imported.urdf_loading import IDENTITY_QUATERNION, load_scaled_urdf, urdf_path
+from pbdyn.world.pybullet_client import new_client, pybullet, stdout_to_stderr
 
 RAY_BATCH = 16383
 """Rays per rayTestBatch call (PyBullet refuses batches of 16384 or more)."""
@@ -92,161 +53,13 @@ CULL_PAD = 0.05
 _RAY_MASK = ~MAV_GROUP
 _BODY_ID = operator.itemgetter(0)
 _HIT_FRACTION = operator.itemgetter(2)
-_IDENTITY = (0.0, 0.0, 0.0, 1.0)
 _NONE, _MAV, _DYNAMIC, _STATIC, _WALL = 0, 1, 2, 3, 4
 _KIND_NAMES = ("none", "mav", "dynamic", "static", "wall")
-
-
-def urdf_path(name: str) -> str:
-    """Absolute path of one of the project's URDF models (unit size, scaled at load), e.g. ``urdf_path("pillar")``."""
-    return str(resources.urdf_path(name))
 
 
 def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
     """Quaternion (x, y, z, w) of a rotation by ``yaw`` (rad) about the world z axis."""
     return (0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw))
-
-
-# --------------------------------------------------------------------------------------------- URDF scaling
-def _floats(text: str) -> np.ndarray:
-    return np.array([float(x) for x in text.split()], dtype=float)
-
-
-def _fmt(values) -> str:
-    return " ".join(repr(float(v)) for v in values)
-
-
-def scale_urdf_text(text: str, scale_xyz: Sequence[float], base_dir: str | Path | None = None, *,
-                    cylinders_as_spheres: bool = False) -> str:
-    """Rewrite URDF text so its geometry is scaled per axis by ``scale_xyz`` = (sx, sy, sz).
-
-    Scales <box size>, <cylinder radius> (by sx; needs sx == sy) and <cylinder length> (by sz), <sphere radius>
-    (needs sx == sy == sz), <mesh scale>, and every <origin xyz>. Relative mesh filenames are made absolute against
-    ``base_dir`` so the text can be loaded from anywhere. Masses and inertias are kept. Origins with a rotation are
-    only exact under uniform scale. ``cylinders_as_spheres`` turns each *collision* cylinder into the sphere of its
-    (scaled) radius at the same origin (the 2D slice-equivalent shape; see the module docstring).
-    Raises ValueError on a scale the geometry cannot take.
-    """
-    s = np.asarray(scale_xyz, dtype=float).reshape(3)
-    if np.any(s <= 0) or not np.all(np.isfinite(s)):
-        raise ValueError(f"URDF scale must be finite and > 0 (got {tuple(s)})")
-    uniform = bool(np.allclose(s, s[0], rtol=1e-12, atol=0.0))
-    root = ET.fromstring(text)
-    for origin in root.iter("origin"):
-        xyz = origin.get("xyz")
-        if xyz is not None:
-            origin.set("xyz", _fmt(_floats(xyz) * s))
-    for holder in root.iter():
-        if holder.tag not in ("visual", "collision"):
-            continue
-        geometry = holder.find("geometry")
-        if geometry is None:
-            continue
-        for shape in list(geometry):
-            if shape.tag == "box":
-                shape.set("size", _fmt(_floats(shape.get("size", "1 1 1")) * s))
-            elif shape.tag == "cylinder":
-                if not math.isclose(s[0], s[1], rel_tol=1e-12):
-                    raise ValueError(f"a cylinder needs equal x and y scale (got {tuple(s)})")
-                radius = float(shape.get("radius", "1")) * s[0]
-                if cylinders_as_spheres and holder.tag == "collision":
-                    geometry.remove(shape)
-                    ET.SubElement(geometry, "sphere", {"radius": repr(float(radius))})
-                else:
-                    shape.set("radius", repr(float(radius)))
-                    shape.set("length", repr(float(float(shape.get("length", "1")) * s[2])))
-            elif shape.tag == "sphere":
-                if not uniform:
-                    raise ValueError(f"a sphere needs a uniform scale (got {tuple(s)})")
-                shape.set("radius", repr(float(float(shape.get("radius", "1")) * s[0])))
-            elif shape.tag == "mesh":
-                shape.set("scale", _fmt(_floats(shape.get("scale", "1 1 1")) * s))
-                name = shape.get("filename", "")
-                if base_dir is not None and name and "://" not in name and not os.path.isabs(name):
-                    shape.set("filename", str(Path(base_dir, name).resolve()))
-    return ET.tostring(root, encoding="unicode")
-
-
-@functools.lru_cache(maxsize=256)
-def _scaled_text(path: str, scale: tuple[float, float, float], cylinders_as_spheres: bool) -> str:
-    check_urdf(path, "urdf", scale)   # scenarios' URDFs were checked at load time naming their field: a backstop
-    text = Path(path).read_text()
-    return scale_urdf_text(text, scale, Path(path).parent, cylinders_as_spheres=cylinders_as_spheres)
-
-
-def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], position: Sequence[float],
-                     orientation: Sequence[float] = _IDENTITY, *, cylinders_as_spheres: bool = False,
-                     use_fixed_base: bool = False) -> int:
-    """Load the URDF at ``path`` scaled per axis by ``scale_xyz`` at ``position`` (m) / ``orientation`` (xyzw).
-
-    The rewritten text (see scale_urdf_text; cached by (path, scale)) goes to a temporary file in the system temp
-    directory, which is deleted right after loading. Collision cylinders are loaded as implicit (exact) cylinders.
-    PyBullet's stdout chatter is sent to stderr. Returns the body id.
-    """
-    key = (str(Path(path).resolve()), tuple(float(x) for x in np.asarray(scale_xyz, dtype=float).reshape(3)))
-    text = _scaled_text(key[0], key[1], bool(cylinders_as_spheres))
-    fd, tmp = tempfile.mkstemp(prefix="pbdyn-", suffix=".urdf")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        with stdout_to_stderr():
-            body = client.loadURDF(tmp, basePosition=[float(x) for x in position],
-                                   baseOrientation=[float(x) for x in orientation],
-                                   useFixedBase=bool(use_fixed_base), flags=pybullet.URDF_USE_IMPLICIT_CYLINDER)
-    finally:
-        os.unlink(tmp)
-    if body < 0:
-        raise RuntimeError(f"PyBullet could not load {path}")
-    return int(body)
-
-
-# --------------------------------------------------------------------------------------------- the world
-def check_display() -> None:
-    """ConfigError naming ``gui`` if PyBullet's GUI has no display to open a window on (X11 systems without DISPLAY,
-    where PyBullet would end the process itself)."""
-    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
-        return
-    display = os.environ.get("DISPLAY", "")
-    if not display:
-        raise ConfigError("gui", "needs a display and DISPLAY is not set (--gui-snapshot FILE.png renders the final "
-                          "state without one)", show_value=False)
-    problem = _x_server_problem(display)
-    if problem:
-        raise ConfigError("gui", f"cannot reach the X server of DISPLAY={display!r} ({problem}; --gui-snapshot "
-                          "FILE.png renders the final state without one)", show_value=False)
-
-
-def _x_server_problem(display: str, timeout: float = 2.0) -> str | None:
-    """Why no X server answers at ``display`` ("[host]:N[.S]"), or None: a local display needs its socket
-    /tmp/.X11-unix/XN to accept a connection, a remote one TCP port 6000 + N."""
-    import socket
-
-    host, _, rest = display.rpartition(":")
-    number = rest.split(".")[0]
-    if not number.isdigit():
-        return "not a display name like :0"
-    if host in ("", "unix"):
-        path = f"/tmp/.X11-unix/X{number}"
-        try:
-            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-                sock.settimeout(timeout)
-                sock.connect(path)
-        except OSError as exc:
-            return f"{path}: {exc.strerror or exc}"
-        return None
-    try:
-        with socket.create_connection((host, 6000 + int(number)), timeout=timeout):
-            return None
-    except OSError as exc:
-        return f"{host}:{6000 + int(number)}: {exc.strerror or exc}"
-
-
-def new_client(gui: bool = False):
-    """A new BulletClient (DIRECT, or GUI: check_display first), its banner silenced; the caller disconnects it."""
-    if gui:
-        check_display()
-    with silenced_stdout():
-        return bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
 
 
 class FanRays(NamedTuple):
@@ -335,7 +148,7 @@ class PyBulletWorld:
                                        self.to_world3(self.mav_position))
         self.client.setCollisionFilterGroupMask(self.mav_id, -1, MAV_GROUP, -1)
         self._mav_pose3 = self.to_world3(self.mav_position).tolist()
-        self._mav_quat = _IDENTITY
+        self._mav_quat = IDENTITY_QUATERNION
         self._mav_parking = [-1.0e4, -1.0e4, -1.0e4]
         self._probe = self.client.createCollisionShape(pybullet.GEOM_SPHERE, radius=self.mav_radius)
 
@@ -452,7 +265,8 @@ class PyBulletWorld:
             lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         return lo, hi
 
-    def add_static_urdf(self, path: str | Path, position: Sequence[float], orientation: Sequence[float] = _IDENTITY,
+    def add_static_urdf(self, path: str | Path, position: Sequence[float],
+                        orientation: Sequence[float] = IDENTITY_QUATERNION,
                         scale_xyz: Sequence[float] = (1.0, 1.0, 1.0)) -> int:
         """Load an extra static body from a URDF file (imported worlds); returns its body id (static index = order)."""
         body = load_scaled_urdf(self.client, path, scale_xyz, position, orientation, use_fixed_base=True)
@@ -494,7 +308,7 @@ class PyBulletWorld:
                 reset(body, p, q)
             return
         for body, p in zip(self.obstacle_ids.tolist(), self.to_world3(pos).tolist()):
-            reset(body, p, _IDENTITY)
+            reset(body, p, IDENTITY_QUATERNION)
 
     def set_mav_pose(self, position, yaw: float) -> None:
         """Place the MAV at ``position`` [d] (m) with ``yaw`` (rad)."""
@@ -526,7 +340,7 @@ class PyBulletWorld:
         frac = np.empty(n, dtype=float)
         # The mask alone keeps the MAV out of the results; parking it far away for the duration also spares
         # Bullet the per-ray work of a shape enclosing every ray origin (~15 us per 91 rays, measured).
-        self._reset_pose(self.mav_id, self._mav_parking, _IDENTITY)
+        self._reset_pose(self.mav_id, self._mav_parking, IDENTITY_QUATERNION)
         try:
             for lo in range(0, n, RAY_BATCH):
                 hi = min(n, lo + RAY_BATCH)

@@ -19,10 +19,10 @@ import numpy as np
 
 from pbdyn.config import Range, Scenario, _json_default, canonical_json, map_seed, stable_hash64
 from pbdyn.errors import ConfigError
+from pbdyn.motion.rvo import candidate_directions
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.structure import (cluster_centres, draw_radii_speeds, proposals, structure_of,
                                    wall_bodies)
-from pbdyn.world.rvo import candidate_directions
 
 MAX_SPAWN_ATTEMPTS = 20000
 

@@ -4,7 +4,7 @@ The .npz file holds these arrays (SI units, world frame):
     times [T] (s), positions [T, N, d] (m), velocities [T, N, d] (m/s), radii [N] (m), arena_size [d] (m),
     dt [] (s), static_kind [S] (0 = pillar, 1 = box), static_center [S, d] (m), static_radius [S] (m),
     static_size [S, d] (m, box full extents), static_yaw [S] (rad), meta [] (JSON string: map key, seed, motion,
-    model version, scenario name). Imported worlds add the body_* arrays of pbdyn.world.imported.WorldBodies
+    model version, scenario name). Imported worlds add the body_* arrays of pbdyn.world.imported.bodies.WorldBodies
     (base poses of every body at every step); their dynamic obstacles are the moving bodies' bounding spheres.
 """
 
@@ -22,11 +22,11 @@ from pbdyn import limits
 from pbdyn.config import LATER_FIELDS, Scenario, canonical_json, later_fields, rollout_span_s
 from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.files import cache_dir, create_temp
+from pbdyn.motion.registry import MODELS, key_params
 from pbdyn.world.geometry import StaticBody
-from pbdyn.world.imported import WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates, sphere_tracks
+from pbdyn.world.imported.bodies import (WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates,
+                                         sphere_tracks)
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
-from pbdyn.world.motion import cvm_fold, cvm_program_turn
-from pbdyn.world.rvo import rvo_rollout
 from pbdyn.world.structure import structure_of
 
 ROLLOUT_MODEL_VERSION = "rollout-2"
@@ -133,13 +133,14 @@ class Rollout:
 
 
 def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
-    """sha256 of everything a rollout depends on (and the model version)."""
+    """sha256 of everything a rollout depends on (and the model version); the motion model's parameters are its
+    key_params (pbdyn.motion.registry.key_params)."""
     w = scenario.world
     payload = {
         "version": ROLLOUT_MODEL_VERSION, "map": spec.key, "root_seed": spec.root_seed,
         "world": {"dims": w.dims, "size": w.size, "dt": w.dt},
         "obstacles": {"jitter": scenario.obstacles.radius_jitter, "motion": scenario.obstacles.motion,
-                      "rvo": vars(scenario.obstacles.rvo) if scenario.obstacles.motion == "rvo" else None},
+                      **key_params(scenario.obstacles)},
         "static": [vars(s) for s in scenario.static_obstacles],
         "spawn": {"candidates": scenario.task.candidates, "mav_radius": scenario.drone.radius,
                   "clearance": scenario.task.spawn_clearance},
@@ -206,8 +207,9 @@ def default_horizon(scenario: Scenario) -> float:
 
 def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = None, *,
                   keep_out: tuple | None = None) -> Rollout:
-    """Compute a map's rollout from (scenario, map spec) over [0, horizon] s. ``keep_out``: (points [m, d], gap m)
-    to spawn around instead of the start/goal candidates (pbdyn.world.maps.spawn_obstacles)."""
+    """Compute a map's rollout from (scenario, map spec) over [0, horizon] s: the obstacles spawned, then moved by
+    the map's motion model (its structure's, else obstacles.motion; pbdyn.motion.registry.MODELS). ``keep_out``:
+    (points [m, d], gap m) to spawn around instead of the start/goal candidates (pbdyn.world.maps.spawn_obstacles)."""
     horizon = default_horizon(scenario) if horizon is None else float(horizon)
     if not 0 < horizon < float("inf"):
         raise ConfigError("horizon", "must be a finite number > 0", horizon)
@@ -224,13 +226,8 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     p0, v0, radii = spawn_obstacles(scenario, spec, keep_out)
     st = structure_of(scenario, spec.setup)
     motion = st.motion if st is not None and st.motion is not None else scenario.obstacles.motion
-    if motion == "cvm":
-        fold = cvm_program_turn if scenario.obstacles.wall_turn == "program" else cvm_fold
-        pos, vel = fold(p0, v0, radii, size, times)
-    elif motion == "rvo":
-        pos, vel = rvo_rollout(p0, v0, radii, size, dt, n_t, scenario.obstacles.rvo)
-    else:  # pragma: no cover - validation rejects other names
-        raise ConfigError("obstacles.motion", "unsupported", scenario.obstacles.motion)
+    model = MODELS[motion]
+    pos, vel = model.rollout(p0, v0, radii, size, times, dt, model.params(scenario.obstacles))
     meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": motion,
             "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name}
     return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario, spec), meta)

@@ -1,13 +1,15 @@
 """The real shapes of imported bodies as signed-distance fields (docs/scenarios.md "Imported worlds").
 
 A body's collision geometry is read from its URDF (every link's <collision> elements, links placed by their joint
-origins at joint position 0, i.e. "joints stay fixed"), scaled like pbdyn.world.bullet.load_scaled_urdf scales it,
+origins at joint position 0, i.e. "joints stay fixed"), scaled as pbdyn.world.imported.urdf_loading scales it,
 and expressed in the frame PyBullet calls the body's base: the root link's inertial frame. Signed distances
 (m, negative inside) are exact closed forms for URDF boxes, spheres and cylinders; <mesh> geometry goes through
 open3d's RaycastingScene (imported lazily; meshes must be closed for the sign to be meaningful). PyBullet itself
 collides a URDF mesh through its convex hull, so the two agree for convex meshes.
 
 Everything is vectorised over points; a ShapeField evaluates many points at many rollout steps in one call.
+A moving body's bounding sphere (bounding_sphere) is the disc/ball trackers, planners and the analytic
+backends see of it; outlines of the still bodies are drawn by replays (still_body_outlines).
 """
 
 from __future__ import annotations
@@ -197,7 +199,7 @@ def body_primitives(urdf: str | Path, scale: Sequence[float], field: str = "urdf
     ConfigError naming ``field`` for a missing or unreadable file, an unknown geometry or no collision geometry, or
     any geometry pbdyn.urdf.check_urdf refuses (non-positive or non-finite sizes, bad origins, ...).
     """
-    from pbdyn.world.bullet import scale_urdf_text
+    from pbdyn.world.imported.urdf_loading import scale_urdf_text   # (imports PyBullet: only when reading a URDF)
 
     path = Path(urdf)
     check_urdf(path, field, tuple(scale))
@@ -268,6 +270,31 @@ def bounds_of(prims: Sequence[Primitive]) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounds (lo [3], hi [3]) of a body's primitives in its base frame (m)."""
     los, his = zip(*(p.local_bounds() for p in prims))
     return np.min(los, axis=0), np.max(his, axis=0)
+
+
+BOUNDING_RULE = "farthest-point-1"
+"""Version of the bounding-sphere rule (bounding_sphere), part of every body's fingerprint
+(pbdyn.world.imported.bodies.bodies_fingerprint): rollouts and trials of imported worlds made with another rule are
+never reused."""
+
+
+def bounding_sphere(prims: Sequence[Primitive], dims: int, yaw_only: bool, where: str,
+                    max_m: float) -> tuple[np.ndarray, float]:
+    """(centre [3] in the base frame (m), radius m) of a body's bounding sphere (2D worlds, bodies that only ever turn
+    about z: the bounding circle of their footprint, the disc covering their cut by the flight plane): centred on
+    the bounding box of ``prims``, the radius reaching the farthest point of the real shape (a sphere's own radius,
+    not its box's half-diagonal), at least 1e-6 m. ConfigError naming ``where`` for geometry that is not finite or
+    whose radius exceeds ``max_m`` (m)."""
+    lo, hi = bounds_of(prims)
+    with np.errstate(all="ignore"):      # non-finite or huge geometry: reported below, not as RuntimeWarnings
+        centre = 0.5 * (lo + hi)
+        finite = bool(np.all(np.isfinite(centre)) and np.all(np.isfinite(hi - lo)))
+        radius = max(p.reach(centre, dims == 2 and yaw_only) for p in prims) if finite else float("inf")
+    if not (np.all(np.isfinite(centre)) and math.isfinite(radius) and radius <= max_m):
+        raise ConfigError(where, f"the body's collision geometry (scaled) must have a finite size of at most "
+                          f"{max_m:g} m (bounding box {lo.tolist()} .. {hi.tolist()} m)", None,
+                          show_value=False)
+    return centre, max(radius, 1e-6)
 
 
 # ------------------------------------------------------------------------------------------------ outlines
@@ -359,7 +386,7 @@ def still_body_outlines(bodies, dims: int, flight_height: float) -> dict[str, np
 class ShapeField:
     """Signed distances to the imported bodies of a rollout at its steps.
 
-    bodies: a pbdyn.world.imported.WorldBodies (base positions [T, B, 3], orientations [T, B, 4], URDF paths and
+    bodies: a pbdyn.world.imported.bodies.WorldBodies (base positions [T, B, 3], orientations [T, B, 4], URDF paths and
     scales). Distances are 3D Euclidean from points [K, 3] (2D worlds: points in the flight plane z = h).
     """
 

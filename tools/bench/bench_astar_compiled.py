@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 from bench_common import machine  # noqa: E402
 
 from pbdyn.api import load_scenario, run_trial  # noqa: E402
-from pbdyn.planning.global_primitives import GlobalPrimitives  # noqa: E402
+from pbdyn.planning.primitives.global_astar import GlobalPrimitives  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 CASES = ("walls2d", "quickstart", "spheres3d", "walls3d")

@@ -29,7 +29,7 @@ from bench_common import machine  # noqa: E402
 
 from pbdyn.config import load_scenario, parse_scenario  # noqa: E402
 from pbdyn.planning import registry  # noqa: E402
-from pbdyn.planning.global_primitives import GlobalPrimitives  # noqa: E402
+from pbdyn.planning.primitives.global_astar import GlobalPrimitives  # noqa: E402
 from pbdyn.sim.demo import demo_pairs  # noqa: E402
 from pbdyn.outcome import OUTCOMES  # noqa: E402
 from pbdyn.sim.trial import SPLITS, make_trial_spec, run_trial  # noqa: E402

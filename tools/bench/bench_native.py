@@ -25,8 +25,8 @@ def record_views(setups: int, limit: int) -> list:
     """(planner limits, View) of up to ``limit`` steps of the first replicate of ``setups`` controlled setups, every
     10th step and every step whose best candidate failed (grids copied as they were)."""
     from pbdyn.config import load_scenario
-    from pbdyn.planning import local_primitives as lp
-    from pbdyn.sim.lockstep import run_lockstep
+    from pbdyn.planning.primitives import local as lp
+    from pbdyn.sim.trial import fly
     from pbdyn.sim.trial import make_trial_spec, make_world
     from pbdyn.world.maps import get_map
     from pbdyn.world.rollout import get_rollout
@@ -55,7 +55,7 @@ def record_views(setups: int, limit: int) -> list:
             specs = [make_trial_spec(sc, ms, planner=label, v_max=v, start=tuple(cands[i]), goal=tuple(cands[j]))
                      for v in sc.drone.v_max for i, j in sc.task.pairs()]
             world = make_world(specs[0], ro)
-            run_lockstep(specs, ro, world)
+            fly(specs, ro, world=world)
             world.close()
     finally:
         lp.LocalPrimitives.plan = original
@@ -67,8 +67,8 @@ def main() -> int:
     sys.path.insert(0, str(ROOT))
     from bench_common import best_time, machine
 
-    from pbdyn.planning import native
-    from pbdyn.planning.local_primitives import LocalPrimitives
+    from pbdyn.planning.primitives import native
+    from pbdyn.planning.primitives.local import LocalPrimitives
     from pbdyn.planning.protocols import PlannerContext
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -85,7 +85,7 @@ def main() -> int:
     for d in (2, 3):
         inputs = native.probe_inputs(d, 2000)
         for name, build in (("library", lambda: native.build_with_library(lib, inputs, 20.0, 0.5)),
-                            ("package", lambda: native.build_with_package(inputs, 20.0, 0.5))):
+                            ("package", lambda: native.build_with_package_reference(inputs, 20.0, 0.5))):
             best = best_time(build, args.rounds)
             print(f"{d}D ruckig build through the {name}: {best / 2000 * 1e6:.2f} us")
     views = record_views(args.setups, args.views)

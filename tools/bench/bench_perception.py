@@ -26,7 +26,8 @@ from bench_common import machine as base_machine  # noqa: E402
 
 from pbdyn.perception.grid import OccupancyGrid  # noqa: E402
 from pbdyn.perception.perceive import Perception  # noqa: E402
-from pbdyn.world.bullet import PyBulletWorld, pybullet  # noqa: E402
+from pbdyn.world.bullet import PyBulletWorld  # noqa: E402
+from pbdyn.world.pybullet_client import pybullet  # noqa: E402
 
 CONFIGS = (  # label, dims, fov_deg, resolution_deg, vfov_deg, sensor model, rays
     ("2D 90 deg, 1 deg", 2, 90.0, 1.0, None, "raycast", None),

@@ -8,13 +8,13 @@ and the worker processes it waited for) and wall seconds over n runs of
 
     .venv/bin/python tools/bench/bench_startup.py [--n 7] [--cases version run batch] [--checkout DIR ...] [--json]
 
-Each --checkout (default: the one this script is in) is a pbdyn source tree run with this interpreter and its
-installed dependencies (PYTHONPATH=DIR), through the `pbdyn` console script beside the interpreter when there is
-one (so that batch workers start as they do for a user), else `python -m pbdyn`. To compare with the previous
-commit: `git worktree add /tmp/pbdyn-old HEAD`, copy the native library (pbdyn/planning/native/_ruckig_batch.so*)
-into it, and pass both checkouts. The runs are interleaved -- run i of every case of every checkout before run i + 1
--- so that a changing machine load affects all of them alike. One untimed run of each case and checkout comes first:
-numba's compiled-code cache and the rollout and metric caches are warm, as after an install's first use.
+Each --checkout (default: the one this script is in) is a pbdyn source tree run with this interpreter and its installed
+dependencies (PYTHONPATH=DIR), through the `pbdyn` console script beside the interpreter when there is one (so that
+batch workers start as they do for a user), else `python -m pbdyn`. To compare with the previous commit:
+`git worktree add /tmp/pbdyn-old HEAD`, copy the native library (pbdyn/planning/primitives/native/_ruckig_batch.so*)
+into it, and pass both checkouts. The runs are interleaved -- run i of every case of every checkout before run i + 1 -- so that a changing
+machine load affects all of them alike. One untimed run of each case and checkout comes first: numba's compiled-code
+cache and the rollout and metric caches are warm, as after an install's first use.
 
 The commands run with Python's bytecode cache on (PYTHONDONTWRITEBYTECODE is dropped from their environment: a
 checkout without __pycache__ would otherwise compile every module in every run). CPU time is

@@ -12,7 +12,7 @@ A step's floor is its time with planning reduced to ruckig's own computation: st
 library's time for that step's builds (steps under --heavy builds: their builds x the median time per build of the
 heavy steps); a second floor adds the sampling and peaks, a third the plan's fixed cost (what a one-build step's
 planning costs beyond its build and sampling), which the median step pays too. A step's wall time is all of its tick's
-work that it caused or shared (pbdyn.sim.lockstep._share_rest), so the steps account for the loop's time. The
+work that it caused or shared (pbdyn.sim.trial._share_rest), so the steps account for the loop's time. The
 planner's choice needs those builds and samples: a candidate is accepted or rebuilt on its trajectory's sampled limit
 peaks, and rejected on its samples' clearance. If the 99th percentile of the floors exceeds 3x the median step, no
 change that keeps every choice can bring the step-time ratio under 3 (issue "Throughput", its target).
@@ -43,7 +43,7 @@ class _Recorder:
     spec order) with their wall time and builds; optionally copies of the views of chosen (trial, call) pairs."""
 
     def __init__(self, keep: set | None = None):
-        from pbdyn.planning import local_primitives as lp
+        from pbdyn.planning.primitives import local as lp
 
         self.lp = lp
         self.keep = keep or set()
@@ -87,7 +87,7 @@ def fly(setups: list[int], keep: set | None = None) -> tuple[list, _Recorder, fl
     """Fly the first replicate of ``setups`` in lockstep; (per trial the wall time of each step (s), the recorder,
     the wall time of the lockstep loops outside the trials' setups and steps (s): results and the loops' set-up)."""
     from pbdyn.config import load_scenario
-    from pbdyn.sim.lockstep import run_lockstep
+    from pbdyn.sim.trial import fly
     from pbdyn.sim.trial import make_trial_spec, make_world
     from pbdyn.world.maps import get_map
     from pbdyn.world.rollout import get_rollout
@@ -108,7 +108,7 @@ def fly(setups: list[int], keep: set | None = None) -> tuple[list, _Recorder, fl
                          for i, j in sc.task.pairs()]
                 n0 = len(walls)
                 t0 = time.perf_counter()
-                results = run_lockstep(specs, ro, world, step_walls=walls)
+                results = fly(specs, ro, world=world, step_walls=walls)
                 glue += time.perf_counter() - t0 - sum(sum(w) for w in walls[n0:])
                 glue -= sum(r.wall_timings["wall_setup_s"] for r in results)
             world.close()
@@ -145,8 +145,8 @@ def main() -> int:
 
     from pbdyn.experiments.tasks import settle_heap
     from pbdyn.limits import MAX_PLAN_HORIZON_S
-    from pbdyn.planning import native
-    from pbdyn.planning.candidate_kernels import numpy_orders, sampled_peaks
+    from pbdyn.planning.primitives import native
+    from pbdyn.planning.primitives.compiled.candidate_kernels import numpy_orders, sampled_peaks
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--setups", type=int, default=9, help="controlled setups, spread over the 27 (first replicate)")

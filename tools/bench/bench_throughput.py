@@ -1,5 +1,5 @@
 """Throughput: trials per CPU-second of an older revision (one trial at a time, as its batch workers flew them) and of
-this checkout (lockstep groups, as `pbdyn batch` flies them now), measured interleaved map by map in one run, with
+this checkout (trial batches of one map, as `pbdyn batch` flies them now), measured interleaved map by map in one run, with
 the step-time distribution and the projected time of one planner pair's full controlled study on 2 cores.
 
 Workloads: "quickstart" (scenarios/quickstart.toml, every planner entry, all 72 start/goal pairs, maps
@@ -11,7 +11,7 @@ built before timing; each worker first flies the first map untimed: imports, and
 then, where the code has it, it settles its heap as pbdyn batch's workers do after their first group:
 pbdyn.experiments.tasks.settle_heap). Every row (wall times excluded) is compared old vs new: the code change must not
 change a result. A step's time counts all of its work: lockstep's step walls account for their ticks' time
-(pbdyn.sim.lockstep._share_rest); one trial at a time, the trial's time outside its step splits (views, the planner
+(pbdyn.sim.trial._share_rest); one trial at a time, the trial's time outside its step splits (views, the planner
 call's wrapper, bookkeeping, its first sensing and its result) is spread evenly over its steps. The projection is
 trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
 
@@ -44,9 +44,14 @@ from pbdyn.sim.trial import make_trial_spec, make_world, run_trial
 from pbdyn.world.maps import get_map
 from pbdyn.world.rollout import get_rollout
 try:
-    from pbdyn.sim.lockstep import run_lockstep
+    from pbdyn.sim.trial import fly                      # the trial core (a batch of N trials, one loop)
+    def run_lockstep(specs, ro, world, step_walls=None):
+        return fly(specs, ro, world=world, step_walls=step_walls)
 except ImportError:
-    run_lockstep = None
+    try:
+        from pbdyn.sim.lockstep import run_lockstep      # older revisions: the separate lockstep loop
+    except ImportError:
+        run_lockstep = None
 try:
     from pbdyn.experiments.tasks import settle_heap       # what pbdyn batch's workers do after their first group
 except ImportError:
@@ -150,7 +155,7 @@ def main() -> int:
     args = ap.parse_args()
     print(machine())
     sys.path.insert(0, str(ROOT))
-    from pbdyn.planning import native
+    from pbdyn.planning.primitives import native
 
     print(f"this checkout: {native.status()}")
     jobs = workloads(args)

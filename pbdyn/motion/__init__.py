@@ -1,0 +1,1 @@
+"""pbdyn.motion: obstacle motion models, one module each, and their registry (pbdyn/motion/registry.py)."""

@@ -1,0 +1,385 @@
+"""The trial core: N >= 1 trials of one map stepped together on one PyBullet world (docs/architecture.md "The trial
+core"; the step order is docs/design.md "One trial step", thesis Algorithm 1).
+
+``TrialBatch`` owns the environment's side of every step of its trials -- (1) posing the obstacles, (2) ray
+sensing, (3) tracking, (6) executing the next state through the guard (pbdyn.sim.guard) and (7) the collision, goal,
+time and deadlock checks -- and shares the work across trials: obstacles never react to the MAV, so every trial on
+the map sees the same obstacle poses at the same rollout step; they are posed once per (rollout, step), the running
+MAVs' ray fans are culled and cast in one Bullet batch (PyBulletWorld.cast_fans_many), the Kalman trackers of one
+model step together (pbdyn.perception.tracker.TrackerBank), and the swept checks of the moves against the same
+obstacles run in one evaluation (collision.swept_dynamic_many). A single trial takes the same path with one member
+(then the unshared calls, which give the same floats). The decisions (4)-(5) come from outside: an agent per trial
+(pbdyn.sim.trial.fly), a Gymnasium policy, a test.
+
+Time: a trial starts at the tick of its start step k0 (the start rule, pbdyn.sim.start), so at tick T every running
+trial senses rollout step T (T + 1 with sensor.obstacles_at = "next"). A trial whose setup, sensing or checks raise
+ends alone (``errors``); the others fly on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from pbdyn.outcome import Outcome
+from pbdyn.perception.perceive import Detections, PendingScan
+from pbdyn.perception.tracker import TrackerBank, TrackIdError
+from pbdyn.sim.guard import Accel, breach, integrate
+from pbdyn.sim.spec import TrialSpec
+from pbdyn.sim.state import Action, TrialState, check_dynamic_many, make_world
+from pbdyn.world.bullet import PyBulletWorld
+from pbdyn.world.rollout import Rollout
+
+
+class TrialBatch:
+    """Trials ``specs`` (of one map and scenario; any mix of planner pairs, MAV speeds and start/goal pairs) on
+    ``rollout``, in ``world`` (make_world of that map; lent, left open) or in a world of their own (closed by
+    close(); ``gui`` shows it). ``fov_deg``: per trial, the sensor's field of view (deg; None: the scenario's), as a
+    gaze planner may set it. ``profile``: the execution rules of the guard ("physical" or "thesis_program"; default:
+    the scenario's profile; pbdyn.sim.guard).
+
+    Use: ``start()``; then, while not ``done``: for every index in ``running``, read ``states[i]`` (or ``view(i)``)
+    and give it an Action or Accel (or ``end(i, ...)`` it), then ``step(actions)``. After ``step``, ``ended`` lists
+    the trials that ended in it and ``refused`` those the guard ended there, without a move. ``errors`` maps the
+    index of a trial that raised to its exception (its state, if any, is left as it was)."""
+
+    def __init__(self, specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None,
+                 fov_deg: Sequence[float | None] | None = None, gui: bool = False, profile: str | None = None):
+        specs = list(specs)
+        if not specs:
+            raise ValueError("a TrialBatch needs at least one trial")
+        if gui and len(specs) > 1:
+            raise ValueError("the GUI shows one trial: a batch with gui=True must hold one trial")
+        fov = list(fov_deg) if fov_deg is not None else [None] * len(specs)
+        if len(fov) != len(specs):
+            raise ValueError(f"fov_deg has {len(fov)} entries for {len(specs)} trials")
+        self.specs = specs
+        self.rollout = rollout
+        self.errors: dict[int, BaseException] = {}
+        self.owns_world = world is None
+        self.world = make_world(specs[0], rollout, gui=gui) if world is None else world
+        self.states: list[TrialState | None] = []
+        self.setup_s: list[float] = []
+        try:
+            for i, spec in enumerate(specs):
+                t0 = time.perf_counter()
+                try:
+                    self.states.append(TrialState(spec, rollout, self.world, fov_deg=fov[i]))
+                except Exception as exc:
+                    self.states.append(None)
+                    self.errors[i] = exc
+                self.setup_s.append(time.perf_counter() - t0)
+        except BaseException:
+            self.close()
+            raise
+        physical = [s.scenario.physical if profile is None else profile == "physical" for s in specs]
+        self._physical = physical
+        self._banks = _Banks(len(specs)) if len(specs) > 1 else None
+        self.running: list[int] = []
+        self.waiting: list[int] = []
+        self.ended: list[int] = []
+        self._ended_early: list[int] = []
+        self.refused: list[int] = []
+        self.tick = 0
+        self.sensed_at = 0.0          # perf_counter() when the last step's sensing of the next tick began
+
+    # ------------------------------------------------------------------------------------------------ episode
+    def start(self) -> None:
+        """Start the batch: the trials whose start step is the earliest begin and sense (steps (1)-(3) at t_0);
+        the others begin at the tick of their own start step."""
+        ok = [i for i, s in enumerate(self.states) if s is not None]
+        self.waiting = sorted(ok, key=lambda i: (self.states[i].k0, i))
+        self.running = []
+        self.ended = []
+        self._ended_early = []
+        self.tick = self.states[self.waiting[0]].k0 if self.waiting else 0
+        self._begin_tick()
+
+    @property
+    def done(self) -> bool:
+        """True once every trial has ended (or raised)."""
+        return not self.running and not self.waiting
+
+    def view(self, i: int, trajectory=None):
+        """The read-only View trial ``i`` sees at its t_k (with the plan in execution, or None)."""
+        return self.states[i].view(trajectory)
+
+    def end(self, i: int, outcome: Outcome, reason: str | None = None) -> None:
+        """End running trial ``i`` now with ``outcome`` (e.g. invalid_plan when its plan broke the contract); the
+        next step() lists it among the trials that ended."""
+        self.states[i].end(outcome, reason)
+        self.running.remove(i)
+        self._ended_early.append(i)
+
+    def fail(self, i: int, exc: BaseException) -> None:
+        """Record that trial ``i`` raised ``exc``: it leaves the batch (an "error" row for batch workers)."""
+        self.errors[i] = exc
+        if i in self.running:
+            self.running.remove(i)
+        if i in self.waiting:
+            self.waiting.remove(i)
+
+    def step(self, actions: dict) -> list[int]:
+        """Steps (6)-(7) for every running trial with its action (an Action, or an Accel integrated within the limits),
+        then the next tick's sensing. An action the guard refuses ends its trial as invalid_plan (pbdyn.sim.guard).
+        Returns the trials that ended in this step (also ``ended``). Every running trial needs an action."""
+        if len(actions) != len(self.running) or any(i not in actions for i in self.running):
+            missing = [i for i in self.running if i not in actions]
+            extra = sorted(set(actions) - set(self.running))
+            raise ValueError(f"step() needs one action per running trial: missing {missing}, not running {extra}")
+        ended, self._ended_early = self._ended_early, []
+        self.refused = []
+        moves = []
+        for i in self.running:
+            st = self.states[i]
+            act = actions[i]
+            try:
+                if isinstance(act, Accel):
+                    act = integrate(act, st.position, st.velocity, st.limits, st.dt)
+                why = breach(act, st.position, st.velocity, st.limits, st.dt, self._physical[i]) \
+                    if isinstance(act, Action) else f"next state broke form (an Action or an Accel, got {act!r})"
+            except Exception as exc:
+                self.errors[i] = exc
+                continue
+            if why is not None:
+                st.end(Outcome.INVALID_PLAN, why)
+                st.collision_wall_s = 0.0
+                self.refused.append(i)
+                ended.append(i)
+                continue
+            moves.append((i, act))
+        contacts = self._dynamic_contacts(moves)
+        still = []
+        for i, act in moves:
+            st = self.states[i]
+            contact = contacts.get(i)
+            try:
+                st.move(act, None if contact is None else contact[0])
+            except Exception as exc:
+                self.errors[i] = exc
+                continue
+            if contact is not None:
+                st.collision_wall_s += contact[1]
+            (ended if st.done else still).append(i)
+        self.running = still
+        self.ended = ended
+        self.tick += 1
+        self.sensed_at = time.perf_counter()
+        self._begin_tick()
+        return ended
+
+    def close(self) -> None:
+        """Disconnect the PyBullet client if the batch made its world (a lent world stays open)."""
+        if self.owns_world:
+            self.world.close()
+
+    def __enter__(self) -> TrialBatch:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------------------------------------ sensing
+    def _begin_tick(self) -> None:
+        """Begin the trials whose start step is this tick, then steps (1)-(3) of every running trial."""
+        while self.waiting and self.states[self.waiting[0]].k0 <= self.tick:
+            i = self.waiting.pop(0)
+            st = self.states[i]
+            try:
+                st.begin()
+                if self._banks is not None:
+                    self._banks.attach(i, st)
+            except Exception as exc:
+                self.errors[i] = exc
+                continue
+            self.running.append(i)
+        if self.running:
+            self._sense()
+
+    def _sense(self) -> None:
+        """Steps (1)-(3) for every running trial: obstacles posed once per (rollout, step), the rays of all scans
+        cast in one batch, then each trial's detections, and the tracks of all (their trackers step together)."""
+        failed: set[int] = set()
+        groups: dict = {}
+        for i in self.running:
+            st = self.states[i]
+            groups.setdefault((id(st.rollout), st.sense_index()), []).append(i)
+        for members in groups.values():
+            if len(members) == 1 and self._banks is None:
+                self._sense_one(members[0], failed)
+            else:
+                self._sense_group(members, failed)
+        if failed:
+            self.running = [i for i in self.running if i not in failed]
+
+    def _sense_one(self, i: int, failed: set) -> None:
+        """Steps (1)-(3) of one trial alone (a batch of one): the unshared calls."""
+        st = self.states[i]
+        try:
+            c0 = time.perf_counter()
+            st.pose_obstacles()                                             # (1)
+            st.world.set_mav_pose(st.position, st.yaw)
+            c1 = time.perf_counter()
+            st.detections = st.perception.sense(st.position, st.yaw)       # (2)
+            c2 = time.perf_counter()
+            st.track()                                                      # (3)
+            c3 = time.perf_counter()
+        except Exception as exc:
+            self.errors[i] = exc
+            failed.add(i)
+            return
+        st.sense_timings = (c1 - c0, c2 - c1, c3 - c2)
+
+    def _sense_group(self, members: list[int], failed: set) -> None:
+        """Steps (1)-(3) of the trials that sense the same rollout step: shared posing, one ray batch per fan shape,
+        the trackers stepped together; each trial's timings are its share of the shared work plus its own."""
+        states = self.states
+        world = self.world
+        c0 = time.perf_counter()
+        states[members[0]].pose_obstacles()
+        pose_share = (time.perf_counter() - c0) / len(members)
+        rays = dict.fromkeys(members, 0.0)
+        fans: dict = {}
+        # Nothing reads the MAV body's pose while the scans are made (Bullet's rays exclude it; cast_rays parks it
+        # and puts it back): it is placed once per group, at the last member's pose, as trial by trial would leave it.
+        last = members[-1]
+        for i in members:
+            st = states[i]
+            try:
+                if i == last:
+                    world.set_mav_pose(st.position, st.yaw)
+                frame = st.perception.begin_frame(st.position, st.yaw)
+            except Exception as exc:
+                self.errors[i] = exc
+                failed.add(i)
+                continue
+            if isinstance(frame, Detections):
+                st.detections = frame
+            else:
+                fans.setdefault((st.perception.range_m, frame[1].shape), []).append((i, frame))
+        for (range_m, _), group in fans.items():     # the fans of one shape culled and cast together
+            c1 = time.perf_counter()
+            try:
+                ids, frac = world.cast_fans_many(np.array([o for _, (o, _) in group]),
+                                                 np.array([d for _, (_, d) in group]), range_m)
+                cast = [(i, o, dirs_t, ids[k], frac[k]) for k, (i, (o, dirs_t)) in enumerate(group)]
+            except Exception:                         # each trial on its own, to end only the ones that fail
+                cast = []
+                for i, (o, dirs_t) in group:
+                    try:
+                        cast.append((i, o, dirs_t, *world.cast_fan_rays(world.fan_rays(o, dirs_t.T, range_m))))
+                    except Exception as exc:
+                        self.errors[i] = exc
+                        failed.add(i)
+            share = (time.perf_counter() - c1) / max(len(cast), 1)
+            for i, o, dirs_t, hit_ids, hit_frac in cast:
+                t0 = time.perf_counter()
+                st = states[i]
+                try:
+                    st.detections = st.perception.complete(PendingScan(o, dirs_t, None), hit_ids, hit_frac)
+                except Exception as exc:
+                    self.errors[i] = exc
+                    failed.add(i)
+                    continue
+                rays[i] = share + time.perf_counter() - t0
+        sensed = [i for i in members if i not in failed]
+        tracked = self._banks.step(sensed, states) if self._banks is not None else \
+            {i: _track_one(states[i]) for i in sensed}
+        for i, got in tracked.items():
+            if isinstance(got, Exception):
+                self.errors[i] = got
+                failed.add(i)
+                continue
+            states[i].sense_timings = (pose_share, rays[i], got)
+
+    # ------------------------------------------------------------------------------------------------ checks
+    def _dynamic_contacts(self, moves: list) -> dict:
+        """Per trial index: (its swept obstacle contact of this step, its share of the check's time in s), for the
+        trials whose checks can be batched (TrialState.dynamic_batch_key); each group is checked in one evaluation."""
+        if len(moves) < 2:
+            return {}
+        groups: dict = {}
+        for i, act in moves:
+            key = self.states[i].dynamic_batch_key()
+            if key is not None:
+                groups.setdefault(key, []).append((i, act))
+        out: dict = {}
+        for members in groups.values():
+            if len(members) < 2:
+                continue
+            c0 = time.perf_counter()
+            found = check_dynamic_many([self.states[i] for i, _ in members], [a.position for _, a in members])
+            share = (time.perf_counter() - c0) / len(members)
+            for (i, _), contact in zip(members, found):
+                out[i] = (contact, share)
+        return out
+
+
+def _track_one(st: TrialState):
+    """Step (3) of one trial on its own: its tracking time (s) or the exception that ended it."""
+    t0 = time.perf_counter()
+    try:
+        st.track()
+    except Exception as exc:
+        return exc
+    return time.perf_counter() - t0
+
+
+class _Banks:
+    """The TrackerBanks of a batch, one per tracker model (trials of one scenario share one)."""
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self.banks: list[TrackerBank] = []
+        self.where: dict[int, tuple[TrackerBank, int]] = {}      # trial index -> (bank, row)
+
+    def attach(self, i: int, st: TrialState) -> None:
+        tracker = st.tracker
+        for bank in self.banks:
+            row = bank.attach(tracker)
+            if row is not None:
+                self.where[i] = (bank, row)
+                return
+        bank = TrackerBank(tracker, self.capacity)
+        self.banks.append(bank)
+        self.where[i] = (bank, bank.attach(tracker))
+
+    def step(self, members: list[int], states: list) -> dict:
+        """Step (3) of the trials ``members`` (detections set): their trackers step together per bank, then each
+        trial's tracks are read. Returns per trial index its tracking time (s: its share of the bank's step plus its
+        own read-out) or the exception that ended it."""
+        out: dict = {}
+        groups: dict = {}
+        for i in members:
+            bank, row = self.where[i]
+            groups.setdefault(id(bank), (bank, []))[1].append((row, i))
+        for bank, rows in groups.values():
+            t0 = time.perf_counter()
+            sts = [states[i] for _, i in rows]
+            try:
+                bank.step([r for r, _ in rows], [st.tracker for st in sts], [st.detections.ids for st in sts],
+                          [st.detections.centers for st in sts])
+            except TrackIdError:                 # nothing stepped: each trial on its own (the culprits fail so)
+                for _, i in rows:
+                    out[i] = _track_one(states[i])
+                continue
+            except Exception as exc:             # (a filter that cannot be stepped ends every trial it holds)
+                for _, i in rows:
+                    out[i] = exc
+                continue
+            try:                                 # every trial's tracks, read out together
+                read = bank.read_tracks([r for r, _ in rows], [st.radii for st in sts])
+            except Exception:                    # (each on its own, to end only the trials that fail)
+                read = None
+            share = (time.perf_counter() - t0) / len(rows)
+            for k, st in enumerate(sts):
+                t1 = time.perf_counter()
+                try:
+                    st.tracks = st.tracker.tracks(st.radii) if read is None else read[k]
+                except Exception as exc:
+                    out[rows[k][1]] = exc
+                    continue
+                out[rows[k][1]] = share + time.perf_counter() - t1
+        return out
