@@ -301,7 +301,7 @@ def outpath_case(index: int, assets: Assets) -> Case:
     """One output-writing command with an output path of one category."""
     commands = ("replay", "plot", "csv", "parquet", "plots", "html", "rollout", "trace", "merge", "batch")
     # 10 commands x 11 categories: indices 0..109 give every pair once (10 and 11 are coprime), so the default run's
-    # first 20 cases already try every command twice and every category
+    # first 11 cases already try every command and every category
     cmd = commands[index % len(commands)]
     category = PATH_CATEGORIES[index % len(PATH_CATEGORIES)]
     suffix = {"replay": ".png", "plot": ".png", "csv": ".csv", "parquet": ".parquet", "plots": "", "html": ".html",

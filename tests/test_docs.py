@@ -85,9 +85,17 @@ def _check_architecture(ns, tmp_path, out):
     from pbdyn.outcome import OUTCOMES
 
     assert ns["result"].outcome in OUTCOMES and ns["ro"].dims == 2
+    st = ns["st"]                          # the trial core driven with the acceleration action: inside the limits
+    assert st.done and st.max_speed <= st.limits.v_max * (1 + 1e-9) and st.max_accel <= st.limits.a_max * (1 + 1e-9)
 
 
-CHECKS = {"api.md": _check_api, "planners.md": _check_planners, "results.md": _check_results,
+def _check_gym(ns, tmp_path, out):
+    from pbdyn.outcome import OUTCOMES
+
+    assert ns["info"]["outcome"] in OUTCOMES and ns["easy"]["level"] == 1 and ns["hard"]["level"] > 1
+
+
+CHECKS = {"api.md": _check_api, "gym.md": _check_gym, "planners.md": _check_planners, "results.md": _check_results,
           "scenarios.md": _check_scenarios, "difficulty-metrics.md": _check_metrics, "limits.md": _check_limits,
           "architecture.md": _check_architecture}
 """Page -> what its examples must have done (beyond running without an error)."""

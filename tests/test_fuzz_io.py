@@ -14,7 +14,7 @@ import pytest
 
 from tests.fuzz_io import CLASSES, make, make_assets, run_case, verdict
 
-N_DEFAULT = {"trace": 40, "outpath": 20, "merge": 30, "api": 40}
+N_DEFAULT = {"trace": 40, "outpath": 11, "merge": 30, "api": 40}
 N_SLOW = 300
 TIME_BOUND_S = 60.0
 

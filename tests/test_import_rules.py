@@ -48,7 +48,7 @@ RULES: dict[str, tuple[str, ...]] = {
     "experiments": _BELOW_EXPERIMENTS,
     "benchmark": _BELOW_API,
     "api": _BELOW_API + ("benchmark",),
-    "gym": _BELOW_API + ("api",),
+    "gym": _BELOW_API + ("benchmark", "api"),
     "cli": _BELOW_API + ("benchmark", "api"),
     "__main__": ("cli",),
     "pbdyn": _BELOW_API + ("benchmark", "api"),

@@ -45,6 +45,8 @@ OUTPUT_SUFFIXES = (".sqlite", ".npz", ".csv", ".parquet", ".gif", ".png", ".txt"
 OUTPUT_NAMES = ("card.md", "compare.md")
 """Files a command writes (the score card's and the comparison's pages of `pbdyn bench`)."""
 PLACEHOLDER = re.compile(r"[<*{]|\.\.\.")
+ENV_ID = re.compile(r"^pbdyn/[A-Z]\w*-v\d+$")
+"""A Gymnasium environment id (pbdyn/Avoid2D-v0), not a path."""
 FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```[ \t]*$", re.S | re.M)
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 RUN_TAG, NORUN_TAG = "python", "python-norun"
@@ -79,7 +81,7 @@ def page_paths(text: str, page: Path) -> dict[str, tuple[str, ...]]:
         target = m.group(1)
         if not re.match(r"[a-z]+:|#", target):
             found[target] = (_rel(here / target.split("#")[0]),)
-    return {k: v for k, v in found.items() if not _is_output(k) and not PLACEHOLDER.search(k)}
+    return {k: v for k, v in found.items() if not _is_output(k) and not PLACEHOLDER.search(k) and not ENV_ID.match(k)}
 
 
 def missing_paths(page: Path) -> list[str]:

@@ -125,14 +125,16 @@ class TrialBatch:
         """Steps (6)-(7) for every running trial with its action (an Action, or an Accel integrated within the limits),
         then the next tick's sensing. An action the guard refuses ends its trial as invalid_plan (pbdyn.sim.guard).
         Returns the trials that ended in this step (also ``ended``). Every running trial needs an action."""
-        if len(actions) != len(self.running) or any(i not in actions for i in self.running):
+        running = self.running
+        if len(actions) != len(running) or not all(i in actions for i in running):
             missing = [i for i in self.running if i not in actions]
             extra = sorted(set(actions) - set(self.running))
             raise ValueError(f"step() needs one action per running trial: missing {missing}, not running {extra}")
         ended, self._ended_early = self._ended_early, []
-        self.refused = []
+        if self.refused:
+            self.refused = []
         moves = []
-        for i in self.running:
+        for i in running:
             st = self.states[i]
             act = actions[i]
             try:
@@ -146,15 +148,15 @@ class TrialBatch:
             if why is not None:
                 st.end(Outcome.INVALID_PLAN, why)
                 st.collision_wall_s = 0.0
-                self.refused.append(i)
+                self.refused = self.refused + [i]
                 ended.append(i)
                 continue
             moves.append((i, act))
-        contacts = self._dynamic_contacts(moves)
+        contacts = self._dynamic_contacts(moves) if len(moves) > 1 else None
         still = []
         for i, act in moves:
             st = self.states[i]
-            contact = contacts.get(i)
+            contact = contacts.get(i) if contacts else None
             try:
                 st.move(act, None if contact is None else contact[0])
             except Exception as exc:
@@ -162,7 +164,7 @@ class TrialBatch:
                 continue
             if contact is not None:
                 st.collision_wall_s += contact[1]
-            (ended if st.done else still).append(i)
+            (ended if st.outcome is not None else still).append(i)
         self.running = still
         self.ended = ended
         self.tick += 1
@@ -184,7 +186,7 @@ class TrialBatch:
     # ------------------------------------------------------------------------------------------------ sensing
     def _begin_tick(self) -> None:
         """Begin the trials whose start step is this tick, then steps (1)-(3) of every running trial."""
-        while self.waiting and self.states[self.waiting[0]].k0 <= self.tick:
+        while self.waiting and self.states[self.waiting[0]].k0 <= self.tick:   # (none after the first ticks)
             i = self.waiting.pop(0)
             st = self.states[i]
             try:
@@ -202,15 +204,17 @@ class TrialBatch:
         """Steps (1)-(3) for every running trial: obstacles posed once per (rollout, step), the rays of all scans
         cast in one batch, then each trial's detections, and the tracks of all (their trackers step together)."""
         failed: set[int] = set()
+        if self._banks is None:                  # a batch of one
+            self._sense_one(self.running[0], failed)
+            if failed:
+                self.running = []
+            return
         groups: dict = {}
         for i in self.running:
             st = self.states[i]
             groups.setdefault((id(st.rollout), st.sense_index()), []).append(i)
         for members in groups.values():
-            if len(members) == 1 and self._banks is None:
-                self._sense_one(members[0], failed)
-            else:
-                self._sense_group(members, failed)
+            self._sense_group(members, failed)
         if failed:
             self.running = [i for i in self.running if i not in failed]
 

@@ -78,11 +78,20 @@ def breach(action: Action, position: np.ndarray, velocity: np.ndarray, limits: M
     broken check, its value and bound; None when the action may be executed. See the module docstring."""
     d = position.shape[0]
     p1, v1, a1 = action.position, action.velocity, action.acceleration
-    if not all(type(x) is np.ndarray and x.shape == (d,) and x.dtype.kind == "f" for x in (p1, v1, a1)):
+    if not (type(p1) is np.ndarray and type(v1) is np.ndarray and type(a1) is np.ndarray
+            and p1.shape == v1.shape == a1.shape == (d,) and p1.dtype.kind == v1.dtype.kind == a1.dtype.kind == "f"):
         return _reason("form", math.nan, math.nan, "")
-    dv = v1 - velocity
-    gap = p1 - position - 0.5 * (velocity + v1) * dt
-    speed2, acc2, dv2, gap2 = float(v1 @ v1), float(a1 @ a1), float(dv @ dv), float(gap @ gap)
+    # on d = 2 or 3 values, Python floats cost less than numpy's per-call dispatch (this runs every step)
+    pl, vl, al, p0, v0 = p1.tolist(), v1.tolist(), a1.tolist(), position.tolist(), velocity.tolist()
+    speed2 = acc2 = dv2 = gap2 = 0.0
+    half = 0.5 * dt
+    for j in range(d):
+        dv = vl[j] - v0[j]
+        gap = pl[j] - p0[j] - (v0[j] + vl[j]) * half
+        speed2 += vl[j] * vl[j]
+        acc2 += al[j] * al[j]
+        dv2 += dv * dv
+        gap2 += gap * gap
     try:
         rate = float(action.yaw_rate)
     except (TypeError, ValueError):
@@ -99,7 +108,7 @@ def breach(action: Action, position: np.ndarray, velocity: np.ndarray, limits: M
     step_v = limits.a_max * dt * grow + START_TOL
     if dv2 > step_v * step_v:
         return _reason("velocity_step", math.sqrt(dv2), step_v, "m/s")
-    step_p = limits.a_max * dt * dt / 4.0 * grow + START_TOL * (1.0 + 0.5 * dt)
+    step_p = limits.a_max * dt * dt / 4.0 * grow + START_TOL * (1.0 + half)
     if gap2 > step_p * step_p:
         return _reason("position_step", math.sqrt(gap2), step_p, "m")
     return None

@@ -142,48 +142,55 @@ class _Flight:
         self.reported: set[int] = set()
 
     def run(self) -> None:
-        batch, flying = self.batch, self.flying
+        batch, flying, agents, logs = self.batch, self.flying, self.agents, self.logs
+        watching = any(self.watchers[i] for i in flying)
+        states = batch.states
         window = time.perf_counter()             # a tick's window: from its sensing to the next tick's sensing
         batch.start()
         self._errors()
         results_s = 0.0                          # the results made in the window: not part of its steps
         while not batch.done:
             acting = []
+            actions = {}
             for b in list(batch.running):        # (4)-(5): every trial decides
-                agent = self.agents[flying[b]]
+                st = states[b]
+                agent = agents[flying[b]]
                 try:
-                    decision = agent.act(batch.states[b].view(agent.trajectory))
+                    decision = agent.act(st.view(agent.trajectory))
                 except Exception as exc:
                     batch.fail(b, exc)
                     continue
                 if decision.violation is not None:
                     batch.end(b, Outcome.INVALID_PLAN, decision.violation.reason)
                 else:
-                    acting.append((b, decision))
-            states = batch.states
-            before = {b: (states[b].sense_timings, self._record_at(b)) for b, _ in acting}
-            ended = batch.step({b: d.action for b, d in acting})   # (6)-(7), then the next tick's (1)-(3)
-            self._errors()
+                    acting.append((b, decision, st.sense_timings, self._record_at(b) if watching else None))
+                    actions[b] = decision.action
+            ended = batch.step(actions)          # (6)-(7), then the next tick's (1)-(3)
+            if batch.errors:
+                self._errors()
+            refused = batch.refused
             stepped = []
-            for b, decision in acting:
-                if b in batch.errors or b in batch.refused:
+            for b, decision, sensed, record_at in acting:
+                if refused and b in refused or b in batch.errors:
                     continue
-                sensed, record_at = before[b]
-                log = self.logs[flying[b]]
+                log = logs[flying[b]]
                 splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, states[b].collision_wall_s)
+                timings = log.timings
                 for name, value in zip(SPLITS, splits):
-                    log.timings[name] += value
+                    timings[name] += value
                 log.step_walls.append(sum(splits))
                 log.plan_walls.append(decision.planning_wall_s)
-                stepped.append(b)
+                stepped.append(log)
                 if record_at is not None:
                     self._watch(b, decision, record_at, splits)
-            _share_rest([self.logs[flying[b]] for b in stepped], batch.sensed_at - window - results_s)
+            _share_rest(stepped, batch.sensed_at - window - results_s)
             window = batch.sensed_at
-            t0 = time.perf_counter()
-            for b in ended:
-                self._finish(b)
-            results_s = time.perf_counter() - t0
+            results_s = 0.0
+            if ended:
+                t0 = time.perf_counter()
+                for b in ended:
+                    self._finish(b)
+                results_s = time.perf_counter() - t0
 
     def _errors(self) -> None:
         """Report the trials that raised since the last look."""

@@ -15,7 +15,7 @@ change a result. A step's time counts all of its work: lockstep's step walls acc
 call's wrapper, bookkeeping, its first sensing and its result) is spread evenly over its steps. The projection is
 trials / (2 x trials per CPU-second) for 540 maps x 216 trials.
 
-    .venv/bin/python tools/bench/bench_throughput.py [--ref REV] [--maps-per-setup 1] [--quick-maps 3]
+    .venv/bin/python tools/bench/bench_throughput.py [--ref REV] [--maps-per-setup 1] [--quick-maps 3] [--old-batches]
 """
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ def workloads(args) -> list[tuple[str, Path, int, list[str]]]:
 
 def main() -> int:
     sys.path.insert(0, str(HERE))
-    from bench_common import machine
+    from bench_common import machine, share_native_library
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ref", default="7c81067", help="git revision of the old code (default 7c81067: main before "
@@ -152,6 +152,9 @@ def main() -> int:
     ap.add_argument("--setups", type=int, default=27, help="controlled setups to fly (a quick check: fewer)")
     ap.add_argument("--quick-maps", type=int, default=3, help="quickstart maps")
     ap.add_argument("--pair", default="local_primitives+lookahead", help="controlled planner pair trajectory+gaze")
+    ap.add_argument("--old-batches", action="store_true",
+                    help="the old revision flies its maps in groups of 72 too (a revision that has lockstep or the "
+                         "trial core), so that old and new compare the same way of flying")
     args = ap.parse_args()
     print(machine())
     sys.path.insert(0, str(ROOT))
@@ -165,7 +168,8 @@ def main() -> int:
         old_tree = Path(tmp) / "old"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(old_tree), args.ref],
                        check=True)
-        workers = {"old": Worker(old_tree, False, cache), "new": Worker(ROOT, True, cache)}
+        print(f"old tree: {share_native_library(old_tree)}")
+        workers = {"old": Worker(old_tree, args.old_batches, cache), "new": Worker(ROOT, True, cache)}
         try:
             for w in workers.values():          # untimed: imports, and numba compiling (new tree) or loading
                 w.fly(*jobs[0][1:])
@@ -182,7 +186,8 @@ def main() -> int:
             for w in workers.values():
                 w.close()
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old_tree)], check=False)
-    print(f"old = {args.ref} (one trial at a time), new = this checkout (lockstep groups of 72 as pbdyn batch); "
+    how = "groups of 72 as its pbdyn batch flew them" if args.old_batches else "one trial at a time"
+    print(f"old = {args.ref} ({how}), new = this checkout (trial batches of 72 as pbdyn batch); "
           "rows identical old vs new; "
           f"each worker first flew {jobs[0][0]} map {jobs[0][2]} untimed (start-up)")
     print(f"{'workload':<12} {'code':<4} {'trials':>7} {'CPU s':>8} {'trials/CPU-s':>13} {'median map':>11} "

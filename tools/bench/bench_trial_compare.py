@@ -80,7 +80,7 @@ def run(tree: Path, pairs: int) -> dict:
 
 def main() -> int:
     sys.path.insert(0, str(HERE))
-    from bench_common import machine
+    from bench_common import machine, share_native_library
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ref", default="145e667", help="git revision of the old code (default 145e667)")
@@ -92,6 +92,7 @@ def main() -> int:
         old_tree = Path(tmp) / "old"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(old_tree), args.ref],
                        check=True)
+        print(f"old tree: {share_native_library(old_tree)}")
         try:
             for tree in (old_tree, ROOT):      # untimed: fills numba's on-disk caches of a new tree (compiles)
                 run(tree, 1)

@@ -1,0 +1,27 @@
+"""Gymnasium environments of pbdyn (docs/gym.md): importing this package registers
+
+    pbdyn/Avoid2D-v0, pbdyn/Avoid3D-v0   the policy flies the MAV (pbdyn.gym.env.AvoidEnv; quickstart, spheres_3d)
+    pbdyn/Gaze2D-v0, pbdyn/Gaze3D-v0     local primitives fly, the policy turns the gaze (pbdyn.gym.env.GazeEnv)
+
+so that ``gymnasium.make("pbdyn/Avoid2D-v0")`` works after ``import pbdyn.gym`` (or, without the import,
+``gymnasium.make("pbdyn.gym:pbdyn/Avoid2D-v0")``). Keyword arguments of make() go to the environment's constructor.
+"""
+
+from __future__ import annotations
+
+from gymnasium.envs.registration import register, registry
+
+from pbdyn.gym.env import AvoidEnv, GazeEnv
+from pbdyn.gym.reward import RewardConfig
+
+__all__ = ["AvoidEnv", "GazeEnv", "RewardConfig", "ENV_IDS"]
+
+ENV_IDS = {"pbdyn/Avoid2D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "quickstart", "dims": 2}),
+           "pbdyn/Avoid3D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "spheres_3d", "dims": 3}),
+           "pbdyn/Gaze2D-v0": ("pbdyn.gym.env:GazeEnv", {"scenario": "quickstart", "dims": 2}),
+           "pbdyn/Gaze3D-v0": ("pbdyn.gym.env:GazeEnv", {"scenario": "spheres_3d", "dims": 3})}
+"""id -> (entry point, default constructor arguments) of every registered environment."""
+
+for _id, (_entry, _kwargs) in ENV_IDS.items():
+    if _id not in registry:
+        register(id=_id, entry_point=_entry, kwargs=dict(_kwargs), disable_env_checker=False)

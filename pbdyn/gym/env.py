@@ -1,0 +1,187 @@
+"""Gymnasium environments over the trial core (docs/gym.md): an episode is a trial of pbdyn, flown by
+pbdyn.sim.batch.TrialBatch (a batch of one) with the same world, sensing, tracking, MAV limits and outcomes as
+``pbdyn run``.
+
+``AvoidEnv``: the policy flies the MAV. Action: Box [-1, 1]^(d + 1), float32: an acceleration command
+(action[:d] * a_max, m/s^2, world frame; the core clips its norm to a_max and integrates it within v_max,
+pbdyn.sim.guard.Accel) and a yaw rate (action[d] * the yaw-rate limit, rad/s); actions outside [-1, 1] are clipped
+to it, and a non-finite action is refused (ValueError).
+``GazeEnv``: a built-in trajectory planner flies (default local primitives, with its plan contract and braking) and
+the policy only turns the gaze: Box [-1, 1]^1, the yaw rate as a fraction of its limit (the thesis' gaze-planning
+problem).
+
+Both observe pbdyn.gym.observation (what the MAV knows), are rewarded by pbdyn.gym.reward, end an episode when the
+trial ends (``terminated``: success, a collision, invalid_plan or deadlock; ``truncated``: the time limit, i.e.
+the outcome "freezing"), and put in ``info`` the outcome and its reason (once ended), the map's identity, its
+anchored difficulty and level (on the ladder), the reward's terms, and the MAV's speed and acceleration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+
+from pbdyn.gym.episodes import Episode, EpisodeSource
+from pbdyn.gym.observation import observation_size, observe
+from pbdyn.gym.reward import RewardConfig, step_reward
+from pbdyn.outcome import Outcome
+from pbdyn.sim.agent import Agent
+from pbdyn.sim.batch import TrialBatch
+from pbdyn.sim.guard import Accel
+from pbdyn.sim.spec import make_trial_spec
+from pbdyn.sim.state import vector_norm
+
+
+class _CoreEnv(gymnasium.Env):
+    """The part both environments share: episodes, the trial batch of one, observation, reward and info."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
+                 reward=None):
+        super().__init__()
+        for name, value, lo in (("tracks", tracks, 0), ("rays", rays, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+                raise ValueError(f"{name} must be an integer >= {lo} (got {value!r})")
+        self.episodes = EpisodeSource(scenario, dims)
+        self.dims = self.episodes.dims
+        self.tracks = tracks
+        self.rays = rays
+        self.reward_config = RewardConfig.of(reward)
+        n = observation_size(self.dims, tracks, rays)
+        self.observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
+        self.batch: TrialBatch | None = None
+        self.episode: Episode | None = None
+
+    # ------------------------------------------------------------------------------------------------ gymnasium
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode: a map and task drawn by the environment's Generator (seeded by ``seed``), or chosen by
+        ``options`` ("scenario", "map", "level", "difficulty"; pbdyn.gym.episodes). Returns (observation, info)."""
+        super().reset(seed=seed)
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None (got {options!r})")
+        episode = self.episodes.choose(self.np_random, dict(options or {}))
+        spec = episode.spec
+        rollout = self.episodes.rollout(spec)
+        world = self.episodes.world_for(spec, rollout)
+        self._start(episode, rollout, world)
+        st = self.batch.states[0]
+        if 0 in self.batch.errors:
+            raise self.batch.errors[0]
+        self._dist = vector_norm(st.position - st.goal)
+        return observe(st, self.tracks, self.rays), self._info(st, None)
+
+    def step(self, action):
+        """One step of the trial with ``action``. Returns (observation, reward, terminated, truncated, info)."""
+        if self.batch is None or self.batch.done:
+            raise RuntimeError("step() before reset() or after the episode ended; call reset()")
+        st = self.batch.states[0]
+        accel0 = st.acceleration
+        self._act(self._checked(action))
+        if 0 in self.batch.errors:
+            raise self.batch.errors[0]
+        dist = vector_norm(st.position - st.goal)
+        outcome = st.outcome
+        reward, terms = step_reward(self.reward_config, self._dist, dist, accel0, st.acceleration,
+                                    st.limits.a_max, outcome)
+        self._dist = dist
+        terminated = outcome is not None and outcome is not Outcome.FREEZING
+        truncated = outcome is Outcome.FREEZING
+        return observe(st, self.tracks, self.rays), reward, terminated, truncated, self._info(st, terms)
+
+    def close(self) -> None:
+        """Release the PyBullet world."""
+        self.episodes.close()
+        self.batch = None
+
+    # ------------------------------------------------------------------------------------------------ parts
+    def _checked(self, action) -> np.ndarray:
+        a = np.asarray(action, dtype=float)
+        if a.shape != self.action_space.shape or not np.isfinite(a).all():
+            raise ValueError(f"action must be {self.action_space.shape[0]} finite numbers (got {action!r})")
+        return np.clip(a, -1.0, 1.0)
+
+    def _info(self, st, terms: dict | None) -> dict:
+        ep = self.episode
+        spec = ep.spec
+        info = {"outcome": None if st.outcome is None else st.outcome.value,
+                "reason": st.reason if st.outcome is not None else "",
+                "scenario": spec.scenario.name, "map_index": ep.map_index, "map_id": spec.map_spec.map_id,
+                "map_key": spec.map_spec.key, "difficulty": ep.difficulty, "level": ep.level,
+                "start": tuple(spec.start), "goal": tuple(spec.goal), "v_max": float(spec.v_max), "t": st.t,
+                "speed": math.sqrt(float(st.velocity @ st.velocity)),
+                "acceleration": math.sqrt(float(st.acceleration @ st.acceleration))}
+        if terms is not None:
+            info["reward_terms"] = terms
+        return info
+
+
+class AvoidEnv(_CoreEnv):
+    """The policy flies the MAV: acceleration command and yaw rate (see the module docstring).
+
+    scenario: a bundled scenario name, a file or a Scenario (default "quickstart"; its maps, tasks and MAV speeds
+    are the episodes' unless a reset asks for the ladder); dims: 2 or 3 (checked against the scenario); tracks: K,
+    the nearest tracks observed; rays: B, depth bins observed (0: none); reward: a RewardConfig or dict of weights."""
+
+    def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
+                 reward=None):
+        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, reward=reward)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.dims + 1,), np.float32)
+
+    def _start(self, episode: Episode, rollout, world) -> None:
+        self.episode = episode
+        self.batch = TrialBatch([episode.spec], rollout, world=world)
+        self.batch.start()
+
+    def _act(self, a: np.ndarray) -> None:
+        st = self.batch.states[0]
+        cmd = Accel(a[:self.dims] * st.limits.a_max, float(a[self.dims]) * st.limits.yaw_rate)
+        self.batch.step({0: cmd})
+
+
+class _PolicyGaze:
+    """A gaze planner whose yaw rate is the policy's last action (rad/s)."""
+
+    fov_deg = None
+
+    def __init__(self):
+        self.rate = 0.0
+
+    def yaw_rate(self, view, trajectory) -> float:
+        return self.rate
+
+
+class GazeEnv(_CoreEnv):
+    """A built-in trajectory planner flies; the policy turns the gaze (see the module docstring). ``planner``: the
+    trajectory planner's registry name (default "local_primitives"); other arguments as AvoidEnv."""
+
+    def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
+                 reward=None, planner: str = "local_primitives"):
+        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, reward=reward)
+        self.planner = planner
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.agent: Agent | None = None
+
+    def _start(self, episode: Episode, rollout, world) -> None:
+        old = episode.spec
+        spec = make_trial_spec(old.scenario, old.map_spec, planner=self.planner, gaze=old.planner.gaze,
+                               start=tuple(old.start), goal=tuple(old.goal), v_max=old.v_max)
+        self.episode = replace(episode, spec=spec)
+        self.gaze = _PolicyGaze()
+        self.agent = Agent(spec, None, self.gaze)
+        self.batch = TrialBatch([spec], rollout, world=world, fov_deg=[self.agent.fov_deg])
+        self.batch.start()
+
+    def _act(self, a: np.ndarray) -> None:
+        st = self.batch.states[0]
+        self.gaze.rate = float(a[0]) * st.limits.yaw_rate
+        decision = self.agent.act(st.view(self.agent.trajectory))
+        if decision.violation is not None:
+            self.batch.end(0, Outcome.INVALID_PLAN, decision.violation.reason)
+            self.batch.step({})
+        else:
+            self.batch.step({0: decision.action})

@@ -1,0 +1,82 @@
+"""Gymnasium environments: steps per second of one environment (2D, 3D; random actions) and the time of a reset on
+the same map (no new PyBullet world) and on a new map, medians over repeated runs.
+
+    .venv/bin/python tools/bench/bench_gym.py [--steps 2000] [--repeat 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[1]))
+sys.path.insert(0, str(HERE))
+
+
+def steps_per_second(env_id: str, steps: int) -> float:
+    """Steps per second of ``env_id`` over ``steps`` steps of random actions (resets included)."""
+    import gymnasium
+
+    import pbdyn.gym  # noqa: F401
+
+    env = gymnasium.make(env_id)
+    rng = np.random.default_rng(0)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())          # compiled code loaded before timing
+    t0 = time.process_time()
+    seed = 1
+    env.reset(seed=seed)
+    for _ in range(steps):
+        _, _, term, trunc, _ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        if term or trunc:
+            seed += 1
+            env.reset(seed=seed)
+    rate = steps / (time.process_time() - t0)
+    env.close()
+    return rate
+
+
+def reset_times(n: int) -> tuple[float, float]:
+    """(median reset time on the same map, median on a new map) in s, AvoidEnv on quickstart."""
+    from pbdyn.gym import AvoidEnv
+
+    env = AvoidEnv()
+    env.reset(seed=0, options={"map": 0})
+    same, new = [], []
+    for k in range(n):
+        t0 = time.perf_counter()
+        env.reset(seed=k, options={"map": 0})
+        same.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        env.reset(seed=k, options={"map": 1 + k % 8})
+        new.append(time.perf_counter() - t0)
+        env.reset(seed=k, options={"map": 0})
+    env.close()
+    return float(np.median(same)), float(np.median(new))
+
+
+def main() -> int:
+    from bench_common import machine
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    print(machine())
+    for env_id in ("pbdyn/Avoid2D-v0", "pbdyn/Avoid3D-v0", "pbdyn/Gaze2D-v0"):
+        rates = [steps_per_second(env_id, args.steps) for _ in range(args.repeat)]
+        print(f"{env_id:<20} {np.median(rates):8.0f} steps per CPU-second (median of {args.repeat}, "
+              f"{args.steps} steps each)")
+    same, new = reset_times(20 * args.repeat)
+    print(f"reset, same map: {1000 * same:.1f} ms; new map (rollout cached on disk, new PyBullet world): "
+          f"{1000 * new:.1f} ms (medians of {20 * args.repeat})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
