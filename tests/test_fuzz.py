@@ -19,7 +19,7 @@ with ``-s`` counts tried / failed / skipped cases per mutation kind. A failure n
 reproduce it with ``python -m tests.fuzz_cases INDEX --run``. Every test here is marked ``fuzz``:
 ``pytest -m "fuzz and not slow"`` runs the default ones alone, ``pytest -m fuzz`` all of them.
 
-Cost (2 shared cores, measured): the default run adds ~15 s (300 in-process cases ~10 s -- most are rejected in
+Cost (2 shared cores, measured): the default run adds ~12 s (200 in-process cases ~7 s -- most are rejected in
 milliseconds, valid ones fly 2 s trials; 12 subprocess cases ~5 s). ``-m slow``: ~3 min (3000 in-process) + ~1 min
 (150 subprocess).
 """
@@ -38,7 +38,7 @@ import pytest
 from tests.conftest import ROOT
 from tests.fuzz_cases import make_case, run_in_process, run_subprocess, verdict
 
-N_IN_PROCESS = 300
+N_IN_PROCESS = 200
 N_SUBPROCESS = 12
 SUBPROCESS_OFFSET = 100_000
 N_SLOW_IN_PROCESS = 3000

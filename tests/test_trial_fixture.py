@@ -1,5 +1,5 @@
 """Refactors keep behaviour: built-in planner trials fly bit-identically to the recorded fixture rows (the default
-run flies every third case: every built-in trajectory planner in 2D and 3D; tests/test_core_fixture.py covers every
+run flies every fifth case: every built-in trajectory planner in 2D and 3D; tests/test_core_fixture.py covers every
 trajectory x gaze planner; ``-m slow`` flies them all)."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def _check(every: int) -> None:
 
 
 def test_fixture_rows_are_bit_identical():
-    _check(3)
+    _check(5)
 
 
 @pytest.mark.slow
