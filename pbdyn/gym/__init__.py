@@ -11,10 +11,11 @@ from __future__ import annotations
 
 from gymnasium.envs.registration import register, registry
 
+from pbdyn.gym.curriculum import Curriculum, CurriculumEnv
 from pbdyn.gym.env import AvoidEnv, GazeEnv
 from pbdyn.gym.reward import RewardConfig
 
-__all__ = ["AvoidEnv", "GazeEnv", "RewardConfig", "ENV_IDS"]
+__all__ = ["AvoidEnv", "GazeEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "ENV_IDS"]
 
 ENV_IDS = {"pbdyn/Avoid2D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "quickstart", "dims": 2}),
            "pbdyn/Avoid3D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "spheres_3d", "dims": 3}),
