@@ -80,3 +80,66 @@ def test_async_vector_envs_step_and_autoreset_in_their_own_processes():
         assert resets >= 2
     finally:
         envs.close()
+
+
+# ------------------------------------------------------------------------------------------------ native vector env
+def _run_vector(env, steps: int, seed: int = 0):
+    """(observations, rewards, terminated, truncated) of ``steps`` steps of the goal-seeking policy."""
+    obs, _ = env.reset(seed=seed)
+    out = []
+    for _ in range(steps):
+        obs, reward, term, trunc, info = env.step(np.stack([_to_goal(o) for o in obs]))
+        out.append((obs.copy(), reward.copy(), term.copy(), trunc.copy()))
+    return out
+
+
+def test_the_native_vector_env_autoresets_on_the_next_step_keeps_episodes_in_phase_and_the_limits():
+    from pbdyn.gym import AvoidVectorEnv
+
+    env = gymnasium.make_vec("pbdyn/Avoid2D-v0", num_envs=8, vectorization_mode="vector_entry_point")
+    assert isinstance(env.unwrapped, AvoidVectorEnv)
+    try:
+        obs, info = env.reset(seed=3)
+        assert obs.shape == (8, env.single_observation_space.shape[0]) and info["_map_id"].all()
+        ended_before = np.zeros(8, dtype=bool)
+        autoresets = 0
+        for _ in range(400):
+            obs, reward, term, trunc, info = env.step(np.stack([_to_goal(o) for o in obs]))
+            assert np.all(np.abs(obs) <= 1.0)
+            # NEXT_STEP: a sub-environment that ended in the last step starts anew now: reward 0, not ended
+            assert np.all(reward[ended_before] == 0.0) and not np.any((term | trunc)[ended_before])
+            has = info.get("_map_id", np.zeros(8, dtype=bool))
+            # infos of exactly the sub-environments whose episode began (ended in the last step) or ended now
+            assert np.array_equal(has, ended_before | term | trunc)
+            autoresets += int(ended_before.sum())
+            ended_before = term | trunc
+            newest = env.unwrapped.epochs[-1]
+            phases = {st.k0 + st.k for st in (newest.batch.states[b] for ep, b in env.unwrapped.slots
+                                               if ep is newest) if not st.done}
+            assert len(phases) <= 1                          # every running trial of a map at the same step
+            for ep, b in env.unwrapped.slots:
+                st = ep.batch.states[b]
+                assert np.linalg.norm(st.velocity) <= st.limits.v_max * (1 + 1e-12)
+        assert autoresets >= 4
+    finally:
+        env.close()
+
+
+def test_the_native_vector_env_is_deterministic_and_moves_to_a_new_map_when_the_rollout_ends():
+    from pbdyn.gym import AvoidVectorEnv
+
+    a = AvoidVectorEnv(4, epoch_s=80.0)
+    b = AvoidVectorEnv(4, epoch_s=80.0)
+    try:
+        ra, rb = _run_vector(a, 900, seed=5), _run_vector(b, 900, seed=5)
+        for x, y in zip(ra, rb):
+            assert all(np.array_equal(p, q) for p, q in zip(x, y))
+        assert a.episodes.world is None                # the maps' worlds belong to the epochs
+        assert 1 <= len(a.epochs) <= 2
+        maps = {ep.episode.spec.map_spec.map_id for ep, _ in a.slots}
+        assert a.epochs[-1].batch.tick > 0 and len(maps) >= 1
+    finally:
+        a.close()
+        b.close()
+    with pytest.raises(ValueError, match="num_envs"):
+        AvoidVectorEnv(0)

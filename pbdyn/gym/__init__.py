@@ -5,6 +5,8 @@
 
 so that ``gymnasium.make("pbdyn/Avoid2D-v0")`` works after ``import pbdyn.gym`` (or, without the import,
 ``gymnasium.make("pbdyn.gym:pbdyn/Avoid2D-v0")``). Keyword arguments of make() go to the environment's constructor.
+``gymnasium.make_vec("pbdyn/Avoid2D-v0", num_envs=N, vectorization_mode="vector_entry_point")`` makes the native
+vector environment (pbdyn.gym.vector.AvoidVectorEnv: N episodes in one trial batch).
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ from gymnasium.envs.registration import register, registry
 from pbdyn.gym.curriculum import Curriculum, CurriculumEnv
 from pbdyn.gym.env import AvoidEnv, GazeEnv
 from pbdyn.gym.reward import RewardConfig
+from pbdyn.gym.vector import AvoidVectorEnv
 
-__all__ = ["AvoidEnv", "GazeEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "ENV_IDS"]
+__all__ = ["AvoidEnv", "AvoidVectorEnv", "GazeEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "ENV_IDS"]
 
 ENV_IDS = {"pbdyn/Avoid2D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "quickstart", "dims": 2}),
            "pbdyn/Avoid3D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "spheres_3d", "dims": 3}),
@@ -25,4 +28,6 @@ ENV_IDS = {"pbdyn/Avoid2D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "quicksta
 
 for _id, (_entry, _kwargs) in ENV_IDS.items():
     if _id not in registry:
-        register(id=_id, entry_point=_entry, kwargs=dict(_kwargs), disable_env_checker=False)
+        _vector = "pbdyn.gym.vector:AvoidVectorEnv" if "Avoid" in _id else None
+        register(id=_id, entry_point=_entry, vector_entry_point=_vector, kwargs=dict(_kwargs),
+                 disable_env_checker=False)

@@ -91,9 +91,9 @@ class EpisodeSource:
         elif isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < len(maps):
             raise ConfigError("options.map", f"must be a map index 0..{len(maps) - 1} of {sc.name}", index)
         ms = maps[int(index)]
-        return Episode(self._task(rng, sc, ms, sc.task.pairs(), sc.drone.v_max), int(index), None, None)
+        return Episode(self.task(rng, sc, ms, sc.task.pairs(), sc.drone.v_max), int(index), None, None)
 
-    def _task(self, rng, sc: Scenario, ms, pairs, speeds) -> TrialSpec:
+    def task(self, rng, sc: Scenario, ms, pairs, speeds) -> TrialSpec:
         """A drawn start/goal pair and MAV speed (the draws are made even where options["task"] or
         options["v_max"] replace them, so that an option changes only what it names)."""
         i, j = pairs[int(rng.integers(len(pairs)))]
@@ -151,7 +151,7 @@ class EpisodeSource:
                                   value)
             gaps = np.array([abs(float(r[0]["difficulty"]) - float(value)) for r in rows])
             m, sc, ms = rows[int(np.flatnonzero(gaps == gaps.min())[0])]
-        spec = self._task(rng, sc, ms, sc.task.pairs(), suite.speeds)
+        spec = self.task(rng, sc, ms, sc.task.pairs(), suite.speeds)
         return Episode(spec, int(m["map_index"]), float(m["difficulty"]), int(m["level"]))
 
     # ------------------------------------------------------------------------------------------------ world

@@ -228,14 +228,24 @@ class TrackerBank:
         self.ever = np.zeros((capacity, n), dtype=bool)
         self.restarted = np.zeros((capacity, n), dtype=bool)
         self.rows = 0
+        self.free: list[int] = []          # rows given back (release) for later trackers
+
+    def release(self, row: int) -> None:
+        """Give ``row`` back for a tracker attached later (the tracker that held it must not be stepped again)."""
+        self.free.append(row)
 
     def attach(self, tracker: KalmanTracks) -> int | None:
         """Move ``tracker``'s state into a free row of the bank (its arrays become views of it); the row, or None
         when the bank is full or the tracker's model differs."""
-        if self.rows >= self.x.shape[0] or tracker.model() != self.key:
+        if tracker.model() != self.key:
             return None
-        row = self.rows
-        self.rows += 1
+        if self.free:
+            row = self.free.pop()
+        elif self.rows < self.x.shape[0]:
+            row = self.rows
+            self.rows += 1
+        else:
+            return None
         for name in ("x", "P", "active", "ever", "restarted"):
             bank = getattr(self, name)
             bank[row] = getattr(tracker, name)

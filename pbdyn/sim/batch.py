@@ -46,15 +46,17 @@ class TrialBatch:
     index of a trial that raised to its exception (its state, if any, is left as it was)."""
 
     def __init__(self, specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None,
-                 fov_deg: Sequence[float | None] | None = None, gui: bool = False, profile: str | None = None):
+                 fov_deg: Sequence[float | None] | None = None, gui: bool = False, profile: str | None = None,
+                 start_steps: Sequence[int | None] | None = None, capacity: int | None = None):
         specs = list(specs)
-        if not specs:
-            raise ValueError("a TrialBatch needs at least one trial")
+        if not specs and world is None:
+            raise ValueError("a TrialBatch needs a trial or a world (trials added later: add())")
         if gui and len(specs) > 1:
             raise ValueError("the GUI shows one trial: a batch with gui=True must hold one trial")
         fov = list(fov_deg) if fov_deg is not None else [None] * len(specs)
-        if len(fov) != len(specs):
-            raise ValueError(f"fov_deg has {len(fov)} entries for {len(specs)} trials")
+        starts = list(start_steps) if start_steps is not None else [None] * len(specs)
+        if len(fov) != len(specs) or len(starts) != len(specs):
+            raise ValueError(f"fov_deg and start_steps need one entry for each of the {len(specs)} trials")
         self.specs = specs
         self.rollout = rollout
         self.errors: dict[int, BaseException] = {}
@@ -66,7 +68,7 @@ class TrialBatch:
             for i, spec in enumerate(specs):
                 t0 = time.perf_counter()
                 try:
-                    self.states.append(TrialState(spec, rollout, self.world, fov_deg=fov[i]))
+                    self.states.append(TrialState(spec, rollout, self.world, fov_deg=fov[i], start_step=starts[i]))
                 except Exception as exc:
                     self.states.append(None)
                     self.errors[i] = exc
@@ -74,9 +76,10 @@ class TrialBatch:
         except BaseException:
             self.close()
             raise
-        physical = [s.scenario.physical if profile is None else profile == "physical" for s in specs]
-        self._physical = physical
-        self._banks = _Banks(len(specs)) if len(specs) > 1 else None
+        self._profile = profile
+        self._physical = [s.scenario.physical if profile is None else profile == "physical" for s in specs]
+        capacity = len(specs) if capacity is None else capacity
+        self._banks = _Banks(capacity) if capacity > 1 else None
         self.running: list[int] = []
         self.waiting: list[int] = []
         self.ended: list[int] = []
@@ -120,6 +123,29 @@ class TrialBatch:
             self.running.remove(i)
         if i in self.waiting:
             self.waiting.remove(i)
+
+    def add(self, spec: TrialSpec, start_step: int, *, fov_deg: float | None = None) -> int:
+        """Add a trial of the batch's map that begins at rollout step ``start_step`` (>= the next tick: it begins
+        and senses with the others when the batch reaches that tick); returns its index. A vector environment's
+        next episodes join a running batch so."""
+        if start_step <= self.tick:
+            raise ValueError(f"a trial added at tick {self.tick} must start at a later tick (got {start_step})")
+        i = len(self.states)
+        self.specs.append(spec)
+        self.states.append(TrialState(spec, self.rollout, self.world, fov_deg=fov_deg, start_step=start_step))
+        self.setup_s.append(0.0)
+        self._physical.append(spec.scenario.physical if self._profile is None else self._profile == "physical")
+        at = len(self.waiting)
+        while at and self.states[self.waiting[at - 1]].k0 > start_step:
+            at -= 1
+        self.waiting.insert(at, i)
+        return i
+
+    def release(self, i: int) -> None:
+        """Free the tracker-bank row of ended trial ``i`` for a trial added later (its tracker must not be read
+        after this)."""
+        if self._banks is not None:
+            self._banks.release(i)
 
     def step(self, actions: dict) -> list[int]:
         """Steps (6)-(7) for every running trial with its action (an Action, or an Accel integrated within the limits),
@@ -338,6 +364,12 @@ class _Banks:
         self.capacity = capacity
         self.banks: list[TrackerBank] = []
         self.where: dict[int, tuple[TrackerBank, int]] = {}      # trial index -> (bank, row)
+
+    def release(self, i: int) -> None:
+        """Give trial i's row back to its bank."""
+        got = self.where.pop(i, None)
+        if got is not None:
+            got[0].release(got[1])
 
     def attach(self, i: int, st: TrialState) -> None:
         tracker = st.tracker

@@ -25,7 +25,7 @@ from pbdyn.sim.collision import (DynamicContact, sampled_dynamic, sampled_static
                                  swept_dynamic_many, swept_static)
 from pbdyn.outcome import Outcome
 from pbdyn.sim.spec import TrialSpec
-from pbdyn.sim.start import trial_start
+from pbdyn.sim.start import TrialStart, trial_start
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
@@ -102,10 +102,11 @@ class TrialState:
     (m/s) and ``max_accel`` (m/s^2: the largest of the executed samples' |a| and |v_k+1 - v_k| / dt) and
     ``path_length`` (m: the sum of |p_k+1 - p_k| over the executed steps) of the flight so far. ``start``
     (pbdyn.sim.start.TrialStart): the rollout flown and the rollout step ``k0`` at which the trial's t = 0 lies (the
-    start rule). Times (``t``, the views' times) are trial times: t = 0 at the start. ``world`` is the batch's
-    PyBulletWorld (shared by the batch's trials)."""
+    start rule; ``start_step``: that step chosen by the caller instead). Times (``t``, the views' times) are trial
+    times: t = 0 at the start. ``world`` is the batch's PyBulletWorld (shared by the batch's trials)."""
 
-    def __init__(self, spec: TrialSpec, rollout: Rollout, world: PyBulletWorld, *, fov_deg: float | None = None):
+    def __init__(self, spec: TrialSpec, rollout: Rollout, world: PyBulletWorld, *, fov_deg: float | None = None,
+                 start_step: int | None = None):
         sc = spec.scenario
         self.spec = spec
         self.dims = sc.world.dims
@@ -113,10 +114,12 @@ class TrialState:
         self.n_steps = sc.world.n_steps
         task = sc.task
         need = int(round(trial_span_s(sc.world, task) / self.dt))
+        if start_step is not None:       # a start step chosen by the caller (a vector environment's next tick)
+            need = start_step + self.n_steps + 1
         if rollout.n_steps < need + 1:
             raise ConfigError("rollout", f"covers {rollout.horizon:g} s, the trial needs {need * self.dt:g} s "
                               f"(time limit and start rule {task.start_rule!r})", rollout.n_steps)
-        self.start = trial_start(spec, rollout)
+        self.start = trial_start(spec, rollout) if start_step is None else TrialStart(rollout, int(start_step))
         self.rollout = rollout = self.start.rollout
         self.k0 = self.start.k0
         self.radii = rollout.radii

@@ -1,0 +1,231 @@
+"""A native vector environment (docs/gym.md "Vector environments"): N AvoidEnv episodes stepped in one trial batch, so
+that their sensing, tracking and collision checks are shared (pbdyn.sim.batch.TrialBatch).
+
+The N sub-environments fly on one map at a time and stay in phase: every episode starts at the batch's next rollout
+step, so at any tick all running trials sense the same obstacle poses (one posing, one Bullet ray batch, one
+tracker-bank step and one swept check for all). A new episode's task is drawn as AvoidEnv draws it, among the pairs
+whose start is clear at that step by the start rule's test (start_clearance for start_window_s; the first of up to
+16 draws that passes, else the clearest) -- where AvoidEnv would wait for a clear start, the vector environment picks
+a start that is clear now. The map's rollout covers ``epoch_s`` s (default five time limits); once a new episode
+would not fit in it, the next episodes start an epoch on a new map (drawn as reset draws it, with the last reset's
+options) while the old map's running episodes finish.
+
+Spaces, reward and outcomes are AvoidEnv's. Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after an episode
+ended resets that sub-environment: its action is ignored, it returns the new episode's first observation with reward
+0). ``infos`` hold, for the sub-environments whose episode ended or began in the step, "outcome", "reason", "map_id",
+"level", "difficulty" and "t" (masked as Gymnasium does).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from pbdyn.gym.episodes import Episode, EpisodeSource
+from pbdyn.gym.observation import observation_size, observe
+from pbdyn.gym.reward import RewardConfig, step_reward
+from pbdyn.outcome import Outcome
+from pbdyn.sim.batch import TrialBatch
+from pbdyn.sim.guard import Accel
+from pbdyn.sim.state import make_world, vector_norm
+from pbdyn.world.rollout import get_rollout
+
+START_DRAWS = 16
+"""Task draws tried for a start that is clear now, before the clearest of them is taken."""
+
+
+class _Epoch:
+    """One map of the vector environment: its episode template, rollout, world and trial batch."""
+
+    def __init__(self, episode: Episode, rollout, batch: TrialBatch):
+        self.episode = episode
+        self.rollout = rollout
+        self.batch = batch
+
+
+class AvoidVectorEnv(VectorEnv):
+    """``num_envs`` AvoidEnv episodes in one trial batch (see the module docstring). Other arguments as AvoidEnv;
+    ``epoch_s``: the time (s) one map's rollout covers."""
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int, scenario="quickstart", *, dims: int | None = None, tracks: int = 8,
+                 rays: int = 0, reward=None, epoch_s: float | None = None):
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1 (got {num_envs!r})")
+        self.num_envs = num_envs
+        self.episodes = EpisodeSource(scenario, dims)
+        self.dims = d = self.episodes.dims
+        self.tracks, self.rays = tracks, rays
+        self.reward_config = RewardConfig.of(reward)
+        self.single_observation_space = spaces.Box(-1.0, 1.0, (observation_size(d, tracks, rays),), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (d + 1,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.epoch_s = epoch_s
+        self.epochs: list[_Epoch] = []
+        self.slots: list[tuple[_Epoch, int] | None] = [None] * num_envs
+        self._pending = np.zeros(num_envs, dtype=bool)
+        self._dist = np.zeros(num_envs)
+        self._options: dict = {}
+
+    # ------------------------------------------------------------------------------------------------ gymnasium
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start N episodes on a map drawn (or chosen by ``options``, as AvoidEnv.reset) for all of them."""
+        super().reset(seed=seed, options=options)
+        self._close_epochs()
+        self._options = dict(options or {})
+        epoch = self._new_epoch()
+        obs = np.zeros(self.observation_space.shape, np.float32)
+        infos: dict = {}
+        for i in range(self.num_envs):
+            b = self._join(epoch, i)
+            self.slots[i] = (epoch, b)
+        epoch.batch.step({})                     # the joined trials begin and sense together
+        for i, (ep, b) in enumerate(self.slots):
+            st = self._state(i)
+            obs[i] = observe(st, self.tracks, self.rays)
+            self._dist[i] = vector_norm(st.position - st.goal)
+            infos = self._add_info(infos, self._info(ep, st), i)
+        self._pending[:] = False
+        return obs, infos
+
+    def step(self, actions):
+        """Step every sub-environment: see the module docstring for autoreset."""
+        a = np.asarray(actions, dtype=float)
+        if a.shape != self.action_space.shape or not np.isfinite(a).all():
+            raise ValueError(f"actions must be a finite array of shape {self.action_space.shape}")
+        a = np.clip(a, -1.0, 1.0)
+        if not self.epochs:
+            raise RuntimeError("step() before reset()")
+        starting = np.flatnonzero(self._pending)
+        for i in starting:                                  # NEXT_STEP autoreset: a new episode, at the next tick
+            epoch = self._epoch_for_new()
+            self.slots[i] = (epoch, self._join(epoch, int(i)))
+        accel0 = {}
+        moves: dict = {}
+        for i, slot in enumerate(self.slots):
+            if self._pending[i]:
+                continue
+            epoch, b = slot
+            st = epoch.batch.states[b]
+            lim = st.limits
+            accel0[i] = st.acceleration
+            moves.setdefault(id(epoch), (epoch, {}))[1][b] = Accel(a[i, :self.dims] * lim.a_max,
+                                                                   float(a[i, self.dims]) * lim.yaw_rate)
+        for epoch in self.epochs:                           # every map steps once (joined trials begin there)
+            got = moves.get(id(epoch))
+            epoch.batch.step(got[1] if got else {})
+            if epoch.batch.errors:
+                raise next(iter(epoch.batch.errors.values()))
+        obs = np.zeros(self.observation_space.shape, np.float32)
+        rewards = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        infos: dict = {}
+        for i, (epoch, b) in enumerate(self.slots):
+            st = epoch.batch.states[b]
+            obs[i] = observe(st, self.tracks, self.rays)
+            dist = vector_norm(st.position - st.goal)
+            if self._pending[i]:
+                self._pending[i] = False
+                self._dist[i] = dist
+                infos = self._add_info(infos, self._info(epoch, st), i)
+                continue
+            outcome = st.outcome
+            rewards[i], _ = step_reward(self.reward_config, self._dist[i], dist, accel0[i], st.acceleration,
+                                        st.limits.a_max, outcome)
+            self._dist[i] = dist
+            if outcome is not None:
+                terminated[i] = outcome is not Outcome.FREEZING
+                truncated[i] = outcome is Outcome.FREEZING
+                infos = self._add_info(infos, self._info(epoch, st), i)
+                self._pending[i] = True
+                epoch.batch.release(b)
+        self._drop_finished_epochs()
+        return obs, rewards, terminated, truncated, infos
+
+    def close_extras(self, **kwargs) -> None:
+        """Release every map's PyBullet world."""
+        self._close_epochs()
+
+    # ------------------------------------------------------------------------------------------------ parts
+    def _state(self, i: int):
+        epoch, b = self.slots[i]
+        return epoch.batch.states[b]
+
+    def _info(self, epoch: _Epoch, st) -> dict:
+        ep = epoch.episode
+        return {"outcome": "" if st.outcome is None else st.outcome.value, "reason": st.reason,
+                "map_id": ep.spec.map_spec.map_id, "level": -1 if ep.level is None else ep.level,
+                "difficulty": math.nan if ep.difficulty is None else ep.difficulty, "t": st.t}
+
+    def _new_epoch(self) -> _Epoch:
+        """A new map (drawn with the last reset's options), its rollout over epoch_s, world and empty batch."""
+        episode = self.episodes.choose(self.np_random, dict(self._options))
+        spec = episode.spec
+        sc = spec.scenario
+        horizon = self.epoch_s if self.epoch_s is not None else 5.0 * sc.world.time_limit
+        rollout = get_rollout(sc, spec.map_spec, max(horizon, 2.0 * sc.world.time_limit))
+        world = make_world(spec, rollout)
+        batch = TrialBatch([], rollout, world=world, capacity=self.num_envs)
+        batch.owns_world = True                  # this map's world: closed with the batch
+        batch.start()
+        epoch = _Epoch(episode, rollout, batch)
+        self.epochs.append(epoch)
+        return epoch
+
+    def _epoch_for_new(self) -> _Epoch:
+        """The epoch a new episode joins: the newest, unless its rollout cannot hold one more episode."""
+        epoch = self.epochs[-1]
+        st_need = epoch.batch.tick + 1 + epoch.episode.spec.scenario.world.n_steps + 3
+        if st_need >= epoch.rollout.n_steps:
+            epoch = self._new_epoch()
+        return epoch
+
+    def _join(self, epoch: _Epoch, i: int) -> int:
+        """Add sub-environment i's next episode to ``epoch``'s batch, starting at its next tick; its index there."""
+        ep = epoch.episode
+        sc, ms = ep.spec.scenario, ep.spec.map_spec
+        at = epoch.batch.tick + 1
+        task = sc.task
+        window = int(round(task.start_window_s / sc.world.dt))
+        pairs, speeds = sc.task.pairs(), sc.drone.v_max   # (a ladder map's scenario holds its suite's tasks)
+        best, best_gap = None, -math.inf
+        for _ in range(START_DRAWS):
+            spec = self.episodes.task(self.np_random, sc, ms, pairs, speeds)
+            gap = _start_gap(epoch.rollout, spec.start, sc.drone.radius, at, window)
+            if gap > best_gap:
+                best, best_gap = spec, gap
+            if gap >= task.start_clearance:
+                break
+        return epoch.batch.add(best, at)
+
+    def _drop_finished_epochs(self) -> None:
+        """Close the worlds of older maps whose episodes have all ended."""
+        keep = []
+        for epoch in self.epochs[:-1]:
+            if any(slot is not None and slot[0] is epoch for slot in self.slots):
+                keep.append(epoch)
+            else:
+                epoch.batch.close()
+        self.epochs = keep + self.epochs[-1:]
+
+    def _close_epochs(self) -> None:
+        for epoch in self.epochs:
+            epoch.batch.close()
+        self.epochs = []
+        self.slots = [None] * self.num_envs
+
+
+def _start_gap(rollout, start, mav_radius: float, at: int, window: int) -> float:
+    """The smallest gap (m) between the MAV at ``start`` and any obstacle over rollout steps at..at + window."""
+    if rollout.n_obstacles == 0:
+        return math.inf
+    rel = rollout.positions[at:at + window + 1] - np.asarray(start, dtype=float)[None, None, :]
+    dist = np.sqrt(np.einsum("knd,knd->kn", rel, rel))
+    return float(np.min(dist - rollout.radii[None, :])) - mav_radius
