@@ -373,13 +373,15 @@ def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: 
                       progress=progress)
 
 
-def bench(planner: str, *, gaze: str | None = None, suite: str | Path = "pbdyn-2d-v1", out: str | Path,
-          workers: int | None = None, scheduler=None, progress: bool = False, reproduce: bool = False,
-          command: str = "") -> dict:
+def bench(planner: str, *, gaze: str | None = None, params: Mapping | None = None, suite: str | Path = "pbdyn-2d-v1",
+          out: str | Path, workers: int | None = None, scheduler=None, progress: bool = False,
+          reproduce: bool = False, command: str = "") -> dict:
     """`pbdyn bench`: fly ``planner`` (a registry name or "package.module:Class"; gaze: default the thesis pairing)
     on the frozen ``suite`` (a bundled suite name or a suite folder) into the folder ``out`` (resumable) and write its
     score card there (card.json, card.md, card.html; docs/benchmark.md). Returns the card (a dict, schema
-    pbdyn-card/1). ``reproduce``: also compare the flights with the planner's shipped reference results."""
+    pbdyn-card/1). ``params``: the trajectory planner's parameters (its trajectory_params table, e.g. a policy for
+    pbdyn.gym.policy_planner, docs/gym.md). ``reproduce``: also compare the flights with the planner's shipped
+    reference results."""
     from pbdyn.experiments.mainguard import check_not_reimported
 
     check_not_reimported("bench")
@@ -387,8 +389,8 @@ def bench(planner: str, *, gaze: str | None = None, suite: str | Path = "pbdyn-2
 
     if scheduler is None:
         workers = _workers(workers)
-    return _bench(planner, gaze=gaze, suite=suite, out=_path(out, "out"), workers=workers, scheduler=scheduler,
-                  progress=progress, reproduce=reproduce, command=command)
+    return _bench(planner, gaze=gaze, params=params, suite=suite, out=_path(out, "out"), workers=workers,
+                  scheduler=scheduler, progress=progress, reproduce=reproduce, command=command)
 
 
 def compare_cards(cards, *, out: str | Path | None = None) -> list[dict]:

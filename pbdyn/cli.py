@@ -61,6 +61,10 @@ def _finite_float(text: str) -> float:
     return _parsed(text, float, math.isfinite, "a finite number")
 
 
+def _json_object(text: str) -> dict:
+    return _parsed(text, json.loads, lambda v: isinstance(v, dict), "a JSON object, e.g. '{\"tracks\": 8}'")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = _Parser(prog="pbdyn", description="PyBullet testbed for MAV dynamic obstacle avoidance benchmarking.")
@@ -96,6 +100,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(card.json, card.md, card.html)")
     bn.add_argument("planner", nargs="?", help="trajectory planner: a registry name or 'package.module:Class'")
     bn.add_argument("--gaze", help="gaze planner (default: the thesis pairing; lookahead for a plug-in)")
+    bn.add_argument("--params", type=_json_object, metavar="JSON", help="the trajectory planner's parameters as a "
+                    "JSON object (its trajectory_params table; default: none)")
     bn.add_argument("--suite", default=None, help="suite name or folder (default pbdyn-2d-v1; --list shows them)")
     bgrp = bn.add_mutually_exclusive_group()
     bgrp.add_argument("--workers", type=_positive_int, help="local worker processes (default: CPU count)")
@@ -401,8 +407,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise ConfigError("PLANNER", "is required (or --compare CARD ... / --list)", None, show_value=False)
     if args.out is None:
         raise ConfigError("--out", "is required: the folder of the flights and the card", None, show_value=False)
-    card = api.bench(args.planner, gaze=args.gaze, suite=args.suite or DEFAULT_SUITE, out=args.out,
-                     workers=args.workers, scheduler=args.scheduler, progress=not args.json,
+    card = api.bench(args.planner, gaze=args.gaze, params=args.params, suite=args.suite or DEFAULT_SUITE,
+                     out=args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.json,
                      reproduce=args.reproduce, command=" ".join(["pbdyn", "bench", *sys.argv[2:]]))
     if args.json:
         sys.stdout.write(json.dumps(card, sort_keys=True) + "\n")

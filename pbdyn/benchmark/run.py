@@ -15,6 +15,7 @@ from __future__ import annotations
 import gzip
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 from pbdyn.benchmark.card import DETERMINISTIC_FIELDS, TASK_FIELDS, make_card, task_key, task_row
@@ -32,22 +33,41 @@ DEFAULT_SUITE = "pbdyn-2d-v1"
 MARKER = "bench.json"
 
 
-def planner_entry(planner: str, gaze: str | None = None) -> PlannerEntry:
-    """The (trajectory, gaze) pair benched: ``gaze`` or the planner's THESIS_GAZE (LookAhead for a plug-in)."""
+def planner_entry(planner: str, gaze: str | None = None, params: Mapping | None = None) -> PlannerEntry:
+    """The (trajectory, gaze) pair benched: ``gaze`` or the planner's THESIS_GAZE (LookAhead for a plug-in);
+    ``params``: the trajectory planner's parameters (a table with string keys; default none)."""
     from pbdyn.planning.registry import pair_fingerprint
 
     if not isinstance(planner, str) or not planner:
         raise ConfigError("planner", "must be a registry name or 'package.module:Class'", planner)
     if gaze is not None and (not isinstance(gaze, str) or not gaze):
         raise ConfigError("gaze", "must be a gaze planner name or 'package.module:Class'", gaze)
-    entry = PlannerEntry(planner, gaze or THESIS_GAZE.get(planner, "lookahead"))
+    if params is not None and (not isinstance(params, Mapping) or not all(isinstance(k, str) for k in params)):
+        raise ConfigError("params", "must be a table of the trajectory planner's parameters (string keys)", params)
+    entry = PlannerEntry(planner, gaze or THESIS_GAZE.get(planner, "lookahead"), dict(params or {}))
     pair_fingerprint(entry.trajectory, entry.gaze)         # unknown names fail here, before anything is written
     return entry
+
+
+def _check_entry(suite: Suite, entry: PlannerEntry) -> None:
+    """Build the pair once on the suite's first part (names, imports, parameters), so that bad parameters fail
+    before the bench folder is made; ConfigError naming ``params.<key>`` for a bad trajectory parameter."""
+    from pbdyn.experiments.runner import check_planners
+
+    try:
+        check_planners(flight_scenario(suite, suite.parts[0], [entry]))
+    except ConfigError as exc:
+        head = "planners[0].trajectory_params"
+        if exc.field.startswith(head):
+            raise exc.renamed("params" + exc.field[len(head):]) from None
+        raise
 
 
 def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
     marker = out / MARKER
     mine = {"suite": suite.name, "suite_hash": suite.hash, "trajectory": entry.trajectory, "gaze": entry.gaze}
+    if entry.trajectory_params:
+        mine["trajectory_params"] = dict(entry.trajectory_params)
     if marker.is_file():
         try:
             have = json.loads(marker.read_text(encoding="utf-8"))
@@ -56,6 +76,8 @@ def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
         if have != mine:
             what = f"{have.get('gaze')}+{have.get('trajectory')} on {have.get('suite')}" if isinstance(have, dict) \
                 else "something else"
+            if isinstance(have, dict) and have.get("trajectory_params", {}) != mine.get("trajectory_params", {}):
+                what += f" with other parameters ({json.dumps(have.get('trajectory_params', {}), sort_keys=True)})"
             raise ConfigError("out", f"holds the bench of {what}; use another --out folder", str(out))
         return
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -148,11 +170,12 @@ def compare_rows(mine: list[dict], reference: list[dict]) -> list[str]:
     return out
 
 
-def bench(planner: str, *, gaze: str | None = None, suite=DEFAULT_SUITE, out, workers=None, scheduler=None,
-          progress: bool = False, reproduce: bool = False, command: str = "") -> dict:
-    """Fly ``planner`` (with ``gaze``) on ``suite`` into the folder ``out`` and write its score card there
-    (card.json, card.md, card.html); returns the card. ``reproduce``: the card gains "reproduction", the
-    comparison of the flights with the planner's shipped reference rows (a built-in planner only)."""
+def bench(planner: str, *, gaze: str | None = None, params=None, suite=DEFAULT_SUITE, out, workers=None,
+          scheduler=None, progress: bool = False, reproduce: bool = False, command: str = "") -> dict:
+    """Fly ``planner`` (with ``gaze``; ``params``: the trajectory planner's parameters) on ``suite`` into the folder
+    ``out`` and write its score card there (card.json, card.md, card.html); returns the card. ``reproduce``: the
+    card gains "reproduction", the comparison of the flights with the planner's shipped reference rows (a built-in
+    planner only)."""
     from pbdyn.benchmark.render import card_html, card_markdown
     from pbdyn.planning.registry import pair_fingerprint
 
@@ -160,16 +183,19 @@ def bench(planner: str, *, gaze: str | None = None, suite=DEFAULT_SUITE, out, wo
     if any(m.get("difficulty") is None or m.get("level") is None for m in s.maps):
         raise ConfigError("suite", "is a draft: its maps have no measured difficulty yet (tools/make_suites.py "
                           "freeze)", s.name)
-    entry = planner_entry(planner, gaze)
+    entry = planner_entry(planner, gaze, params)
     refs = load_references(s)
     if reproduce and entry.label not in refs:
         raise ConfigError("planner", f"has no shipped reference results on {s.name} to reproduce (references: "
                           + (", ".join(sorted(refs)) or "none") + ")", entry.label)
+    _check_entry(s, entry)
     out = Path(out)
     _check_marker(out, s, entry)
     rows = fly(s, entry, out, workers=workers, scheduler=scheduler, progress=progress, command=command)
     info = {"label": entry.label, "trajectory": entry.trajectory, "gaze": entry.gaze,
             "fingerprint": pair_fingerprint(entry.trajectory, entry.gaze)}
+    if entry.trajectory_params:
+        info["trajectory_params"] = dict(entry.trajectory_params)
     card = make_card(s, info, rows, refs)
     if reproduce:
         diffs = compare_rows(rows, refs[entry.label]["rows"])

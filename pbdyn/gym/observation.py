@@ -32,30 +32,51 @@ def observation_size(dims: int, tracks: int, rays: int) -> int:
 def observe(state, tracks: int, rays: int) -> np.ndarray:
     """The observation (float32 [observation_size]) of a trial's state (pbdyn.sim.state.TrialState) after its
     sensing at t_k; see the module docstring for the layout and scales."""
-    d = state.dims
-    lim = state.limits
     sc = state.spec.scenario
-    rng = float(sc.sensor.range)
-    arena = float(max(sc.world.size))
+    ranges = state.detections.ranges if rays else None
+    return observe_parts(state.velocity, state.yaw, state.position, state.goal, state.tracks, state.limits.v_max,
+                         float(sc.sensor.range), float(max(sc.world.size)), ranges, tracks, rays)
+
+
+def observe_view(view, tracks: int, rays: int = 0) -> np.ndarray:
+    """The observation (float32 [observation_size]) of a planner's View (pbdyn.planning.view.View): the same vector
+    observe() makes of the TrialState the view was taken of (the arena's largest side from the view's bounds). A View
+    carries no scan ranges, so ``rays`` must be 0 (ValueError otherwise): a policy observed with depth bins cannot
+    be flown through a View (pbdyn.gym.policy_planner; docs/gym.md)."""
+    if rays:
+        raise ValueError(f"a View carries no scan ranges: observe_view needs rays = 0 (got {rays!r})")
+    arena = float(max((view.bounds_hi - view.bounds_lo).tolist()))
+    return observe_parts(view.velocity, view.yaw, view.position, view.goal, view.tracks, view.limits.v_max,
+                         float(view.range_m), arena, None, tracks, 0)
+
+
+def observe_parts(velocity: np.ndarray, yaw: float, position: np.ndarray, goal: np.ndarray, tracks_seen, v_max: float,
+                  range_m: float, arena_m: float, ranges, tracks: int, rays: int) -> np.ndarray:
+    """The observation (float32 [observation_size]) of the MAV's velocity [d] (m/s), yaw (rad), position and goal
+    [d] (m), its Kalman tracks (pbdyn.perception.tracks.Tracks or None), v_max (m/s), the sensor's range R (m), the
+    arena's largest side L (m) and the last scan's ranges (m, ray order; read only when ``rays`` > 0); world frame.
+    observe() and observe_view() both build it here, so a state and a view of it give the same vector."""
+    d = position.shape[0]
+    rng = range_m
     out = np.zeros(observation_size(d, tracks, rays))
-    out[:d] = state.velocity / lim.v_max
-    out[d] = math.cos(state.yaw)
-    out[d + 1] = math.sin(state.yaw)
-    out[d + 2:2 * d + 2] = (state.goal - state.position) / arena
-    tr = state.tracks
+    out[:d] = velocity / v_max
+    out[d] = math.cos(yaw)
+    out[d + 1] = math.sin(yaw)
+    out[d + 2:2 * d + 2] = (goal - position) / arena_m
+    tr = tracks_seen
     if tracks and tr is not None and len(tr.ids):
-        rel = tr.position - state.position
+        rel = tr.position - position
         gap = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - tr.radius
         near = np.argsort(gap, kind="stable")[:tracks]
         n = near.size
         cov = tr.covariance[near]
         unc = np.sqrt(np.maximum(np.trace(cov[:, :d, :d], axis1=1, axis2=2), 0.0))
-        rows = np.concatenate([rel[near] / (2.0 * rng), (tr.velocity[near] - state.velocity) / (2.0 * lim.v_max),
+        rows = np.concatenate([rel[near] / (2.0 * rng), (tr.velocity[near] - velocity) / (2.0 * v_max),
                                (tr.radius[near] / rng)[:, None], (unc / rng)[:, None], np.ones((n, 1))], axis=1)
         start = 2 * d + 2
         out[start:start + n * (2 * d + 3)] = rows.reshape(-1)
     if rays:
-        ranges = np.asarray(state.detections.ranges, dtype=float) / rng
+        ranges = np.asarray(ranges, dtype=float) / rng
         bins = np.array_split(ranges, rays) if ranges.size >= rays else [ranges] * rays
         out[-rays:] = [b.min() if b.size else 1.0 for b in bins]
     return np.clip(out, -1.0, 1.0).astype(np.float32)

@@ -68,6 +68,7 @@ class AvoidVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.epoch_s = epoch_s
         self.epochs: list[_Epoch] = []
+        self.epochs_begun = 0                    # maps flown since the environment was made
         self.slots: list[tuple[_Epoch, int] | None] = [None] * num_envs
         self._pending = np.zeros(num_envs, dtype=bool)
         self._dist = np.zeros(num_envs)
@@ -177,6 +178,7 @@ class AvoidVectorEnv(VectorEnv):
         batch.start()
         epoch = _Epoch(episode, rollout, batch)
         self.epochs.append(epoch)
+        self.epochs_begun += 1
         return epoch
 
     def _epoch_for_new(self) -> _Epoch:
