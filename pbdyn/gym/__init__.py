@@ -15,10 +15,12 @@ from gymnasium.envs.registration import register, registry
 
 from pbdyn.gym.curriculum import Curriculum, CurriculumEnv
 from pbdyn.gym.env import AvoidEnv, GazeEnv
+from pbdyn.gym.policy_planner import PolicyGaze, PolicyPlanner, policy_pair
 from pbdyn.gym.reward import RewardConfig
 from pbdyn.gym.vector import AvoidVectorEnv
 
-__all__ = ["AvoidEnv", "AvoidVectorEnv", "GazeEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "ENV_IDS"]
+__all__ = ["AvoidEnv", "AvoidVectorEnv", "GazeEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "PolicyPlanner",
+           "PolicyGaze", "policy_pair", "ENV_IDS"]
 
 ENV_IDS = {"pbdyn/Avoid2D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "quickstart", "dims": 2}),
            "pbdyn/Avoid3D-v0": ("pbdyn.gym.env:AvoidEnv", {"scenario": "spheres_3d", "dims": 3}),

@@ -1,0 +1,101 @@
+"""Train a policy on pbdyn/Avoid2D-v0 with stable-baselines3's PPO (CPU) for a few minutes through the difficulty
+curriculum, then print its success per level of the anchored difficulty ladder, with pbdyn's outcomes
+(docs/gym.md "A training example").
+
+Its dependencies are the optional extra ``rl`` (stable-baselines3, which brings torch), not part of ``make test``:
+
+    .venv/bin/pip install -e '.[rl]'
+    .venv/bin/python tools/examples/train_ppo.py [--minutes 5] [--envs 8] [--episodes 10] [--out results/ppo.zip]
+
+The curriculum (pbdyn.gym.Curriculum, shared by the training environments) starts at the easiest level and moves one
+level up when the last ``--window`` episodes succeeded more often than the band's top, down below its bottom. After
+training, every level is flown ``--episodes`` times by the deterministic policy from fixed seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=5.0, help="training time (wall clock)")
+    ap.add_argument("--envs", type=int, default=8, help="training environments")
+    ap.add_argument("--episodes", type=int, default=10, help="evaluation episodes per level")
+    ap.add_argument("--window", type=int, default=20, help="curriculum: episodes per decision")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default="results/ppo-avoid2d.zip", help="where the trained model is saved")
+    args = ap.parse_args()
+    try:
+        from stable_baselines3 import PPO
+        from stable_baselines3.common.callbacks import BaseCallback
+        from stable_baselines3.common.vec_env import DummyVecEnv
+    except ImportError:
+        sys.stderr.write("train_ppo: stable-baselines3 is not installed (pip install -e '.[rl]')\n")
+        return 2
+    sys.path.insert(0, str(ROOT))
+    from pbdyn.gym import AvoidEnv, Curriculum, CurriculumEnv
+
+    probe = AvoidEnv()
+    levels = probe.episodes.levels()
+    probe.close()
+    curriculum = Curriculum(levels, band=(0.5, 0.8), window=args.window)
+    venv = DummyVecEnv([lambda: CurriculumEnv(AvoidEnv(), curriculum) for _ in range(args.envs)])
+    venv.seed(args.seed)
+
+    class Stop(BaseCallback):
+        """Ends training after --minutes and prints the curriculum's level now and then."""
+
+        def __init__(self):
+            super().__init__()
+            self.t0 = time.monotonic()
+            self.last = 0.0
+
+        def _on_step(self) -> bool:
+            elapsed = time.monotonic() - self.t0
+            if elapsed - self.last >= 30.0:
+                self.last = elapsed
+                print(f"{elapsed / 60:4.1f} min: {self.num_timesteps} steps, {len(curriculum.history)} episodes, "
+                      f"curriculum level {curriculum.level}", flush=True)
+            return elapsed < 60.0 * args.minutes
+
+    model = PPO("MlpPolicy", venv, seed=args.seed, n_steps=256, batch_size=256, learning_rate=3e-4, verbose=0,
+                device="cpu")
+    model.learn(total_timesteps=10 ** 9, callback=Stop())
+    venv.close()
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    model.save(args.out)
+    reached = max(level for level, _ in curriculum.history) if curriculum.history else levels[0]
+    print(f"trained {model.num_timesteps} steps, {len(curriculum.history)} episodes; highest curriculum level "
+          f"{reached}; model saved to {args.out}")
+
+    env = AvoidEnv()
+    print(f"{'level':>5} {'difficulty':>10} {'success':>8}  outcomes ({args.episodes} episodes per level)")
+    for level in levels:
+        counts: Counter = Counter()
+        difficulty = []
+        for k in range(args.episodes):
+            obs, info = env.reset(seed=100_000 + 1_000 * level + k, options={"level": level})
+            difficulty.append(info["difficulty"])
+            done = False
+            while not done:
+                action, _ = model.predict(obs, deterministic=True)
+                obs, _, terminated, truncated, info = env.step(action)
+                done = terminated or truncated
+            counts[info["outcome"]] += 1
+        shown = ", ".join(f"{name} {n}" for name, n in counts.most_common())
+        print(f"{level:5d} {np.mean(difficulty):10.2f} {counts['success'] / args.episodes:8.2f}  {shown}")
+    env.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
