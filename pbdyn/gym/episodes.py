@@ -9,7 +9,8 @@ Two sources of maps:
   scale (pbdyn.analysis.scale) and its level (1 = easiest); ``options["level"]`` draws a map of that level,
   ``options["difficulty"]`` (logits on the anchored scale) takes the map nearest to it; the tasks are the suite's.
 
-A world is built once per map and reused while the map stays (a reset then builds no PyBullet world).
+A world is built once per map and kept for the last WORLDS_KEPT maps (a reset on one of them builds no PyBullet
+world).
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ OPTIONS = ("scenario", "map", "level", "difficulty", "task", "v_max")
 """The reset options an environment takes."""
 
 LADDERS = {2: "pbdyn-2d-v1", 3: "pbdyn-3d-v1"}
+
+WORLDS_KEPT = 16
+"""PyBullet worlds an environment keeps, one per recently flown map (a DIRECT client holds a few MB)."""
 """The shipped suite whose maps form the difficulty ladder of each dimension."""
 
 
@@ -54,8 +58,8 @@ class EpisodeSource:
         self.dims = self.scenario.world.dims
         self._ladder = None
         self._rollouts: dict = {}
-        self.world = None
-        self._world_key = None
+        self.world = None                        # the world of the last reset
+        self._worlds: dict = {}                  # (scenario id, map key) -> (scenario, world), least recent first
         self._given: dict = {}
 
     @staticmethod
@@ -167,16 +171,23 @@ class EpisodeSource:
         return ro
 
     def world_for(self, spec: TrialSpec, rollout):
-        """The PyBullet world of the spec's map: the last one when the map (and scenario) stay, else a new one."""
-        if self.world is None or self._world_key[0] is not spec.scenario or self._world_key[1] != spec.map_spec.key:
-            self.close()
-            self.world = make_world(spec, rollout)
-            self._world_key = (spec.scenario, spec.map_spec.key)
+        """The PyBullet world of the spec's map: kept for the last WORLDS_KEPT maps (a reset on one of them builds
+        no world), else a new one."""
+        key = (id(spec.scenario), spec.map_spec.key)
+        hit = self._worlds.pop(key, None)
+        if hit is None or hit[0] is not spec.scenario:
+            if hit is not None:
+                hit[1].close()
+            hit = (spec.scenario, make_world(spec, rollout))
+        self._worlds[key] = hit                  # the most recent last
+        while len(self._worlds) > WORLDS_KEPT:
+            self._worlds.pop(next(iter(self._worlds)))[1].close()
+        self.world = hit[1]
         return self.world
 
     def close(self) -> None:
-        """Disconnect the PyBullet world, if any."""
-        if self.world is not None:
-            self.world.close()
-            self.world = None
-            self._world_key = None
+        """Disconnect every kept PyBullet world."""
+        for _, world in self._worlds.values():
+            world.close()
+        self._worlds.clear()
+        self.world = None

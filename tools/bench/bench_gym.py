@@ -103,7 +103,7 @@ def main() -> int:
             print(f"{env_id:<20} native vector N = {n:<3} {rate:8.0f} steps per CPU-second, "
                   f"{rate / single[env_id]:.2f}x the single environment")
     same, new = reset_times(20 * args.repeat)
-    print(f"reset, same map: {1000 * same:.1f} ms; new map (rollout cached on disk, new PyBullet world): "
+    print(f"reset, same map: {1000 * same:.1f} ms; another of quickstart's maps, flown before (its world kept): "
           f"{1000 * new:.1f} ms (medians of {20 * args.repeat})")
     return 0
 
