@@ -6,6 +6,7 @@ step; `pbdyn bench` scores a policy named in --params."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import subprocess
@@ -213,3 +214,27 @@ def test_pbdyn_bench_scores_a_policy(tmp_path):
     res = subprocess.run(pbdyn_cmd() + ["bench", *args, "--params", '{"policy": "tests.gym_policies:hover"}'],
                          capture_output=True, text=True, timeout=600, env=env)
     assert res.returncode == 2 and "with other parameters" in res.stderr and res.stderr.count("\n") == 1
+
+
+def test_a_bench_folder_refuses_a_policy_file_whose_content_changed(tmp_path, monkeypatch):
+    """The card and the bench folder record the sha256 of every file a parameter names (e.g. a policy's weights):
+    the same path with other content is another planner, refused in the same folder."""
+    from pbdyn.benchmark.run import _check_marker, parameter_files, planner_entry
+    from pbdyn.benchmark.suite import load_suite
+    from pbdyn.errors import ConfigError
+
+    monkeypatch.chdir(tmp_path)
+    weights = tmp_path / "policy.bin"
+    weights.write_bytes(b"version 1")
+    params = {"policy": "tests.gym_policies:goal_seeker", "policy_args": {"path": "policy.bin"}, "tracks": 8}
+    assert parameter_files(params) == {"policy.bin": hashlib.sha256(b"version 1").hexdigest()}
+    assert parameter_files({"policy": "tests.gym_policies:goal_seeker", "x": ["nope.bin", 3]}) == {}
+    suite = load_suite("pbdyn-2d-mini")
+    entry = planner_entry("pbdyn.gym.policy_planner:PolicyPlanner", "pbdyn.gym.policy_planner:PolicyGaze", params)
+    out = tmp_path / "bench"
+    _check_marker(out, suite, entry)
+    _check_marker(out, suite, entry)                   # the same file: the folder resumes
+    weights.write_bytes(b"version 2")
+    with pytest.raises(ConfigError) as err:
+        _check_marker(out, suite, entry)
+    assert err.value.field == "out" and "parameter file policy.bin held other content" in str(err.value)

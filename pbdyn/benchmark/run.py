@@ -13,6 +13,7 @@ rows field by field (DETERMINISTIC_FIELDS: everything but wall times) and report
 from __future__ import annotations
 
 import gzip
+import hashlib
 import json
 import math
 from collections.abc import Mapping
@@ -63,11 +64,38 @@ def _check_entry(suite: Suite, entry: PlannerEntry) -> None:
         raise
 
 
+def parameter_files(params) -> dict[str, str]:
+    """{value: sha256 of the file} for every string among ``params`` (nested tables and lists included) that names an
+    existing file, e.g. a policy's weights: a planner's identity includes what its files hold, so a bench folder
+    never mixes flights of two versions of one file."""
+    found: dict[str, str] = {}
+
+    def walk(value) -> None:
+        if isinstance(value, Mapping):
+            for v in value.values():
+                walk(v)
+        elif isinstance(value, (list, tuple)):
+            for v in value:
+                walk(v)
+        elif isinstance(value, str) and value and Path(value).is_file():
+            digest = hashlib.sha256()
+            with open(value, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    digest.update(block)
+            found[value] = digest.hexdigest()
+
+    walk(params)
+    return found
+
+
 def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
     marker = out / MARKER
     mine = {"suite": suite.name, "suite_hash": suite.hash, "trajectory": entry.trajectory, "gaze": entry.gaze}
     if entry.trajectory_params:
         mine["trajectory_params"] = dict(entry.trajectory_params)
+        files = parameter_files(entry.trajectory_params)
+        if files:
+            mine["parameter_files"] = files
     if marker.is_file():
         try:
             have = json.loads(marker.read_text(encoding="utf-8"))
@@ -78,6 +106,10 @@ def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
                 else "something else"
             if isinstance(have, dict) and have.get("trajectory_params", {}) != mine.get("trajectory_params", {}):
                 what += f" with other parameters ({json.dumps(have.get('trajectory_params', {}), sort_keys=True)})"
+            elif isinstance(have, dict) and have.get("parameter_files", {}) != mine.get("parameter_files", {}):
+                changed = sorted(k for k in set(have.get("parameter_files", {})) | set(mine.get("parameter_files", {}))
+                                 if have.get("parameter_files", {}).get(k) != mine.get("parameter_files", {}).get(k))
+                what += f" whose parameter file {changed[0]} held other content then"
             raise ConfigError("out", f"holds the bench of {what}; use another --out folder", str(out))
         return
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -196,6 +228,9 @@ def bench(planner: str, *, gaze: str | None = None, params=None, suite=DEFAULT_S
             "fingerprint": pair_fingerprint(entry.trajectory, entry.gaze)}
     if entry.trajectory_params:
         info["trajectory_params"] = dict(entry.trajectory_params)
+        files = parameter_files(entry.trajectory_params)
+        if files:
+            info["parameter_files"] = files
     card = make_card(s, info, rows, refs)
     if reproduce:
         diffs = compare_rows(rows, refs[entry.label]["rows"])
