@@ -36,6 +36,14 @@ from pbdyn.sim.spec import make_trial_spec
 from pbdyn.sim.state import vector_norm
 
 
+def command(action: np.ndarray, limits) -> Accel:
+    """The Accel a normalised action means (AvoidEnv's Box [-1, 1]^(d + 1), already clipped): action[:d] * a_max
+    (m/s^2, world frame) and action[d] * the yaw-rate limit (rad/s); ``limits``: the MAV's MAVLimits. The one
+    definition the environments and the policy adapter (pbdyn.gym.policy_planner) share."""
+    d = action.shape[0] - 1
+    return Accel(action[:d] * limits.a_max, float(action[d]) * limits.yaw_rate)
+
+
 class _CoreEnv(gymnasium.Env):
     """The part both environments share: episodes, the trial batch of one, observation, reward and info."""
 
@@ -139,8 +147,7 @@ class AvoidEnv(_CoreEnv):
 
     def _act(self, a: np.ndarray) -> None:
         st = self.batch.states[0]
-        cmd = Accel(a[:self.dims] * st.limits.a_max, float(a[self.dims]) * st.limits.yaw_rate)
-        self.batch.step({0: cmd})
+        self.batch.step({0: command(a, st.limits)})
 
 
 class _PolicyGaze:

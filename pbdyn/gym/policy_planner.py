@@ -27,9 +27,10 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from pbdyn.errors import ConfigError, import_object, one_line, user_location
+from pbdyn.gym.env import command
 from pbdyn.gym.observation import observe_view
 from pbdyn.planning.trajectory import Trajectory
-from pbdyn.sim.guard import Accel, integrate
+from pbdyn.sim.guard import integrate
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """observation (float32 [n], pbdyn.gym.observation) -> action ([d + 1], in [-1, 1]; AvoidEnv's action)."""
@@ -118,9 +119,8 @@ class PolicyPlanner:
         acceleration (m, m/s, m/s^2); sample 1 the state the action's acceleration command reaches after one step,
         pbdyn.sim.guard.integrate (|a| <= a_max, |v| <= v_max, trapezoid rule), as AvoidEnv executes it."""
         a = self.act(view)
-        d = view.dims
         lim = view.limits
-        nxt = integrate(Accel(a[:d] * lim.a_max), view.position, view.velocity, lim, view.dt)
+        nxt = integrate(command(a, lim), view.position, view.velocity, lim, view.dt)
         p = np.array([view.position, nxt.position])
         v = np.array([view.velocity, nxt.velocity])
         acc = np.array([view.acceleration, nxt.acceleration])
@@ -128,7 +128,7 @@ class PolicyPlanner:
 
     def yaw_rate(self, view) -> float:
         """The policy's yaw rate for ``view`` (rad/s, counter-clockwise): action[d] * the yaw-rate limit."""
-        return float(self.act(view)[view.dims]) * view.limits.yaw_rate
+        return command(self.act(view), view.limits).yaw_rate
 
 
 class PolicyGaze:
@@ -159,7 +159,7 @@ class PolicyGaze:
         if last is None or last[0] is not view:
             raise ConfigError("gaze", "PolicyGaze without a policy flies only with PolicyPlanner as the trajectory "
                               "planner (or give it policy=...)", None, show_value=False)
-        return float(last[1][view.dims]) * view.limits.yaw_rate
+        return command(last[1], view.limits).yaw_rate
 
 
 def policy_action(action, dims: int) -> np.ndarray:

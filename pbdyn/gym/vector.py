@@ -25,12 +25,12 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from pbdyn.gym.env import command
 from pbdyn.gym.episodes import Episode, EpisodeSource
 from pbdyn.gym.observation import observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
 from pbdyn.sim.batch import TrialBatch
-from pbdyn.sim.guard import Accel
 from pbdyn.sim.state import make_world, vector_norm
 from pbdyn.world.rollout import get_rollout
 
@@ -116,8 +116,7 @@ class AvoidVectorEnv(VectorEnv):
             st = epoch.batch.states[b]
             lim = st.limits
             accel0[i] = st.acceleration
-            moves.setdefault(id(epoch), (epoch, {}))[1][b] = Accel(a[i, :self.dims] * lim.a_max,
-                                                                   float(a[i, self.dims]) * lim.yaw_rate)
+            moves.setdefault(id(epoch), (epoch, {}))[1][b] = command(a[i], lim)
         for epoch in self.epochs:                           # every map steps once (joined trials begin there)
             got = moves.get(id(epoch))
             epoch.batch.step(got[1] if got else {})

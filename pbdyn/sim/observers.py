@@ -9,7 +9,6 @@ once when the trial has ended normally (not when it raised).
 from __future__ import annotations
 
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
