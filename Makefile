@@ -13,7 +13,7 @@ EDITABLE := PYTHONWARNINGS="ignore:Editable installation"
 
 ## pbdyn and what it runs with: its system libraries (tools/install_sysdeps.sh), the venv, the package (editable).
 ## Nothing only the tests use (`make demo` needs this and the native build alone).
-$(STAMP): setup.cfg pyproject.toml
+$(STAMP): setup.cfg setup.py pyproject.toml
 	@bash tools/install_sysdeps.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip

@@ -32,6 +32,57 @@ def test_every_registered_environment_passes_gymnasiums_checker(env_id):
         env.close()
 
 
+MAKE_WITHOUT_IMPORT = r"""
+import sys
+assert "gymnasium" not in sys.modules and "numpy" not in sys.modules and "pbdyn.gym" not in sys.modules
+import gymnasium
+env = gymnasium.make(sys.argv[1])
+obs, info = env.reset(seed=0)
+assert env.observation_space.contains(obs) and info["map_id"]
+env.close()
+print(sorted(i for i in gymnasium.registry if i.startswith("pbdyn/")))
+"""
+
+
+def _fresh_python(code: str, *args: str, **env: str) -> subprocess.CompletedProcess:
+    full = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PBDYN_GYM_AUTOREGISTER")}
+    return subprocess.run([sys.executable, "-W", "error", "-c", code, *args], capture_output=True, text=True,
+                          cwd=ROOT.parent, env={**full, **env}, timeout=300)
+
+
+@pytest.mark.parametrize("env_id", ["pbdyn/Avoid2D-v0", "pbdyn/Gaze3D-v0"])
+def test_an_installed_pbdyn_is_made_by_id_with_no_pbdyn_import(env_id):
+    """The installed pbdyn-gym.pth registers the ids when gymnasium is imported; quietly, even under -W error."""
+    done = _fresh_python(MAKE_WITHOUT_IMPORT, env_id)
+    assert done.returncode == 0 and not done.stderr, done.stderr[-3000:]
+    assert eval(done.stdout) == sorted(pbdyn.gym.ENV_IDS)
+
+
+def test_the_start_up_hook_loads_nothing_heavy_and_can_be_switched_off():
+    probe = "import sys; print([m for m in ('numpy', 'gymnasium', 'pbdyn.gym') if m in sys.modules])"
+    done = _fresh_python(probe)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stderr
+    off = _fresh_python(MAKE_WITHOUT_IMPORT, "pbdyn/Avoid2D-v0", PBDYN_GYM_AUTOREGISTER="0")
+    assert off.returncode != 0 and "pbdyn" in off.stderr.strip().splitlines()[-1]
+    explicit = _fresh_python("import gymnasium, pbdyn.gym; gymnasium.make('pbdyn/Avoid3D-v0').close()",
+                             PBDYN_GYM_AUTOREGISTER="0")
+    assert explicit.returncode == 0 and not explicit.stderr, explicit.stderr[-3000:]
+
+
+def test_the_hook_registers_once_whatever_the_order():
+    """pbdyn.gym imported after the hook registered (or the hook installed after gymnasium) adds nothing twice."""
+    code = ("import gymnasium, pbdyn.gym_ids as g\n"
+            "before = dict(gymnasium.registry)\n"
+            "import pbdyn.gym\n"
+            "g.install()\n"
+            "assert dict(gymnasium.registry) == before\n"
+            "spec = gymnasium.spec('pbdyn/Avoid2D-v0')\n"
+            "assert spec.entry_point == 'pbdyn.gym.env:AvoidEnv' and spec.kwargs == {'scenario': 'quickstart', 'dims': 2}\n"
+            "assert spec.vector_entry_point == 'pbdyn.gym.vector:AvoidVectorEnv'\n")
+    done = _fresh_python(code)
+    assert done.returncode == 0 and not done.stderr, done.stderr[-3000:]
+
+
 EPISODE = r'''
 import hashlib, sys
 import numpy as np

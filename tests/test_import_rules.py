@@ -11,7 +11,8 @@ registry: config validates their names and tables, world's rollouts run them), c
 planning | metrics (beside perception and planning: it sees rollouts only) | sim, and analysis beside it (it reads
 stored rows, never a trial) | experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown
 by the batch runner, score cards) | api (the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py,
-which re-exports the api.
+which re-exports the api. gym_ids (the Gymnasium ids and the start-up hook that registers them) stands alone: it runs
+in every Python start-up and imports nothing of pbdyn.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ RULES: dict[str, tuple[str, ...]] = {
     "experiments": _BELOW_EXPERIMENTS,
     "benchmark": _BELOW_API,
     "api": _BELOW_API + ("benchmark",),
-    "gym": _BELOW_API + ("benchmark", "api"),
+    "gym_ids": (),
+    "gym": _BELOW_API + ("benchmark", "api", "gym_ids"),
     "cli": _BELOW_API + ("benchmark", "api"),
     "__main__": ("cli",),
     "pbdyn": _BELOW_API + ("benchmark", "api"),

@@ -229,11 +229,30 @@ def test_wheel_carries_models_and_bundled_scenarios(tmp_path):
     assert not expected - names, sorted(expected - names)
     assert not [n for n in names if n.endswith(".so")]              # never a library built for this machine
     tops = {n.split("/")[0] for n in names}
-    assert tops == {"pbdyn", wheel.name.split("-py")[0] + ".dist-info"}, tops  # no tests/, tools/, .venv, urdf/
+    assert tops == {"pbdyn", "pbdyn-gym.pth", wheel.name.split("-py")[0] + ".dist-info"}, tops  # no tests/, tools/, urdf/
     dist_info = next(t for t in tops if t.endswith(".dist-info"))
     assert any(n.startswith(dist_info) and n.endswith("/LICENSE") for n in names)
     metadata = zipfile.ZipFile(wheel).read(f"{dist_info}/METADATA").decode()
     assert "License-File: LICENSE" in metadata
+    _the_wheels_start_up_hook_registers_the_gym_ids(wheel, out=tmp_path / "unpacked")
+
+
+def _the_wheels_start_up_hook_registers_the_gym_ids(wheel: Path, out: Path) -> None:
+    """The wheel's pbdyn-gym.pth, processed as site-packages' .pth files are, makes gymnasium.make find pbdyn's ids.
+
+    The interpreter starts without site (-S), so that only the unpacked wheel's .pth runs; the test environment's
+    packages are put on the path without running theirs."""
+    zipfile.ZipFile(wheel).extractall(out)
+    assert (out / "pbdyn-gym.pth").read_text() == "import pbdyn.gym_ids; pbdyn.gym_ids.install()\n"
+    deps = [p for p in sys.path if p.endswith("site-packages")]
+    code = (f"import sys, site; sys.path.extend({deps!r}); site.addsitedir({str(out)!r})\n"
+            "import gymnasium, pbdyn\n"
+            f"assert pbdyn.__file__.startswith({str(out)!r}), pbdyn.__file__\n"
+            "env = gymnasium.make('pbdyn/Avoid2D-v0'); env.reset(seed=0); env.close()\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PBDYN_GYM_AUTOREGISTER")}
+    done = subprocess.run([sys.executable, "-S", "-c", code], capture_output=True, text=True, cwd=out, env=env,
+                          timeout=300)
+    assert done.returncode == 0 and not done.stderr, done.stderr[-3000:]
 
 
 @pytest.mark.slow
@@ -303,3 +322,5 @@ def test_editable_install_maps_the_data_packages(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     models, scenarios, models2, scenarios2 = map(Path, proc.stdout.split())
     assert models == models2 == ROOT / "urdf" and scenarios == scenarios2 == SCENARIOS
+    hooks = list(venv.glob("lib/python*/site-packages/pbdyn-gym.pth"))      # the Gymnasium ids' start-up hook
+    assert len(hooks) == 1 and hooks[0].read_text() == "import pbdyn.gym_ids; pbdyn.gym_ids.install()\n"
