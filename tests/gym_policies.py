@@ -4,6 +4,7 @@ observation -> action on AvoidEnv's spaces (docs/gym.md)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -42,3 +43,24 @@ def hover(dims: int = 2):
     """A policy that commands zero acceleration and no turn (the MAV stays at rest)."""
     zero = np.zeros(int(dims) + 1, dtype=np.float32)
     return lambda obs: zero
+
+
+def wall_shy(dims: int = 2, tracks: int = 8, patch: int = 5):
+    """goal_seeker's policy, also pushed away from every occupied cell of the observation's occupancy patch (P =
+    ``patch``, the last P^d entries): the push of a cell at offset o (cells) is -o / |o|^2."""
+    d, seek = int(dims), goal_seeker(dims, tracks=tracks)
+    h = patch // 2
+    offsets = np.array(list(itertools.product(range(-h, h + 1), repeat=d)), dtype=float)
+    norms = np.einsum("ij,ij->i", offsets, offsets)
+    norms[norms == 0] = np.inf
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        action = seek(obs).astype(float)
+        cells = np.asarray(obs[-patch ** d:], dtype=float)
+        occupied = (cells == 1.0) & np.isfinite(norms)
+        if occupied.any():
+            push = -(offsets[occupied] / norms[occupied, None]).sum(axis=0)
+            action[:d] = np.clip(action[:d] + push, -1.0, 1.0)
+        return action.astype(np.float32)
+
+    return policy

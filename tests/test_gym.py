@@ -6,6 +6,7 @@ options and actions are clear errors."""
 from __future__ import annotations
 
 import hashlib
+import itertools
 import os
 import subprocess
 import sys
@@ -169,6 +170,65 @@ def test_replayed_accelerations_of_a_built_in_planner_reach_its_outcome(tmp_path
             if term or trunc:
                 break
         assert info["outcome"] == res.outcome == "success" and st.steps == res.steps
+    finally:
+        env.close()
+
+
+def _patch_reference(grid, position, patch: int) -> np.ndarray:
+    """The occupancy patch cell by cell: 1 occupied or outside the grid, 0.5 unknown, 0 free (C order)."""
+    centre = np.floor((position - grid.origin) / grid.res).astype(int)
+    h = patch // 2
+    out = []
+    for off in itertools.product(range(-h, h + 1), repeat=grid.dims):
+        idx = centre + np.array(off)
+        if np.any(idx < 0) or np.any(idx >= np.array(grid.shape)):
+            out.append(1.0)
+        else:
+            out.append({1: 1.0, -1: 0.5, 0: 0.0}[int(grid.cells[tuple(idx)])])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("scenario, patch", [("worlds/warehouse_2d", 9), ("worlds/warehouse_2d", 105),
+                                             ("spheres_3d", 5)])
+def test_the_occupancy_patch_is_the_mavs_grid_around_it(scenario, patch):
+    env = AvoidEnv(scenario, patch=patch)
+    d = env.dims
+    seen = set()
+    try:
+        assert env.observation_space.shape == (2 * d + 2 + 8 * (2 * d + 3) + patch ** d,)
+        obs, _ = env.reset(seed=2)
+        for k in range(40):
+            st = env.batch.states[0]
+            tail = obs[-patch ** d:]
+            assert np.array_equal(tail, _patch_reference(st.grid, st.position, patch).astype(np.float32))
+            seen |= set(np.unique(tail).tolist())
+            action = np.zeros(d + 1, np.float32)
+            action[-1] = 1.0                                     # turn in place: the sensor sweeps the walls
+            obs, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    if patch > 52:                                               # larger than the grid: walls, unknown and beyond
+        assert seen == {0.0, 0.5, 1.0}
+    for bad in (2, -1, True, 1.5):
+        with pytest.raises(ValueError, match="patch"):
+            AvoidEnv(scenario, patch=bad)
+
+
+def test_every_ladder_map_flies_with_its_own_rollout():
+    """The ladder's parts share map keys (a key names a map within its scenario): each map still gets its own
+    rollout and world, whatever the order of the resets."""
+    env = AvoidEnv()
+    try:
+        _, rows = env.episodes.ladder()
+        for level in env.episodes.levels() + env.episodes.levels()[::-1]:
+            for seed in range(2):
+                env.reset(seed=seed, options={"level": level})
+                st = env.batch.states[0]
+                assert env.batch.rollout.n_obstacles == st.world.obstacle_ids.shape[0]
+                assert env.batch.rollout is env.episodes.rollout(env.episode.spec)
+                env.step(np.zeros(3, np.float32))
     finally:
         env.close()
 

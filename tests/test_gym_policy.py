@@ -27,7 +27,7 @@ from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.contract import check_plan
 from pbdyn.sim.guard import Accel, integrate
 from tests.conftest import ROOT, pbdyn_cmd
-from tests.gym_policies import goal_seeker
+from tests.gym_policies import goal_seeker, wall_shy
 
 PP = "pbdyn.gym.policy_planner"
 
@@ -48,6 +48,8 @@ def test_a_view_observes_like_the_trial_state_it_was_taken_of(scenario):
                 assert observe_view(view, 8).tobytes() == obs.tobytes() == observe(st, 8, 0).tobytes()
                 for k in (0, 3, 12):
                     assert observe_view(view, k).tobytes() == observe(st, k, 0).tobytes()
+                for p in (1, 5):
+                    assert observe_view(view, 8, 0, p).tobytes() == observe(st, 8, 0, p).tobytes()
                 steps += 1
                 tracked += st.tracks is not None and len(st.tracks.ids) > 0
                 obs, _, terminated, truncated, _ = env.step(policy(obs))
@@ -135,7 +137,7 @@ def _env_flight(env, policy, m, start, goal, v_max):
     return info["outcome"], len(rows) - 1, p, v, a, yaw
 
 
-def _adapter_flight(policy, m, start, goal, v_max, trace, scenario="quickstart"):
+def _adapter_flight(policy, m, start, goal, v_max, trace, scenario="quickstart", patch: int = 0):
     calls = []
 
     def counted(obs):
@@ -145,7 +147,7 @@ def _adapter_flight(policy, m, start, goal, v_max, trace, scenario="quickstart")
     if policy is None:          # the pair named in the scenario's planner entry, as pbdyn bench builds it
         res = pbdyn.run_trial(scenario, map=m, start=start, goal=goal, v_max=v_max, trace=trace)
     else:
-        planner, gaze = policy_pair(counted)
+        planner, gaze = policy_pair(counted, patch=patch)
         res = pbdyn.run_trial(scenario, planner=planner, gaze=gaze, map=m, start=start, goal=goal, v_max=v_max,
                               trace=trace)
     tr = np.load(trace)
@@ -182,6 +184,33 @@ def test_a_policy_flies_the_same_trial_through_the_adapter_as_in_the_environment
             assert all(x.tobytes() == y.tobytes() for x, y in zip(ada[2:], env_run[2:]))
     finally:
         env.close()
+
+
+def test_a_policy_that_reads_the_occupancy_patch_flies_the_same_trial_through_the_adapter(tmp_path):
+    """Among shelves (warehouse_2d), a policy steering by the occupancy patch (P = 5) flies through the adapter as
+    in AvoidEnv(patch=5): the View's grid is the trial's."""
+    sc = load_scenario("worlds/warehouse_2d")
+    cands = sc.task.candidates
+    shy = wall_shy(2, patch=5)
+    pushed = []
+
+    def policy(obs):
+        pushed.append(bool(np.any(obs[-25:] == 1.0)))
+        return shy(obs)
+
+    env = AvoidEnv(sc, patch=5)
+    try:
+        for i, j in ((0, 1), (1, 0), (2, 3)):
+            env_run = _env_flight(env, policy, 0, cands[i], cands[j], 4.0)
+            ada = _adapter_flight(policy, 0, cands[i], cands[j], 4.0, tmp_path / "t.npz", sc, patch=5)
+            assert ada[:2] == env_run[:2], (i, j)
+            assert ada[5].tobytes() == env_run[5].tobytes()
+            assert np.abs(ada[2] - env_run[2]).max() <= 1e-9
+    finally:
+        env.close()
+    assert sum(pushed) > 20                       # steps on which the patch showed a shelf and the policy swerved
+    with pytest.raises(ConfigError, match="patch"):
+        policy_pair(policy, patch=4)
 
 
 def test_the_pair_named_in_a_scenario_flies_as_the_pair_of_a_callable(tmp_path):

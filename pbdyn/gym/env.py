@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium import spaces
 
 from pbdyn.gym.episodes import Episode, EpisodeSource
-from pbdyn.gym.observation import observation_size, observe
+from pbdyn.gym.observation import check_patch, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
 from pbdyn.sim.agent import Agent
@@ -50,7 +50,7 @@ class _CoreEnv(gymnasium.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
-                 reward=None):
+                 patch: int = 0, reward=None):
         super().__init__()
         for name, value, lo in (("tracks", tracks, 0), ("rays", rays, 0)):
             if isinstance(value, bool) or not isinstance(value, int) or value < lo:
@@ -59,8 +59,9 @@ class _CoreEnv(gymnasium.Env):
         self.dims = self.episodes.dims
         self.tracks = tracks
         self.rays = rays
+        self.patch = check_patch(patch)
         self.reward_config = RewardConfig.of(reward)
-        n = observation_size(self.dims, tracks, rays)
+        n = observation_size(self.dims, tracks, rays, self.patch)
         self.observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
         self.batch: TrialBatch | None = None
         self.episode: Episode | None = None
@@ -81,7 +82,7 @@ class _CoreEnv(gymnasium.Env):
         if 0 in self.batch.errors:
             raise self.batch.errors[0]
         self._dist = vector_norm(st.position - st.goal)
-        return observe(st, self.tracks, self.rays), self._info(st, None)
+        return observe(st, self.tracks, self.rays, self.patch), self._info(st, None)
 
     def step(self, action):
         """One step of the trial with ``action``. Returns (observation, reward, terminated, truncated, info)."""
@@ -99,7 +100,7 @@ class _CoreEnv(gymnasium.Env):
         self._dist = dist
         terminated = outcome is not None and outcome is not Outcome.FREEZING
         truncated = outcome is Outcome.FREEZING
-        return observe(st, self.tracks, self.rays), reward, terminated, truncated, self._info(st, terms)
+        return observe(st, self.tracks, self.rays, self.patch), reward, terminated, truncated, self._info(st, terms)
 
     def close(self) -> None:
         """Release the PyBullet world."""
@@ -133,11 +134,12 @@ class AvoidEnv(_CoreEnv):
 
     scenario: a bundled scenario name, a file or a Scenario (default "quickstart"; its maps, tasks and MAV speeds
     are the episodes' unless a reset asks for the ladder); dims: 2 or 3 (checked against the scenario); tracks: K,
-    the nearest tracks observed; rays: B, depth bins observed (0: none); reward: a RewardConfig or dict of weights."""
+    the nearest tracks observed; rays: B, depth bins observed (0: none); patch: P, the cells per side of the
+    occupancy patch observed (0: none; odd); reward: a RewardConfig or dict of weights."""
 
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
-                 reward=None):
-        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, reward=reward)
+                 patch: int = 0, reward=None):
+        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward)
         self.action_space = spaces.Box(-1.0, 1.0, (self.dims + 1,), np.float32)
 
     def _start(self, episode: Episode, rollout, world) -> None:
@@ -167,8 +169,8 @@ class GazeEnv(_CoreEnv):
     trajectory planner's registry name (default "local_primitives"); other arguments as AvoidEnv."""
 
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
-                 reward=None, planner: str = "local_primitives"):
-        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, reward=reward)
+                 patch: int = 0, reward=None, planner: str = "local_primitives"):
+        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward)
         self.planner = planner
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         self.agent: Agent | None = None

@@ -33,10 +33,13 @@ OPTIONS = ("scenario", "map", "level", "difficulty", "task", "v_max")
 """The reset options an environment takes."""
 
 LADDERS = {2: "pbdyn-2d-v1", 3: "pbdyn-3d-v1"}
+"""The shipped suite whose maps form the difficulty ladder of each dimension."""
 
 WORLDS_KEPT = 16
 """PyBullet worlds an environment keeps, one per recently flown map (a DIRECT client holds a few MB)."""
-"""The shipped suite whose maps form the difficulty ladder of each dimension."""
+
+ROLLOUTS_KEPT = 8
+"""Obstacle rollouts an environment keeps, one per recently flown map."""
 
 
 @dataclass(frozen=True)
@@ -57,7 +60,7 @@ class EpisodeSource:
         self.scenario = self._load(scenario, dims)
         self.dims = self.scenario.world.dims
         self._ladder = None
-        self._rollouts: dict = {}
+        self._rollouts: dict = {}                # (scenario id, map key) -> (scenario, rollout), least recent first
         self.world = None                        # the world of the last reset
         self._worlds: dict = {}                  # (scenario id, map key) -> (scenario, world), least recent first
         self._given: dict = {}
@@ -160,15 +163,16 @@ class EpisodeSource:
 
     # ------------------------------------------------------------------------------------------------ world
     def rollout(self, spec: TrialSpec):
-        """The rollout of the spec's map (kept for the last 8 maps)."""
-        key = spec.map_spec.key
-        ro = self._rollouts.get(key)
-        if ro is None:
-            ro = get_rollout(spec.scenario, spec.map_spec)
-            if len(self._rollouts) >= 8:
-                self._rollouts.pop(next(iter(self._rollouts)))
-            self._rollouts[key] = ro
-        return ro
+        """The rollout of the spec's map, kept for the last ROLLOUTS_KEPT maps. A map key names a map within its
+        scenario only (the ladder's parts share keys), so the cache is keyed by the scenario as well."""
+        key = (id(spec.scenario), spec.map_spec.key)
+        hit = self._rollouts.pop(key, None)
+        if hit is None or hit[0] is not spec.scenario:
+            hit = (spec.scenario, get_rollout(spec.scenario, spec.map_spec))
+        self._rollouts[key] = hit                # the most recent last
+        while len(self._rollouts) > ROLLOUTS_KEPT:
+            self._rollouts.pop(next(iter(self._rollouts)))
+        return hit[1]
 
     def world_for(self, spec: TrialSpec, rollout):
         """The PyBullet world of the spec's map: kept for the last WORLDS_KEPT maps (a reset on one of them builds

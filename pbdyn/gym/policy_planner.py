@@ -2,7 +2,8 @@
 policy with pbdyn bench").
 
 A policy is a callable ``policy(observation) -> action``: the observation is AvoidEnv's (pbdyn.gym.observation,
-float32, world frame; built here from the planner's View by observe_view, with no depth bins: rays = 0), the action
+float32, world frame; built here from the planner's View by observe_view, with the tracks and occupancy patch AvoidEnv
+was given but no depth bins: rays = 0), the action
 AvoidEnv's Box [-1, 1]^(d+1): action[:d] * a_max is an acceleration command (m/s^2, world frame), action[d] *
 the yaw-rate limit the yaw rate (rad/s). E.g. a Stable-Baselines3 model: ``lambda obs: model.predict(obs,
 deterministic=True)[0]``.
@@ -28,7 +29,7 @@ import numpy as np
 
 from pbdyn.errors import ConfigError, import_object, one_line, user_location
 from pbdyn.gym.env import command
-from pbdyn.gym.observation import observe_view
+from pbdyn.gym.observation import check_patch, observe_view
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.sim.guard import integrate
 
@@ -81,9 +82,11 @@ class PolicyPlanner:
     context: the trial's PlannerContext (pbdyn builds the planner as ``PolicyPlanner(context, **trajectory_params)``;
     None when you build it yourself: everything it needs comes from the View). policy: a callable (observation ->
     action) or "package.module:factory" (load_policy); tracks: K, the nearest tracks observed (as AvoidEnv's
-    ``tracks``, default 8); policy_args: the factory's keyword arguments (e.g. a model file's path)."""
+    ``tracks``, default 8); patch: P, the occupancy patch observed (as AvoidEnv's ``patch``, default 0);
+    policy_args: the factory's keyword arguments (e.g. a model file's path)."""
 
-    def __init__(self, context=None, policy=None, tracks: int = 8, policy_args: Mapping | None = None):
+    def __init__(self, context=None, policy=None, tracks: int = 8, policy_args: Mapping | None = None,
+                 patch: int = 0):
         if policy is None:
             raise ConfigError("policy", "is required: a callable (observation -> action) or 'package.module:factory' "
                               "(pbdyn bench: --params '{\"policy\": \"package.module:factory\"}')", None,
@@ -91,6 +94,10 @@ class PolicyPlanner:
         self.context = context
         self.policy = load_policy(policy, policy_args)
         self.tracks = _count(tracks, "tracks")
+        try:
+            self.patch = check_patch(patch)
+        except ValueError:
+            raise ConfigError("patch", "must be 0 or an odd integer >= 1 (cells per side)", patch) from None
         self._view = None
         self._action: np.ndarray | None = None
 
@@ -98,7 +105,7 @@ class PolicyPlanner:
         """The policy's action for ``view``, checked and clipped to [-1, 1] as AvoidEnv does (float64 [d + 1]); the
         policy is called once per view (the same View object reaches plan() and the gaze's yaw_rate())."""
         if view is not self._view:
-            obs = observe_view(view, self.tracks, 0)
+            obs = observe_view(view, self.tracks, 0, self.patch)
             try:
                 raw = self.policy(obs)
             except Exception as exc:
@@ -136,17 +143,17 @@ class PolicyGaze:
 
     Built by pbdyn with no parameters (``--gaze pbdyn.gym.policy_planner:PolicyGaze``), it reads the action of the
     PolicyPlanner of its trial, which plans just before the gaze is asked, in the same thread. ``planner``: that
-    PolicyPlanner given directly (policy_pair); ``policy``, ``tracks``, ``policy_args``: a policy of its own (as
-    PolicyPlanner's), asked when the view was not planned from by a PolicyPlanner (e.g. beside another trajectory
-    planner). fov_deg is None: the scenario's sensor field of view, as in AvoidEnv."""
+    PolicyPlanner given directly (policy_pair); ``policy``, ``tracks``, ``policy_args``, ``patch``: a policy of its
+    own (as PolicyPlanner's), asked when the view was not planned from by a PolicyPlanner (e.g. beside another
+    trajectory planner). fov_deg is None: the scenario's sensor field of view, as in AvoidEnv."""
 
     fov_deg = None
 
-    def __init__(self, context=None, policy=None, tracks: int = 8, policy_args: Mapping | None = None, *,
-                 planner: PolicyPlanner | None = None):
+    def __init__(self, context=None, policy=None, tracks: int = 8, policy_args: Mapping | None = None,
+                 patch: int = 0, *, planner: PolicyPlanner | None = None):
         self.context = context
         if planner is None and policy is not None:
-            planner = PolicyPlanner(context, policy, tracks, policy_args)
+            planner = PolicyPlanner(context, policy, tracks, policy_args, patch)
         elif policy_args:
             raise ConfigError("policy_args", "apply only with a policy", dict(policy_args))
         self.planner = planner
@@ -171,11 +178,13 @@ def policy_action(action, dims: int) -> np.ndarray:
     return np.clip(a, -1.0, 1.0)
 
 
-def policy_pair(policy, *, tracks: int = 8, policy_args: Mapping | None = None) -> tuple[PolicyPlanner, PolicyGaze]:
+def policy_pair(policy, *, tracks: int = 8, policy_args: Mapping | None = None,
+                patch: int = 0) -> tuple[PolicyPlanner, PolicyGaze]:
     """(trajectory planner, gaze planner) instances that fly ``policy`` (a callable or "package.module:factory")
-    with one policy call per step, for ``pbdyn.run_trial(..., planner=..., gaze=...)``. Each trial needs a fresh
-    pair only if the policy keeps state between calls (the pair itself keeps none across trials)."""
-    planner = PolicyPlanner(None, policy, tracks, policy_args)
+    with one policy call per step, for ``pbdyn.run_trial(..., planner=..., gaze=...)``; ``tracks`` and ``patch`` as
+    the AvoidEnv it was trained in. Each trial needs a fresh pair only if the policy keeps state between calls (the
+    pair itself keeps none across trials)."""
+    planner = PolicyPlanner(None, policy, tracks, policy_args, patch)
     return planner, PolicyGaze(planner=planner)
 
 

@@ -27,7 +27,7 @@ from gymnasium.vector.utils import batch_space
 
 from pbdyn.gym.env import command
 from pbdyn.gym.episodes import Episode, EpisodeSource
-from pbdyn.gym.observation import observation_size, observe
+from pbdyn.gym.observation import check_patch, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
 from pbdyn.sim.batch import TrialBatch
@@ -54,15 +54,16 @@ class AvoidVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int, scenario="quickstart", *, dims: int | None = None, tracks: int = 8,
-                 rays: int = 0, reward=None, epoch_s: float | None = None):
+                 rays: int = 0, patch: int = 0, reward=None, epoch_s: float | None = None):
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1 (got {num_envs!r})")
         self.num_envs = num_envs
         self.episodes = EpisodeSource(scenario, dims)
         self.dims = d = self.episodes.dims
-        self.tracks, self.rays = tracks, rays
+        self.tracks, self.rays, self.patch = tracks, rays, check_patch(patch)
         self.reward_config = RewardConfig.of(reward)
-        self.single_observation_space = spaces.Box(-1.0, 1.0, (observation_size(d, tracks, rays),), np.float32)
+        n = observation_size(d, tracks, rays, self.patch)
+        self.single_observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
         self.single_action_space = spaces.Box(-1.0, 1.0, (d + 1,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
@@ -89,7 +90,7 @@ class AvoidVectorEnv(VectorEnv):
         epoch.batch.step({})                     # the joined trials begin and sense together
         for i, (ep, b) in enumerate(self.slots):
             st = self._state(i)
-            obs[i] = observe(st, self.tracks, self.rays)
+            obs[i] = observe(st, self.tracks, self.rays, self.patch)
             self._dist[i] = vector_norm(st.position - st.goal)
             infos = self._add_info(infos, self._info(ep, st), i)
         self._pending[:] = False
@@ -129,7 +130,7 @@ class AvoidVectorEnv(VectorEnv):
         infos: dict = {}
         for i, (epoch, b) in enumerate(self.slots):
             st = epoch.batch.states[b]
-            obs[i] = observe(st, self.tracks, self.rays)
+            obs[i] = observe(st, self.tracks, self.rays, self.patch)
             dist = vector_norm(st.position - st.goal)
             if self._pending[i]:
                 self._pending[i] = False
