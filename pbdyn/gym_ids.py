@@ -23,12 +23,14 @@ ENV_IDS: dict[str, dict] = {
     "pbdyn/Avoid3D-v0": {"entry_point": "pbdyn.gym.env:AvoidEnv",
                          "vector_entry_point": "pbdyn.gym.vector:AvoidVectorEnv",
                          "kwargs": {"scenario": "spheres_3d", "dims": 3}},
-    "pbdyn/Gaze2D-v0": {"entry_point": "pbdyn.gym.env:GazeEnv", "vector_entry_point": None,
+    "pbdyn/Gaze2D-v0": {"entry_point": "pbdyn.gym.env:GazeEnv",
+                        "vector_entry_point": "pbdyn.gym.vector:GazeVectorEnv",
                         "kwargs": {"scenario": "quickstart", "dims": 2}},
-    "pbdyn/Gaze3D-v0": {"entry_point": "pbdyn.gym.env:GazeEnv", "vector_entry_point": None,
+    "pbdyn/Gaze3D-v0": {"entry_point": "pbdyn.gym.env:GazeEnv",
+                        "vector_entry_point": "pbdyn.gym.vector:GazeVectorEnv",
                         "kwargs": {"scenario": "spheres_3d", "dims": 3}},
 }
-"""id -> register() arguments: entry point, native vector entry point (or None), default constructor arguments."""
+"""id -> register() arguments: entry point, native vector entry point, default constructor arguments."""
 
 SWITCH = "PBDYN_GYM_AUTOREGISTER"
 """Environment variable: "0" keeps the start-up hook from registering the ids."""

@@ -142,3 +142,60 @@ def test_the_native_vector_env_is_deterministic_and_moves_to_a_new_map_when_the_
         b.close()
     with pytest.raises(ValueError, match="num_envs"):
         AvoidVectorEnv(0)
+
+
+@pytest.mark.parametrize("kind", ["Avoid", "Gaze"])
+def test_a_native_vector_episode_flies_alike_in_a_batch_of_three_and_alone(kind):
+    """Sub-environment 0 draws its map and task first, so a vector env of 3 and one of 1 give it the same first
+    episode; flown with the same actions it is bit for bit the same, though the batch of 3 shares its posing, rays,
+    tracker bank and swept checks with two other trials (GazeVectorEnv: each with its own planner)."""
+    import pbdyn.gym
+
+    cls = getattr(pbdyn.gym, f"{kind}VectorEnv")
+    flights = []
+    for n in (3, 1):
+        vec = cls(n)
+        rng = np.random.default_rng(11)
+        try:
+            obs, _ = vec.reset(seed=4)
+            rows = [obs[0].tobytes()]
+            sp = vec._state(0).spec
+            key = (sp.map_spec.key, tuple(sp.start), tuple(sp.goal), sp.v_max, sp.planner)
+            while True:
+                a = rng.uniform(-1.0, 1.0, (3,) + vec.single_action_space.shape).astype(np.float32)
+                obs, reward, term, trunc, info = vec.step(a[:n])
+                rows.append(obs[0].tobytes() + reward[0].tobytes())
+                if term[0] or trunc[0]:
+                    rows.append(info["outcome"][0])
+                    break
+            flights.append((key, rows))
+        finally:
+            vec.close()
+    assert flights[0] == flights[1]
+    assert len(flights[0][1]) > 20 and flights[0][1][-1] in ("success", "dynamic_collision", "static_collision",
+                                                            "freezing", "deadlock", "invalid_plan")
+
+
+def test_the_gaze_vector_env_is_made_by_id_and_autoresets():
+    from pbdyn.gym import GazeVectorEnv
+
+    env = gymnasium.make_vec("pbdyn/Gaze2D-v0", num_envs=4, vectorization_mode="vector_entry_point")
+    assert isinstance(env.unwrapped, GazeVectorEnv) and env.single_action_space.shape == (1,)
+    rng = np.random.default_rng(2)
+    try:
+        obs, _ = env.reset(seed=1)
+        ended_before = np.zeros(4, dtype=bool)
+        outcomes = []
+        for _ in range(500):
+            obs, reward, term, trunc, info = env.step(rng.uniform(-1, 1, (4, 1)).astype(np.float32))
+            assert np.all(reward[ended_before] == 0.0) and np.all(np.abs(obs) <= 1.0)
+            ended = term | trunc
+            outcomes += [o for o, m in zip(info.get("outcome", []), ended) if m]
+            ended_before = ended
+            for ep, b in env.unwrapped.slots:            # the planner flies: within the MAV's limits
+                st = ep.batch.states[b]
+                assert np.linalg.norm(st.velocity) <= st.limits.v_max * (1 + 1e-9)
+                assert st.spec.planner.trajectory == "local_primitives"
+        assert len(outcomes) >= 4 and "success" in outcomes
+    finally:
+        env.close()

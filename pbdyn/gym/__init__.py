@@ -8,7 +8,7 @@ with no pbdyn import (pbdyn.gym_ids explains the start-up hook); importing this 
 interpreters started without site-packages' .pth files (``python -S``) or with PBDYN_GYM_AUTOREGISTER=0.
 Keyword arguments of make() go to the environment's constructor.
 ``gymnasium.make_vec("pbdyn/Avoid2D-v0", num_envs=N, vectorization_mode="vector_entry_point")`` makes the native
-vector environment (pbdyn.gym.vector.AvoidVectorEnv: N episodes in one trial batch).
+vector environment (pbdyn.gym.vector.AvoidVectorEnv, GazeVectorEnv for the Gaze ids: N episodes in one trial batch).
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from pbdyn.gym.curriculum import Curriculum, CurriculumEnv
 from pbdyn.gym.env import AvoidEnv, GazeEnv
 from pbdyn.gym.policy_planner import PolicyGaze, PolicyPlanner, policy_pair
 from pbdyn.gym.reward import RewardConfig
-from pbdyn.gym.vector import AvoidVectorEnv
+from pbdyn.gym.vector import AvoidVectorEnv, GazeVectorEnv
 from pbdyn.gym_ids import ENV_IDS, register_missing
 
-__all__ = ["AvoidEnv", "AvoidVectorEnv", "GazeEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "PolicyPlanner",
+__all__ = ["AvoidEnv", "AvoidVectorEnv", "GazeEnv", "GazeVectorEnv", "RewardConfig", "Curriculum", "CurriculumEnv", "PolicyPlanner",
            "PolicyGaze", "policy_pair", "ENV_IDS"]
 
 register_missing(registration)

@@ -152,8 +152,8 @@ class AvoidEnv(_CoreEnv):
         self.batch.step({0: command(a, st.limits)})
 
 
-class _PolicyGaze:
-    """A gaze planner whose yaw rate is the policy's last action (rad/s)."""
+class PolicyYaw:
+    """A gaze planner whose yaw rate is the policy's last action (rad/s): GazeEnv's and GazeVectorEnv's."""
 
     fov_deg = None
 
@@ -162,6 +162,13 @@ class _PolicyGaze:
 
     def yaw_rate(self, view, trajectory) -> float:
         return self.rate
+
+
+def gaze_spec(spec, planner: str):
+    """The trial spec of a gaze episode: ``spec``'s map, task and speed flown by the trajectory planner ``planner``
+    (a registry name) beside the scenario's gaze entry (whose yaw rate the policy replaces)."""
+    return make_trial_spec(spec.scenario, spec.map_spec, planner=planner, gaze=spec.planner.gaze,
+                           start=tuple(spec.start), goal=tuple(spec.goal), v_max=spec.v_max)
 
 
 class GazeEnv(_CoreEnv):
@@ -176,11 +183,9 @@ class GazeEnv(_CoreEnv):
         self.agent: Agent | None = None
 
     def _start(self, episode: Episode, rollout, world) -> None:
-        old = episode.spec
-        spec = make_trial_spec(old.scenario, old.map_spec, planner=self.planner, gaze=old.planner.gaze,
-                               start=tuple(old.start), goal=tuple(old.goal), v_max=old.v_max)
+        spec = gaze_spec(episode.spec, self.planner)
         self.episode = replace(episode, spec=spec)
-        self.gaze = _PolicyGaze()
+        self.gaze = PolicyYaw()
         self.agent = Agent(spec, None, self.gaze)
         self.batch = TrialBatch([spec], rollout, world=world, fov_deg=[self.agent.fov_deg])
         self.batch.start()

@@ -1,5 +1,6 @@
-"""A native vector environment (docs/gym.md "Vector environments"): N AvoidEnv episodes stepped in one trial batch, so
-that their sensing, tracking and collision checks are shared (pbdyn.sim.batch.TrialBatch).
+"""Native vector environments (docs/gym.md "Vector environments"): N episodes stepped in one trial batch, so that
+their sensing, tracking and collision checks are shared (pbdyn.sim.batch.TrialBatch). AvoidVectorEnv steps N
+AvoidEnv episodes (the policy flies), GazeVectorEnv N GazeEnv episodes (a planner flies, the policy turns the gaze).
 
 The N sub-environments fly on one map at a time and stay in phase: every episode starts at the batch's next rollout
 step, so at any tick all running trials sense the same obstacle poses (one posing, one Bullet ray batch, one
@@ -10,7 +11,7 @@ a start that is clear now. The map's rollout covers ``epoch_s`` s (default five 
 would not fit in it, the next episodes start an epoch on a new map (drawn as reset draws it, with the last reset's
 options) while the old map's running episodes finish.
 
-Spaces, reward and outcomes are AvoidEnv's. Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after an episode
+Spaces, reward and outcomes are AvoidEnv's (GazeEnv's). Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after an episode
 ended resets that sub-environment: its action is ignored, it returns the new episode's first observation with reward
 0). ``infos`` hold, for the sub-environments whose episode ended or began in the step, "outcome", "reason", "map_id",
 "level", "difficulty" and "t" (masked as Gymnasium does).
@@ -25,11 +26,12 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from pbdyn.gym.env import command
+from pbdyn.gym.env import PolicyYaw, command, gaze_spec
 from pbdyn.gym.episodes import Episode, EpisodeSource
 from pbdyn.gym.observation import check_patch, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
+from pbdyn.sim.agent import Agent
 from pbdyn.sim.batch import TrialBatch
 from pbdyn.sim.state import make_world, vector_norm
 from pbdyn.world.rollout import get_rollout
@@ -47,9 +49,9 @@ class _Epoch:
         self.batch = batch
 
 
-class AvoidVectorEnv(VectorEnv):
-    """``num_envs`` AvoidEnv episodes in one trial batch (see the module docstring). Other arguments as AvoidEnv;
-    ``epoch_s``: the time (s) one map's rollout covers."""
+class _VectorCore(VectorEnv):
+    """What both vector environments share: epochs, joining, autoreset, observation, reward and infos. A subclass
+    says what an action is (_action_size, _spec_of, _joined, _move)."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
@@ -64,7 +66,7 @@ class AvoidVectorEnv(VectorEnv):
         self.reward_config = RewardConfig.of(reward)
         n = observation_size(d, tracks, rays, self.patch)
         self.single_observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
-        self.single_action_space = spaces.Box(-1.0, 1.0, (d + 1,), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (self._action_size(d),), np.float32)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.epoch_s = epoch_s
@@ -115,9 +117,10 @@ class AvoidVectorEnv(VectorEnv):
                 continue
             epoch, b = slot
             st = epoch.batch.states[b]
-            lim = st.limits
             accel0[i] = st.acceleration
-            moves.setdefault(id(epoch), (epoch, {}))[1][b] = command(a[i], lim)
+            move = self._move(i, epoch.batch, b, a[i])
+            if move is not None:
+                moves.setdefault(id(epoch), (epoch, {}))[1][b] = move
         for epoch in self.epochs:                           # every map steps once (joined trials begin there)
             got = moves.get(id(epoch))
             epoch.batch.step(got[1] if got else {})
@@ -153,6 +156,24 @@ class AvoidVectorEnv(VectorEnv):
     def close_extras(self, **kwargs) -> None:
         """Release every map's PyBullet world."""
         self._close_epochs()
+
+    # ------------------------------------------------------------------------------------------------ the subclass's
+    def _action_size(self, dims: int) -> int:
+        """The length of one sub-environment's action."""
+        raise NotImplementedError
+
+    def _spec_of(self, spec):
+        """The trial spec a drawn task (AvoidEnv's spec) is flown as."""
+        return spec
+
+    def _joined(self, i: int, spec) -> float | None:
+        """Sub-environment i begins an episode of ``spec``; the trial's field of view (deg; None: the scenario's)."""
+        return None
+
+    def _move(self, i: int, batch: TrialBatch, b: int, action: np.ndarray):
+        """The batch action of sub-environment i (trial b of ``batch``) for its clipped ``action``, or None when the
+        trial ended here (batch.end)."""
+        raise NotImplementedError
 
     # ------------------------------------------------------------------------------------------------ parts
     def _state(self, i: int):
@@ -205,7 +226,8 @@ class AvoidVectorEnv(VectorEnv):
                 best, best_gap = spec, gap
             if gap >= task.start_clearance:
                 break
-        return epoch.batch.add(best, at)
+        best = self._spec_of(best)
+        return epoch.batch.add(best, at, fov_deg=self._joined(i, best))
 
     def _drop_finished_epochs(self) -> None:
         """Close the worlds of older maps whose episodes have all ended."""
@@ -222,6 +244,52 @@ class AvoidVectorEnv(VectorEnv):
             epoch.batch.close()
         self.epochs = []
         self.slots = [None] * self.num_envs
+
+
+class AvoidVectorEnv(_VectorCore):
+    """``num_envs`` AvoidEnv episodes in one trial batch (see the module docstring): the policy flies the MAV. Other
+    arguments as AvoidEnv; ``epoch_s``: the time (s) one map's rollout covers."""
+
+    def _action_size(self, dims: int) -> int:
+        return dims + 1
+
+    def _move(self, i: int, batch: TrialBatch, b: int, action: np.ndarray):
+        return command(action, batch.states[b].limits)
+
+
+class GazeVectorEnv(_VectorCore):
+    """``num_envs`` GazeEnv episodes in one trial batch (see the module docstring): a built-in trajectory planner
+    (``planner``, default local primitives, with its plan contract and braking) flies each MAV and the policy turns
+    its gaze (action: Box [-1, 1]^1, the yaw rate as a fraction of its limit). Other arguments as AvoidVectorEnv."""
+
+    def __init__(self, num_envs: int, scenario="quickstart", *, dims: int | None = None, tracks: int = 8,
+                 rays: int = 0, patch: int = 0, reward=None, epoch_s: float | None = None,
+                 planner: str = "local_primitives"):
+        self.planner = planner
+        self.agents: list = [None] * (num_envs if isinstance(num_envs, int) and num_envs > 0 else 0)
+        super().__init__(num_envs, scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward,
+                         epoch_s=epoch_s)
+
+    def _action_size(self, dims: int) -> int:
+        return 1
+
+    def _spec_of(self, spec):
+        return gaze_spec(spec, self.planner)
+
+    def _joined(self, i: int, spec) -> float | None:
+        gaze = PolicyYaw()
+        self.agents[i] = (Agent(spec, None, gaze), gaze)
+        return self.agents[i][0].fov_deg
+
+    def _move(self, i: int, batch: TrialBatch, b: int, action: np.ndarray):
+        agent, gaze = self.agents[i]
+        st = batch.states[b]
+        gaze.rate = float(action[0]) * st.limits.yaw_rate
+        decision = agent.act(st.view(agent.trajectory))
+        if decision.violation is not None:
+            batch.end(b, Outcome.INVALID_PLAN, decision.violation.reason)
+            return None
+        return decision.action
 
 
 def _start_gap(rollout, start, mav_radius: float, at: int, window: int) -> float:

@@ -1,6 +1,7 @@
-"""Gymnasium environments: steps per CPU-second of one environment (2D, 3D; random actions) and of the native vector
-environment (N = 16, 64 episodes in one trial batch; steps of all sub-environments counted), and the time of a reset
-on the same map (no new PyBullet world) and on a new map; medians over repeated runs, one process, one core.
+"""Gymnasium environments: steps per CPU-second of one environment (Avoid and Gaze, 2D and 3D; random actions) and of
+the native vector environment (N = 16, 64 episodes in one trial batch; steps of all sub-environments counted), and
+the time of a reset on the same map (no new PyBullet world) and on a new map; medians over repeated runs, one
+process, one core.
 
     .venv/bin/python tools/bench/bench_gym.py [--steps 2000] [--repeat 5]
 """
@@ -91,12 +92,13 @@ def main() -> int:
     args = ap.parse_args()
     print(machine())
     single = {}
-    for env_id in ("pbdyn/Avoid2D-v0", "pbdyn/Avoid3D-v0", "pbdyn/Gaze2D-v0"):
+    ids = ("pbdyn/Avoid2D-v0", "pbdyn/Avoid3D-v0", "pbdyn/Gaze2D-v0", "pbdyn/Gaze3D-v0")
+    for env_id in ids:
         rates = [steps_per_second(env_id, args.steps) for _ in range(args.repeat)]
         single[env_id] = float(np.median(rates))
         print(f"{env_id:<20} {single[env_id]:8.0f} steps per CPU-second (median of {args.repeat}, "
               f"{args.steps} steps each)")
-    for env_id in ("pbdyn/Avoid2D-v0", "pbdyn/Avoid3D-v0"):
+    for env_id in ids:
         for n in (16, 64):
             rates = [vector_steps_per_second(env_id, n, 4 * args.steps) for _ in range(args.repeat)]
             rate = float(np.median(rates))
