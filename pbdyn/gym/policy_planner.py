@@ -3,10 +3,9 @@ policy with pbdyn bench").
 
 A policy is a callable ``policy(observation) -> action``: the observation is AvoidEnv's (pbdyn.gym.observation,
 float32, world frame; built here from the planner's View by observe_view, with the tracks and occupancy patch AvoidEnv
-was given but no depth bins: rays = 0), the action
-AvoidEnv's Box [-1, 1]^(d+1): action[:d] * a_max is an acceleration command (m/s^2, world frame), action[d] *
-the yaw-rate limit the yaw rate (rad/s). E.g. a Stable-Baselines3 model: ``lambda obs: model.predict(obs,
-deterministic=True)[0]``.
+was given but no depth bins: rays = 0), the action AvoidEnv's Box [-1, 1]^(d+1): action[:d] * a_max is an
+acceleration command (m/s^2, world frame), action[d] * the yaw-rate limit the yaw rate (rad/s). E.g. a
+Stable-Baselines3 model: ``lambda obs: model.predict(obs, deterministic=True)[0]``.
 
 ``PolicyPlanner`` (trajectory planner) asks the policy once per step and turns the action into the next state exactly
 as AvoidEnv does (clipped to [-1, 1], then pbdyn.sim.guard.integrate from the view's position and velocity): its plan
