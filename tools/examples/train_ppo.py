@@ -82,8 +82,11 @@ def main() -> int:
             elapsed = time.monotonic() - self.t0
             if elapsed - self.last >= 30.0:
                 self.last = elapsed
+                recent = [ok for _, ok in curriculum.history[-200:]]
+                rate = sum(recent) / len(recent) if recent else 0.0
                 print(f"{elapsed / 60:4.1f} min: {self.num_timesteps} steps, {len(curriculum.history)} episodes, "
-                      f"curriculum level {curriculum.level}", flush=True)
+                      f"curriculum level {curriculum.level}, success of the last {len(recent)} episodes {rate:.2f}",
+                      flush=True)
             return elapsed < 60.0 * args.minutes
 
     model = PPO("MlpPolicy", venv, seed=args.seed, n_steps=256, batch_size=256, learning_rate=3e-4, verbose=0,
