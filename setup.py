@@ -1,7 +1,7 @@
 """pbdyn's build: everything is declared in setup.cfg; this file adds one build step.
 
 build_gym_hook writes ``pbdyn-gym.pth`` to the root of site-packages, so that an installed pbdyn's Gymnasium ids are
-registered when Gymnasium is imported (pbdyn/gym_ids.py says how; docs/gym.md). A wheel carries the file in its root;
+registered when Gymnasium is imported (pbdyn_gym_hook.py says how; docs/gym.md). A wheel carries the file in its root;
 an editable install (``pip install -e``) writes it into the editable wheel as well, beside setuptools' own .pth.
 """
 
@@ -13,7 +13,10 @@ from setuptools import Command, setup
 from setuptools.command.build import build
 
 PTH_NAME = "pbdyn-gym.pth"
-PTH_LINE = "import pbdyn.gym_ids; pbdyn.gym_ids.install()\n"
+# One line, run by site at every start-up: a hook module that cannot be found (an editable checkout moved away) is
+# skipped instead of printing an error at every start-up.
+PTH_LINE = ('import importlib.util; importlib.util.find_spec("pbdyn_gym_hook") and '
+            '__import__("pbdyn_gym_hook").install()\n')
 
 
 class build_gym_hook(Command):

@@ -11,8 +11,8 @@ registry: config validates their names and tables, world's rollouts run them), c
 planning | metrics (beside perception and planning: it sees rollouts only) | sim, and analysis beside it (it reads
 stored rows, never a trial) | experiments (evaluate feeds stored results to analysis) | benchmark (frozen suites flown
 by the batch runner, score cards) | api (the one door) | cli, gym, __main__, and the package root pbdyn/__init__.py,
-which re-exports the api. gym_ids (the Gymnasium ids and the start-up hook that registers them) stands alone: it runs
-in every Python start-up and imports nothing of pbdyn.
+which re-exports the api. gym_ids (the Gymnasium ids) stands alone and imports nothing of pbdyn: the start-up hook
+beside the package (pbdyn_gym_hook.py) reads it when Gymnasium is imported.
 """
 
 from __future__ import annotations

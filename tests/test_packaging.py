@@ -23,6 +23,9 @@ from pbdyn.errors import ConfigError
 from tests.conftest import ROOT, SCENARIOS, pbdyn_cmd
 
 OUTCOMES = ("success", "static_collision", "dynamic_collision", "freezing", "deadlock", "invalid_plan")
+PTH_LINE = ('import importlib.util; importlib.util.find_spec("pbdyn_gym_hook") and '
+            '__import__("pbdyn_gym_hook").install()\n')
+"""The start-up line setup.py installs (pbdyn-gym.pth): the Gymnasium ids' hook, skipped if it cannot be found."""
 PIP_OFFLINE_HINTS = ("No matching distribution", "Could not find a version", "Failed to establish a new connection",
                      "Temporary failure in name resolution")
 
@@ -148,7 +151,7 @@ def _make_dry_run(folder: Path, target: str, *stamps: str) -> list[str]:
     if shutil.which("make") is None:
         pytest.skip("no make on this machine")
     clone = folder
-    for rel in ("Makefile", "setup.cfg", "pyproject.toml", "tools/install_sysdeps.sh",
+    for rel in ("Makefile", "setup.cfg", "setup.py", "pyproject.toml", "tools/install_sysdeps.sh",
                 "pbdyn/planning/primitives/native/ruckig_batch.cpp", "pbdyn/planning/primitives/native/build.py"):
         (clone / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / rel, clone / rel)
@@ -229,7 +232,7 @@ def test_wheel_carries_models_and_bundled_scenarios(tmp_path):
     assert not expected - names, sorted(expected - names)
     assert not [n for n in names if n.endswith(".so")]              # never a library built for this machine
     tops = {n.split("/")[0] for n in names}
-    assert tops == {"pbdyn", "pbdyn-gym.pth", wheel.name.split("-py")[0] + ".dist-info"}, tops  # no tests/, tools/, urdf/
+    assert tops == {"pbdyn", "pbdyn_gym_hook.py", "pbdyn-gym.pth", wheel.name.split("-py")[0] + ".dist-info"}, tops
     dist_info = next(t for t in tops if t.endswith(".dist-info"))
     assert any(n.startswith(dist_info) and n.endswith("/LICENSE") for n in names)
     metadata = zipfile.ZipFile(wheel).read(f"{dist_info}/METADATA").decode()
@@ -243,7 +246,7 @@ def _the_wheels_start_up_hook_registers_the_gym_ids(wheel: Path, out: Path) -> N
     The interpreter starts without site (-S), so that only the unpacked wheel's .pth runs; the test environment's
     packages are put on the path without running theirs."""
     zipfile.ZipFile(wheel).extractall(out)
-    assert (out / "pbdyn-gym.pth").read_text() == "import pbdyn.gym_ids; pbdyn.gym_ids.install()\n"
+    assert (out / "pbdyn-gym.pth").read_text() == PTH_LINE
     deps = [p for p in sys.path if p.endswith("site-packages")]
     code = (f"import sys, site; sys.path.extend({deps!r}); site.addsitedir({str(out)!r})\n"
             "import gymnasium, pbdyn\n"
@@ -323,4 +326,4 @@ def test_editable_install_maps_the_data_packages(tmp_path):
     models, scenarios, models2, scenarios2 = map(Path, proc.stdout.split())
     assert models == models2 == ROOT / "urdf" and scenarios == scenarios2 == SCENARIOS
     hooks = list(venv.glob("lib/python*/site-packages/pbdyn-gym.pth"))      # the Gymnasium ids' start-up hook
-    assert len(hooks) == 1 and hooks[0].read_text() == "import pbdyn.gym_ids; pbdyn.gym_ids.install()\n"
+    assert len(hooks) == 1 and hooks[0].read_text() == PTH_LINE
