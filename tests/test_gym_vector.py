@@ -142,6 +142,9 @@ def test_the_native_vector_env_is_deterministic_and_moves_to_a_new_map_when_the_
         b.close()
     with pytest.raises(ValueError, match="num_envs"):
         AvoidVectorEnv(0)
+    for bad in ({"tracks": -1}, {"rays": 1.5}, {"patch": 2}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            AvoidVectorEnv(2, **bad)
 
 
 @pytest.mark.parametrize("kind", ["Avoid", "Gaze"])

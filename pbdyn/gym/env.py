@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium import spaces
 
 from pbdyn.gym.episodes import Episode, EpisodeSource
-from pbdyn.gym.observation import check_patch, observation_size, observe
+from pbdyn.gym.observation import check_observed, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
 from pbdyn.sim.agent import Agent
@@ -52,14 +52,9 @@ class _CoreEnv(gymnasium.Env):
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
                  patch: int = 0, reward=None):
         super().__init__()
-        for name, value, lo in (("tracks", tracks, 0), ("rays", rays, 0)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-                raise ValueError(f"{name} must be an integer >= {lo} (got {value!r})")
+        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch)
         self.episodes = EpisodeSource(scenario, dims)
         self.dims = self.episodes.dims
-        self.tracks = tracks
-        self.rays = rays
-        self.patch = check_patch(patch)
         self.reward_config = RewardConfig.of(reward)
         n = observation_size(self.dims, tracks, rays, self.patch)
         self.observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)

@@ -41,6 +41,15 @@ def check_patch(patch) -> int:
     return int(patch)
 
 
+def check_observed(tracks, rays, patch) -> tuple[int, int, int]:
+    """(K, B, P) of an environment's observation checked: tracks and rays integers >= 0, patch as check_patch
+    (ValueError naming the argument otherwise)."""
+    for name, value in (("tracks", tracks), ("rays", rays)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f"{name} must be an integer >= 0 (got {value!r})")
+    return tracks, rays, check_patch(patch)
+
+
 def observation_size(dims: int, tracks: int, rays: int, patch: int = 0) -> int:
     """The length of the observation vector for ``dims`` (2 or 3), K = ``tracks``, B = ``rays`` and P = ``patch``."""
     return 2 * dims + 2 + tracks * (2 * dims + 3) + rays + (patch ** dims if patch else 0)

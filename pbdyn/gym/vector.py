@@ -11,10 +11,10 @@ a start that is clear now. The map's rollout covers ``epoch_s`` s (default five 
 would not fit in it, the next episodes start an epoch on a new map (drawn as reset draws it, with the last reset's
 options) while the old map's running episodes finish.
 
-Spaces, reward and outcomes are AvoidEnv's (GazeEnv's). Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after an episode
-ended resets that sub-environment: its action is ignored, it returns the new episode's first observation with reward
-0). ``infos`` hold, for the sub-environments whose episode ended or began in the step, "outcome", "reason", "map_id",
-"level", "difficulty" and "t" (masked as Gymnasium does).
+Spaces, reward and outcomes are AvoidEnv's (GazeEnv's). Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after
+an episode ended resets that sub-environment: its action is ignored, it returns the new episode's first observation
+with reward 0). ``infos`` hold, for the sub-environments whose episode ended or began in the step, "outcome",
+"reason", "map_id", "level", "difficulty" and "t" (masked as Gymnasium does).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from gymnasium.vector.utils import batch_space
 
 from pbdyn.gym.env import PolicyYaw, command, gaze_spec
 from pbdyn.gym.episodes import Episode, EpisodeSource
-from pbdyn.gym.observation import check_patch, observation_size, observe
+from pbdyn.gym.observation import check_observed, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
 from pbdyn.sim.agent import Agent
@@ -60,9 +60,9 @@ class _VectorCore(VectorEnv):
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1 (got {num_envs!r})")
         self.num_envs = num_envs
+        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch)
         self.episodes = EpisodeSource(scenario, dims)
         self.dims = d = self.episodes.dims
-        self.tracks, self.rays, self.patch = tracks, rays, check_patch(patch)
         self.reward_config = RewardConfig.of(reward)
         n = observation_size(d, tracks, rays, self.patch)
         self.single_observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
@@ -265,10 +265,10 @@ class GazeVectorEnv(_VectorCore):
     def __init__(self, num_envs: int, scenario="quickstart", *, dims: int | None = None, tracks: int = 8,
                  rays: int = 0, patch: int = 0, reward=None, epoch_s: float | None = None,
                  planner: str = "local_primitives"):
-        self.planner = planner
-        self.agents: list = [None] * (num_envs if isinstance(num_envs, int) and num_envs > 0 else 0)
         super().__init__(num_envs, scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward,
                          epoch_s=epoch_s)
+        self.planner = planner
+        self.agents: list = [None] * self.num_envs          # (Agent, PolicyYaw) of each sub-environment's episode
 
     def _action_size(self, dims: int) -> int:
         return 1
