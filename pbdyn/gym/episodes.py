@@ -163,30 +163,14 @@ class EpisodeSource:
 
     # ------------------------------------------------------------------------------------------------ world
     def rollout(self, spec: TrialSpec):
-        """The rollout of the spec's map, kept for the last ROLLOUTS_KEPT maps. A map key names a map within its
-        scenario only (the ladder's parts share keys), so the cache is keyed by the scenario as well."""
-        key = (id(spec.scenario), spec.map_spec.key)
-        hit = self._rollouts.pop(key, None)
-        if hit is None or hit[0] is not spec.scenario:
-            hit = (spec.scenario, get_rollout(spec.scenario, spec.map_spec))
-        self._rollouts[key] = hit                # the most recent last
-        while len(self._rollouts) > ROLLOUTS_KEPT:
-            self._rollouts.pop(next(iter(self._rollouts)))
-        return hit[1]
+        """The rollout of the spec's map, kept for the last ROLLOUTS_KEPT maps."""
+        return _kept(self._rollouts, spec, lambda: get_rollout(spec.scenario, spec.map_spec), ROLLOUTS_KEPT)
 
     def world_for(self, spec: TrialSpec, rollout):
         """The PyBullet world of the spec's map: kept for the last WORLDS_KEPT maps (a reset on one of them builds
         no world), else a new one."""
-        key = (id(spec.scenario), spec.map_spec.key)
-        hit = self._worlds.pop(key, None)
-        if hit is None or hit[0] is not spec.scenario:
-            if hit is not None:
-                hit[1].close()
-            hit = (spec.scenario, make_world(spec, rollout))
-        self._worlds[key] = hit                  # the most recent last
-        while len(self._worlds) > WORLDS_KEPT:
-            self._worlds.pop(next(iter(self._worlds)))[1].close()
-        self.world = hit[1]
+        self.world = _kept(self._worlds, spec, lambda: make_world(spec, rollout), WORLDS_KEPT,
+                           drop=lambda world: world.close())
         return self.world
 
     def close(self) -> None:
@@ -195,3 +179,21 @@ class EpisodeSource:
             world.close()
         self._worlds.clear()
         self.world = None
+
+
+def _kept(cache: dict, spec: TrialSpec, make, limit: int, drop=None):
+    """The value ``cache`` keeps for the spec's map, else ``make()``'s, kept as the most recent of at most ``limit``
+    (``drop`` is called on a value let go). A map key names a map within its scenario only (the ladder's parts share
+    keys), so the cache is keyed by the scenario as well, and holds the scenario to tell a reused id() apart."""
+    key = (id(spec.scenario), spec.map_spec.key)
+    hit = cache.pop(key, None)
+    if hit is None or hit[0] is not spec.scenario:
+        if hit is not None and drop is not None:
+            drop(hit[1])
+        hit = (spec.scenario, make())
+    cache[key] = hit                             # the most recent last
+    while len(cache) > limit:
+        old = cache.pop(next(iter(cache)))[1]
+        if drop is not None:
+            drop(old)
+    return hit[1]
