@@ -305,7 +305,8 @@ def generate_maps(out: str | Path | None, *, metric: str | None = None, target: 
     import tomllib
 
     from pbdyn.errors import check_writable_file
-    from pbdyn.experiments.generate import PREDICTED, MetricTarget, generate_by_metric, generate_by_success, write_scenario
+    from pbdyn.experiments.generate import (PREDICTED, MetricTarget, generate_by_metric, generate_by_success,
+                                            stop_on_signals_cleanly, write_scenario)
 
     if success is not None:
         if metric is not None or target is not None:
@@ -335,18 +336,19 @@ def generate_maps(out: str | Path | None, *, metric: str | None = None, target: 
             raise ConfigError("scenario", "must be a path, a bundled scenario name or a dict", scenario)
         base.pop("name", None)
     workers = _workers(workers)
-    if success is not None:
-        req = MetricTarget(PREDICTED, success, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
-        result = generate_by_success(req, workers=workers, progress=progress)
-        what = f"reference success (flown by the reference panel) within {tolerance:g} of {success:g}"
-    else:
-        req = MetricTarget(metric, target, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
-        result = generate_by_metric(req, workers=workers, progress=progress)
-        what = f"{metric} within {tolerance:g} of {target:g}"
-    if out is not None:
-        header = (f"pbdyn generate: {len(result.maps)} maps of family {family!r} ({dims}D) with {what}\n(map i of "
-                  "this file is the i-th [[obstacles.maps]] entry; measured values as found when it was chosen)")
-        write_scenario(out, result.document, header)
+    with stop_on_signals_cleanly(out):        # SIGTERM/SIGINT: workers ended, nothing written, BatchInterrupted
+        if success is not None:
+            req = MetricTarget(PREDICTED, success, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
+            result = generate_by_success(req, workers=workers, progress=progress)
+            what = f"reference success (flown by the reference panel) within {tolerance:g} of {success:g}"
+        else:
+            req = MetricTarget(metric, target, tolerance, count, family, dims, base, dict(fixed or {}), seed=seed)
+            result = generate_by_metric(req, workers=workers, progress=progress)
+            what = f"{metric} within {tolerance:g} of {target:g}"
+        if out is not None:
+            header = (f"pbdyn generate: {len(result.maps)} maps of family {family!r} ({dims}D) with {what}\n(map i "
+                      "of this file is the i-th [[obstacles.maps]] entry; measured values as found when it was chosen)")
+            write_scenario(out, result.document, header)
     return result
 
 

@@ -24,12 +24,14 @@ number of workers. Everything random comes from one Generator seeded by the requ
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import math
-import os
+import signal
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -245,22 +247,19 @@ def _measure_task(args):
 
 
 class _Measurer:
-    """Measures candidates in this process (workers = 1) or a spawn process pool, in submission order."""
+    """Measures candidates in this process (workers = 1) or on the batch runner's local worker pool
+    (pbdyn.experiments.pool.WorkerPool: spawned workers that ignore SIGINT and exit when this process is gone), in
+    submission order. A pool whose worker died is restarted and the round measured again (at most
+    MAX_POOL_RESTARTS times in a row); close(terminate=True) ends the workers at once (SIGTERM/SIGINT)."""
 
     def __init__(self, doc: dict, metric: str, workers: int):
         self.doc, self.metric, self.workers = doc, metric, workers
         self.scenario = parse_scenario(doc)
         self.pool = None
         if workers > 1:
-            import concurrent.futures as cf
-            import multiprocessing
+            from pbdyn.experiments.pool import WorkerPool
 
-            from pbdyn.experiments.mainguard import PoolGuard
-
-            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-                os.environ.setdefault(var, "1")
-            self.guard = PoolGuard("generate_maps")
-            self.pool = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+            self.pool = WorkerPool(workers, None, what="generate_maps")
 
     def __call__(self, family: str, cands: list[Candidate]) -> None:
         entries = [(i, {"count": c.count, "radius": c.radius, "speed": c.speed, "structure": family}, c.replicate)
@@ -268,22 +267,36 @@ class _Measurer:
         if self.pool is None:
             results = measure(self.scenario, self.metric, entries)
         else:
-            chunks = [entries[k::self.workers] for k in range(self.workers)]
-            from concurrent.futures.process import BrokenProcessPool
-
-            try:
-                futures = [self.pool.submit(_measure_task, (self.doc, self.metric, ch)) for ch in chunks if ch]
-                results = [r for f in futures for r in f.result()]
-            except BrokenProcessPool:
-                self.guard.check()      # a worker re-imported a script calling generate_maps at its top level
-                raise
+            results = self._measure_in_pool(entries)
         for i, value, seed in results:
             cands[i].value, cands[i].seed = value, seed
 
-    def close(self) -> None:
+    def _measure_in_pool(self, entries: list) -> list:
+        from concurrent.futures.process import BrokenProcessPool
+
+        from pbdyn.errors import PbdynError
+        from pbdyn.experiments.dispatch import MAX_POOL_RESTARTS
+
+        chunks = [entries[k::self.workers] for k in range(self.workers)]
+        for attempt in range(MAX_POOL_RESTARTS + 1):
+            try:
+                futures = [self.pool.submit(_measure_task, (self.doc, self.metric, ch)) for ch in chunks if ch]
+                return [r for f in futures for r in f.result()]
+            except BrokenProcessPool:
+                self.pool.check_broken()     # a worker re-imported a script calling generate_maps at its top level
+                if attempt == MAX_POOL_RESTARTS:
+                    raise PbdynError(f"worker processes died {attempt + 1} times measuring one round of candidates "
+                                     "(re-run the same command)") from None
+                sys.stderr.write(f"pbdyn generate: a worker died; restarting the pool ({attempt + 1}/"
+                                 f"{MAX_POOL_RESTARTS}) and measuring the round again\n")
+                self.pool.restart()
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def close(self, terminate: bool = False) -> None:
+        """Shut the pool down: wait for its workers, or with ``terminate`` end them at once."""
         if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-            self.guard.close()
+            self.pool.close(terminate=terminate)
+            self.pool = None
 
 
 # ------------------------------------------------------------------------------------------------ the search
@@ -398,6 +411,9 @@ def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = 
             hits = sum(abs(c.value - req.target) <= req.tolerance for c in batch)
             spread = 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
             shown.update(len(kept), len(measured))
+    except BaseException:
+        measurer.close(terminate=True)         # an error or SIGTERM/SIGINT: end the workers at once
+        raise
     finally:
         measurer.close()
         shown.done()
@@ -484,6 +500,9 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
             beta = fit_linear(measured, aim.target, scale)
             hits = sum(abs(c.value - aim.target) <= PROPOSE_SHARE * req.tolerance for c in batch)
             spread = 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
+    except BaseException:
+        measurer.close(terminate=True)         # an error or SIGTERM/SIGINT: end the workers at once
+        raise
     finally:
         measurer.close()
         shown.done()
@@ -530,6 +549,23 @@ class _Progress:
         if self.enabled:
             sys.stderr.write("\n")
             sys.stderr.flush()
+
+
+@contextlib.contextmanager
+def stop_on_signals_cleanly(out) -> Iterator[None]:
+    """The block of `pbdyn generate` (the search and the writing of ``out``) under SIGTERM and SIGINT: the first
+    one raises BatchInterrupted (exit status 143 / 130 on the command line) saying that ``out`` was not written;
+    the workers are ended on the way out (_Measurer.close) and ``out`` is written atomically, so nothing partial
+    is left (pbdyn.experiments.signals)."""
+    from pbdyn.experiments.signals import BatchInterrupted, stop_on_signals
+
+    with stop_on_signals():
+        try:
+            yield
+        except BatchInterrupted as exc:
+            what = f"{Path(out).name} not written" if out is not None else "no maps returned"
+            raise BatchInterrupted(exc.signum, f"generate stopped by {signal.Signals(exc.signum).name}: "
+                                   f"{what}") from None
 
 
 def write_scenario(path: str | Path, doc: dict, header: str = "") -> Path:

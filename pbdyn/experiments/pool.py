@@ -20,12 +20,17 @@ from pbdyn.experiments.tasks import worker_init
 
 
 class WorkerPool:
-    """A process pool (spawn context, BLAS/OpenMP threads = 1 in workers) or a Dask client's executor."""
+    """A process pool (spawn context, BLAS/OpenMP threads = 1 in workers) or a Dask client's executor. ``what``:
+    the name of the call that owns a local pool (run_batch, generate_maps; named by a MainGuardError).
 
-    def __init__(self, workers: int, scheduler):
+    Local workers ignore SIGINT and exit within PARENT_POLL_S of their coordinator's death (tasks.worker_init);
+    close(terminate=True) ends them at once (the owner's SIGTERM/SIGINT path, pbdyn.experiments.signals)."""
+
+    def __init__(self, workers: int, scheduler=None, what: str = "run_batch"):
         self.client = None
         self.own_client = False
         self.workers = workers
+        self.what = what
         self.guard = None           # local pools: a worker re-importing a main script without its guard reports here
         if scheduler is not None:
             self.client = connect(scheduler) if isinstance(scheduler, str) else scheduler
@@ -40,7 +45,7 @@ class WorkerPool:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")
         if self.guard is None:
-            self.guard = PoolGuard("run_batch")
+            self.guard = PoolGuard(self.what)
         ctx = multiprocessing.get_context("spawn")
         self.queue = ctx.Queue()        # rows of lockstep groups, sent by the workers as each trial ends
         self.executor = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=worker_init,
@@ -74,8 +79,17 @@ class WorkerPool:
         self.queue.close()
         self._start()
 
-    def submit(self, fn, task, key: str, path: Path):
-        """Submit fn(task) -- for Dask fn(task, data) with the rollout's bytes scattered once per map."""
+    def exit_codes(self) -> list[int | None]:
+        """The exit codes of this local pool's worker processes (None: still running), after it broke: the worker
+        that died shows its own (e.g. -11 for SIGSEGV), the others -15 once the executor has ended them."""
+        procs = list((getattr(self.executor, "_processes", None) or {}).values())
+        for p in procs:
+            p.join(2.0)
+        return [p.exitcode for p in procs]
+
+    def submit(self, fn, task, key: str = "", path: Path | None = None):
+        """Submit fn(task) -- for Dask fn(task, data) with the rollout's bytes scattered once per map (``key``,
+        ``path``)."""
         if not self.dask:
             return self.executor.submit(fn, task)
         if key not in self.scattered:
