@@ -270,6 +270,7 @@ def run_batch(scenario, out: str | Path, *, workers: int | None = None, schedule
     from pbdyn.experiments.runner import run_batch as batch
 
     sc = load_scenario(scenario)
+    out = _path(out, "out")
     opts = BatchOptions(workers=workers, scheduler=scheduler, limit=limit, extend=extend, metrics=metrics,
                         progress=progress, rerun_changed=rerun_changed, retry_errors=retry_errors, shard=shard)
     if lockstep is not None:
@@ -335,6 +336,7 @@ def generate_maps(out: str | Path | None, *, metric: str | None = None, target: 
         else:
             raise ConfigError("scenario", "must be a path, a bundled scenario name or a dict", scenario)
         base.pop("name", None)
+    _check_fixed(base, fixed, dims)
     workers = _workers(workers)
     with stop_on_signals_cleanly(out):        # SIGTERM/SIGINT: workers ended, nothing written, BatchInterrupted
         if success is not None:
@@ -350,6 +352,34 @@ def generate_maps(out: str | Path | None, *, metric: str | None = None, target: 
                       "of this file is the i-th [[obstacles.maps]] entry; measured values as found when it was chosen)")
             write_scenario(out, result.document, header)
     return result
+
+
+def _check_fixed(base: dict, fixed, dims) -> None:
+    """ConfigError naming ``fixed.<key>`` if a held setup value cannot make a scenario on ``base`` (too many
+    obstacles, a radius that does not fit the arena, a number beyond pbdyn.limits), before any map is measured."""
+    import copy
+
+    from pbdyn.experiments.generate import BOX
+
+    if not isinstance(fixed, Mapping):
+        return                      # generate's own check names a fixed that is not a table
+    for key in [k for k in ("count", "radius", "speed") if k in fixed]:
+        values = {k: BOX[k][0] for k in BOX} | {key: fixed[key]}
+        doc = copy.deepcopy(base)
+        if dims == 3:
+            doc.setdefault("world", {})["dims"] = 3
+        obst = {k: v for k, v in doc.get("obstacles", {}).items()
+                if k not in ("count", "radius", "speed", "maps_per_setup", "structure", "maps")}
+        doc["obstacles"] = obst | values
+        try:
+            sc = parse_scenario(doc)
+        except ConfigError as exc:
+            if exc.field.startswith("obstacles."):
+                raise ConfigError(f"fixed.{key}", exc.problem, fixed[key]) from None
+            raise
+        if key == "speed" and fixed[key] * sc.world.dt > max(sc.world.size):
+            raise ConfigError("fixed.speed", f"would carry an obstacle across the whole arena ({max(sc.world.size):g} "
+                              f"m) in one step of {sc.world.dt:g} s", fixed[key])
 
 
 def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: int | None = None,
@@ -412,9 +442,9 @@ def compare_cards(cards, *, out: str | Path | None = None) -> list[dict]:
                               f"{first['name']} ({first['hash'][:12]}): cards of different suites are not comparable",
                               str(c))
     if out is not None:
-        folder = Path(_path(out, "out"))
-        if folder.exists() and not folder.is_dir():
-            raise ConfigError("out", "must be a folder", str(out))
+        from pbdyn.errors import check_writable_folder
+
+        folder = check_writable_folder("out", _path(out, "out"))
         folder.mkdir(parents=True, exist_ok=True)
         _write_atomic(folder / "compare.md", compare_markdown(docs))
         _write_atomic(folder / "compare.html", compare_html(docs))
@@ -427,6 +457,9 @@ def _workers(workers) -> int:
         return max(1, os.cpu_count() or 1)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError("workers", "must be an integer >= 1", workers)
+    from pbdyn.experiments.runner import BatchOptions, _checked_options
+
+    _checked_options(BatchOptions(workers=workers))       # at most MAX_WORKERS_PER_CPU x the CPU count
     return workers
 
 

@@ -17,7 +17,7 @@ import traceback
 import warnings
 from pathlib import Path
 
-from pbdyn import __version__
+from pbdyn import __version__, limits
 from pbdyn.errors import ConfigError, PbdynError, PbdynWarning, check_writable_file
 
 EXIT_USAGE = 2
@@ -46,19 +46,37 @@ def _parsed(text: str, convert, ok, what: str):
 
 
 def _nonneg_int(text: str) -> int:
-    return _parsed(text, int, lambda v: v >= 0, "a non-negative integer")
+    return _parsed(text, int, lambda v: 0 <= v <= limits.MAX_INDEX, f"an integer in [0, {limits.MAX_INDEX}]")
 
 
 def _positive_int(text: str) -> int:
-    return _parsed(text, int, lambda v: v >= 1, "an integer >= 1")
+    return _parsed(text, int, lambda v: 1 <= v <= limits.MAX_INDEX, f"an integer in [1, {limits.MAX_INDEX}]")
+
+
+def _count(text: str) -> int:
+    """A count of at most pbdyn.limits.MAX_FLAG_COUNT (0 is refused by the command, naming its flag)."""
+    return _parsed(text, int, lambda v: 0 <= v <= limits.MAX_FLAG_COUNT,
+                   f"an integer in [0, {limits.MAX_FLAG_COUNT:,}] (pbdyn.limits)")
+
+
+def _bootstrap(text: str) -> int:
+    return _parsed(text, int, lambda v: 0 <= v <= limits.MAX_BOOTSTRAP,
+                   f"an integer in [0, {limits.MAX_BOOTSTRAP:,}] (pbdyn.limits)")
+
+
+def _obstacle_count(text: str) -> int:
+    return _parsed(text, int, lambda v: 1 <= v <= limits.MAX_OBSTACLES,
+                   f"an integer in [1, {limits.MAX_OBSTACLES:,}] (pbdyn.limits)")
 
 
 def _positive_float(text: str) -> float:
-    return _parsed(text, float, lambda v: math.isfinite(v) and v > 0, "a positive number")
+    return _parsed(text, float, lambda v: math.isfinite(v) and 0 < v <= limits.MAX_MAGNITUDE,
+                   f"a positive number <= {limits.MAX_MAGNITUDE:g} (pbdyn.limits)")
 
 
 def _finite_float(text: str) -> float:
-    return _parsed(text, float, math.isfinite, "a finite number")
+    return _parsed(text, float, lambda v: math.isfinite(v) and abs(v) <= limits.MAX_MAGNITUDE,
+                   f"a finite number within +-{limits.MAX_MAGNITUDE:g} (pbdyn.limits)")
 
 
 def _json_object(text: str) -> dict:
@@ -128,7 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--dims", type=int, choices=(2, 3), default=2, help="2 (default) or 3")
     gen.add_argument("--scenario", help="base scenario: its world, MAV, sensor, task and planners (default: "
                      "pbdyn's defaults, 50 m arena)")
-    gen.add_argument("--obstacles", type=_positive_int, help="hold the obstacle count fixed")
+    gen.add_argument("--obstacles", type=_obstacle_count, help="hold the obstacle count fixed")
     gen.add_argument("--radius", type=_positive_float, help="hold the obstacle radius (m) fixed")
     gen.add_argument("--speed", type=_positive_float, help="hold the obstacle speed (m/s) fixed")
     gen.add_argument("--seed", type=_nonneg_int, default=0, help="the file's root_seed and the search's (default 0)")
@@ -170,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     bat.add_argument("--retry-errors", action="store_true", help="re-fly the stored trials whose outcome is error")
     bat.add_argument("--shard", help="run only shard I of N (I/N, 1 <= I <= N; maps split into N contiguous blocks), "
                      "e.g. one SLURM array task; join the shards' stores with `pbdyn merge`")
-    bat.add_argument("--lockstep", type=_nonneg_int, default=None,
+    bat.add_argument("--lockstep", type=_count, default=None,
                      help="trials of one map flown together per task (default 72; 1: one trial per task)")
     bat.add_argument("--json", action="store_true", help="print a JSON summary")
 
@@ -179,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--out", required=True, help="output .gif, .mp4 (H.264) or .png (the final state)")
     rep.add_argument("--fps", type=_positive_float, help="frames per second: 0.1 to 50 for .gif, to 120 for .mp4 "
                      "(default: real time, within those)")
-    rep.add_argument("--every", type=_nonneg_int, default=1, help="one frame every N steps (default 1)")
+    rep.add_argument("--every", type=_count, default=1, help="one frame every N steps (default 1)")
     rep.add_argument("--json", action="store_true", help="print a JSON summary")
 
     mrg = sub.add_parser("merge", help="join results stores of one experiment (e.g. `pbdyn batch --shard` shards)")
@@ -191,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("results", nargs="+", help="results store(s); the first is the reference (controlled) set")
     ev.add_argument("--plots", help="write the figures into this folder (.png at 200 dpi, .pdf, .svg)")
     ev.add_argument("--html", help="write one self-contained HTML report (tables, figures inlined, scenario)")
-    ev.add_argument("--bootstrap", type=_nonneg_int, default=1000,
+    ev.add_argument("--bootstrap", type=_bootstrap, default=1000,
                     help="bootstrap draws for the SRCC CIs and the paired success differences (1000)")
     ev.add_argument("--json", action="store_true", help="print the whole report as one JSON document")
     ev.add_argument("--pool", action="store_true",
@@ -205,8 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="fly every planner pair over a few maps and start/goal pairs; print a table")
     demo.add_argument("scenario")
-    demo.add_argument("--maps", type=_nonneg_int, default=4, help="number of maps (default 4)")
-    demo.add_argument("--pairs", type=_nonneg_int, default=3, help="start/goal pairs per map (default 3)")
+    demo.add_argument("--maps", type=_count, default=4, help="number of maps (default 4)")
+    demo.add_argument("--pairs", type=_count, default=3, help="start/goal pairs per map (default 3)")
     demo.add_argument("--json", action="store_true")
     return parser
 
@@ -221,6 +239,13 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed",
          "store": "--store", "maps": "--map", "success": "--success", "suite": "--suite", "card": "CARD"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
+
+
+def _command_line(command: str) -> str:
+    """The command as typed, for a store's or card's record; bytes that are not UTF-8 (an argument holding b"\\xff")
+    are written as escapes, so that the record can be stored."""
+    text = " ".join(["pbdyn", command, *sys.argv[2:]])
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -338,7 +363,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     s = api.run_batch(args.scenario, args.out, workers=args.workers, scheduler=args.scheduler, limit=args.limit,
                       extend=args.extend, metrics=not args.no_metrics, rerun_changed=args.rerun_changed,
                       retry_errors=args.retry_errors, shard=args.shard, lockstep=args.lockstep,
-                      command=" ".join(["pbdyn", "batch", *sys.argv[2:]]))
+                      command=_command_line("batch"))
     doc = {"results": str(args.out), "trials": s.total, "already_stored": s.skipped, "ran": s.ran, "rerun": s.rerun,
            "errors": s.errors, "stored_errors": s.stored_errors, "maps_computed": s.maps_computed,
            "wall_time_s": s.wall_time_s}
@@ -409,18 +434,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise ConfigError("--out", "is required: the folder of the flights and the card", None, show_value=False)
     card = api.bench(args.planner, gaze=args.gaze, params=args.params, suite=args.suite or DEFAULT_SUITE,
                      out=args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.json,
-                     reproduce=args.reproduce, command=" ".join(["pbdyn", "bench", *sys.argv[2:]]))
+                     reproduce=args.reproduce, command=_command_line("bench"))
+    rp = card.get("reproduction")
     if args.json:
         sys.stdout.write(json.dumps(card, sort_keys=True) + "\n")
     else:
         sys.stdout.write(card["summary"] + "\n" + f"card: {Path(args.out) / 'card.json'} (.md, .html)\n")
-        rp = card.get("reproduction")
         if rp is not None:
             sys.stdout.write(f"reproduction of the shipped reference of {rp['reference']}: " +
                              (f"bit for bit on all {rp['tasks']} tasks\n" if rp["identical"] else
                               f"{rp['n_differences']} difference(s), e.g. " + "; ".join(rp["differences"][:3]) + "\n"))
-            return 0 if rp["identical"] else 1
-    return 0
+    return 1 if rp is not None and not rp["identical"] else 0
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -501,6 +525,20 @@ COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "dem
             "generate": cmd_generate, "calibrate": cmd_calibrate, "bench": cmd_bench}
 
 
+COMMAND_FLAGS = {"bench": {"planner": "PLANNER"}}
+"""Where a command names an option otherwise than FLAGS does (bench's planner is its positional PLANNER)."""
+
+
+def _flag(command: str, field: str) -> str | None:
+    """The option the user typed for the library's ``field`` (``params.<key>``: ``--params.<key>``), or None."""
+    own = COMMAND_FLAGS.get(command, {})
+    if field in own:
+        return own[field]
+    if field.startswith("params."):
+        return "--" + field
+    return FLAGS.get(field)
+
+
 def _warning_line(show):
     """A warnings.showwarning that prints a PbdynWarning as one line ``pbdyn: warning: ...`` on stderr (naming the
     flag where the library names a parameter) and passes any other warning to ``show``."""
@@ -554,7 +592,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         if debug:
             traceback.print_exc()
-        flag = FLAGS.get(exc.field)
+        flag = _flag(args.command, exc.field)
         sys.stderr.write(f"pbdyn: error: {exc.renamed(flag) if flag else exc}\n")
         return EXIT_USAGE
     except PbdynError as exc:

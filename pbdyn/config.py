@@ -1375,6 +1375,12 @@ def _check_wall_gaps(obstacles: ObstacleConfig, drone: DroneConfig) -> None:
                               "passable", st.wall_gap)
 
 
+
+def _utf8(text: str) -> str:
+    """``text`` with bytes that are not UTF-8 (os.fsdecode's surrogates, e.g. a file name holding b"\\xff") written
+    as escapes ("\\xff"), so that a name taken from a file name can be stored, printed and drawn."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
 def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     """Validate a parsed TOML document into a Scenario."""
     if not isinstance(doc, Mapping):
@@ -1382,7 +1388,7 @@ def parse_scenario(doc: Mapping, source: str = "") -> Scenario:
     _check_nesting(doc)
     _no_unknown(doc, ("name", "world", "obstacles", "static_obstacles", "drone", "sensor", "tracking", "task",
                       "planners", "collision_check", "bodies", "profile"), "")
-    name = _string(doc, "name", "", Path(source).stem if source else Scenario.DEFAULT_NAME)
+    name = _string(doc, "name", "", _utf8(Path(source).stem) if source else Scenario.DEFAULT_NAME)
     profile = _string(doc, "profile", "", _defaults(Scenario)["profile"], PROFILES)
     doc = with_profile_defaults(doc, profile)
     world = _parse_world(doc)

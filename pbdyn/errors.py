@@ -232,8 +232,14 @@ PATH_MAX = 4096
 
 def check_path_length(field: str, path) -> None:
     """ConfigError naming ``field`` if a component of ``path`` is longer than NAME_MAX bytes or the absolute path
-    longer than PATH_MAX bytes."""
+    longer than PATH_MAX bytes, or if it is not UTF-8 text (bytes such as b"\\xff", decoded by os.fsdecode into
+    surrogates, which no store, card or JSON summary can hold)."""
     p = Path(path)
+    try:
+        str(p).encode("utf-8")
+    except UnicodeEncodeError:
+        raise ConfigError(field, "is not valid UTF-8 text (a byte such as 0xff in the name); give a UTF-8 name",
+                          str(path)) from None
     for part in p.parts:
         if len(os.fsencode(part)) > NAME_MAX:
             raise ConfigError(field, f"has a name longer than {NAME_MAX} bytes ({len(os.fsencode(part))} bytes: "

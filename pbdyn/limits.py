@@ -27,6 +27,11 @@ and the limit. The limits are generous: every bundled scenario and dataset uses 
 - MAX_START_WAIT_S = 1 000 s: task.start_window_s and task.start_wait_max_s.
 - MAX_METRIC_SAMPLES = 10 000 000: points or cells of a metric's sample grid over the arena (checked when the metric
   runs: its spacing / cell is a metric parameter, named in the error).
+- Command-line numbers (pbdyn/cli.py; an error names the flag): MAX_FLAG_COUNT = 1 000 000 for --lockstep,
+  --every and demo's --maps and --pairs; MAX_BOOTSTRAP = 100 000 for evaluate --bootstrap; MAX_INDEX = 2**63 - 1
+  for --map, --limit and --seed (the largest integer a results store or a TOML file holds); MAX_MAGNITUDE for
+  generate's --target, --tolerance, --radius and --speed; MAX_OBSTACLES for generate's --obstacles; --workers at
+  most pbdyn.experiments.runner.MAX_WORKERS_PER_CPU (4) x the CPU count.
 
 The number of trials a batch would fly (setups x maps_per_setup x ordered start/goal pairs x v_max values x
 planner entries) is not limited: a batch is resumable and may be sharded; ``Scenario.n_trials()`` reports it.
@@ -55,6 +60,9 @@ MAX_PLAN_DISTANCE_M = 10_000.0
 MAX_NESTING = 32
 MAX_METRIC_SAMPLES = 10_000_000
 MAX_START_WAIT_S = 1_000.0
+MAX_FLAG_COUNT = 1_000_000
+MAX_BOOTSTRAP = 100_000
+MAX_INDEX = 2 ** 63 - 1
 
 METRICS_HORIZON_S = 44.0
 """Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s). A map's rollout

@@ -6,7 +6,7 @@ or loading a file, so a URDF that would crash PyBullet, give NaN distances or a 
 rollout, a metric or a trial. Errors are ConfigError naming the scenario field, the file and the URDF element.
 
 What it checks (URDF elements as PyBullet reads them; sizes after the scenario's per-axis scale):
-- the file exists and is XML whose root is <robot> with at least one <link>, exactly one root link, and joints
+- the file exists and is XML, nested at most MAX_NESTING (pbdyn.limits) elements deep, whose root is <robot> with at least one <link>, exactly one root link, and joints
   whose <parent>/<child> name links of the file;
 - every <origin> has xyz and rpy of 3 finite numbers; every <mass value> is a finite number >= 0 and every
   <inertia> attribute a finite number;
@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Sequence
 
 from pbdyn.errors import ConfigError
+from pbdyn.limits import MAX_NESTING
 
 SHAPES = ("box", "sphere", "cylinder", "mesh")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".gltf", ".glb")
@@ -44,6 +45,17 @@ def _numbers(text: str | None, n: tuple[int, ...]) -> list[float] | None:
     return vals
 
 
+def _depth(root: ET.Element) -> int:
+    """Levels of elements below and including ``root`` (iterative: no recursion limit)."""
+    deepest, stack = 0, [(root, 1)]
+    while stack:
+        el, d = stack.pop()
+        deepest = max(deepest, d)
+        if d <= MAX_NESTING:
+            stack.extend((child, d + 1) for child in el)
+    return deepest
+
+
 def check_urdf(path: str | Path, field: str, scale: Sequence[float] = (1.0, 1.0, 1.0)) -> ET.Element:
     """The parsed root of the URDF at ``path`` after the checks of the module docstring, with the model scaled by
     ``scale`` (sx, sy, sz); ConfigError naming ``field`` otherwise."""
@@ -57,6 +69,10 @@ def check_urdf(path: str | Path, field: str, scale: Sequence[float] = (1.0, 1.0,
         raise ConfigError(field, f"cannot read the URDF ({' '.join(str(exc).split())})", str(path)) from None
     except RecursionError:
         raise ConfigError(field, "cannot read the URDF (nested too deeply)", str(path)) from None
+    depth = _depth(root)
+    if depth > MAX_NESTING:
+        raise ConfigError(field, f"{name}: XML nested {depth} levels deep, more than the limit of {MAX_NESTING} "
+                          "(pbdyn.limits)", str(path))
     s = [float(v) for v in scale]
     if len(s) != 3 or not all(math.isfinite(v) and v > 0 for v in s):
         raise ConfigError(field, "the scale must be 3 finite numbers > 0", list(scale))

@@ -167,6 +167,8 @@ def _check_arrays(tr: dict, shown: str) -> None:
     for name, shape in (("label", ()), ("final_p", (d,)), ("final_yaw", ())):
         if name in tr:
             arr(name, shape, kinds="US" if name == "label" else "fiu")
+    if "label" in tr and len(str(tr["label"])) > MAX_LABEL_CHARS:
+        raise bad("label", f"is longer than {MAX_LABEL_CHARS} characters ({len(str(tr['label']))})")
     if "static_kind" in tr:
         b = tr["static_kind"].shape[0] if tr["static_kind"].ndim == 1 else -1
         arr("static_kind", (b,), kinds="US")
@@ -178,6 +180,10 @@ def _check_arrays(tr: dict, shown: str) -> None:
     for name in ("static_outline", "static_outline_side"):
         if name in tr:
             arr(name, (None, None, 2), values="nan")
+
+
+MAX_LABEL_CHARS = 1000
+"""Longest trace label drawn (pbdyn run --trace writes at most pbdyn.sim.observers.MAX_LABEL_CHARS)."""
 
 
 def check_output(out: str | Path, field: str = "out") -> str:

@@ -15,6 +15,19 @@ from pbdyn.benchmark.card import OUTCOMES
 NA = "n/a"
 
 
+_MD_SPECIAL = "\\`*_{}[]<>()#+-!|~&"
+"""Characters a Markdown renderer may read as markup (CommonMark's punctuation that matters inline, the table
+pipe, HTML's < > &), each escaped with a backslash by md_escape."""
+
+
+def md_escape(text: object) -> str:
+    """``text`` as literal Markdown: one line (control characters escaped), every markup character backslash-escaped
+    (a pipe cannot end a table cell, a "<" cannot open HTML)."""
+    from pbdyn.errors import one_line_text
+
+    return "".join("\\" + c if c in _MD_SPECIAL else c for c in one_line_text(str(text)))
+
+
 def _f(x, fmt: str = ".2f") -> str:
     return NA if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
 
@@ -49,12 +62,12 @@ def curve_svg(cards: list[dict], *, references: bool = True) -> str:
                 rate = [math.nan if lv["rate"] is None else lv["rate"] for lv in card["levels"]]
                 lo = [math.nan if lv["ci95"][0] is None else lv["ci95"][0] for lv in card["levels"]]
                 hi = [math.nan if lv["ci95"][1] is None else lv["ci95"][1] for lv in card["levels"]]
-                line, = ax.plot(levels, rate, marker="o", lw=2.2, label=card["planner"]["label"], zorder=3)
+                line, = ax.plot(levels, rate, marker="o", lw=2.2, label=_plain(card["planner"]["label"]), zorder=3)
                 ax.fill_between(levels, lo, hi, color=line.get_color(), alpha=0.18, lw=0)
             if references and cards:
                 for label, levels, rate, own in _curves(cards[0])[1:]:
                     ax.plot(levels, [math.nan if r is None else r for r in rate], ls="--", lw=1.2, marker=".",
-                            label=f"{label} (reference)", zorder=2)
+                            label=_plain(f"{label} (reference)"), zorder=2)
             ax.set_xlabel("difficulty level (1 = easiest; anchored scale)")
             ax.set_ylabel("success rate")
             ax.set_ylim(-0.02, 1.02)
@@ -69,6 +82,11 @@ def curve_svg(cards: list[dict], *, references: bool = True) -> str:
             plt.close(fig)
     text = buf.getvalue()
     return text[text.index("<svg"):]
+
+
+def _plain(label: str) -> str:
+    """A legend label matplotlib draws as it is: "$" never starts math text, "_" never hides a label."""
+    return "\u200b" + label.replace("$", r"\$") if label.startswith("_") else label.replace("$", r"\$")
 
 
 def _figures_rows(card: dict) -> list[tuple[str, str]]:
@@ -148,15 +166,16 @@ def _header_facts(card: dict) -> list[tuple[str, str]]:
 
 def _md_table(head: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    lines += ["| " + " | ".join(md_escape(c) for c in r) + " |" for r in rows]
     return "\n".join(lines)
 
 
 def card_markdown(card: dict) -> str:
     """The card as Markdown."""
-    parts = [f"# Score card: {card['planner']['label']} on {card['suite']['name']}", "",
-             f"> {card['summary']}", ""]
-    parts += [f"- **{k}**: {v}" for k, v in _header_facts(card)]
+    e = md_escape
+    parts = [f"# Score card: {e(card['planner']['label'])} on {e(card['suite']['name'])}", "",
+             f"> {e(card['summary'])}", ""]
+    parts += [f"- **{k}**: {e(v)}" for k, v in _header_facts(card)]
     if "reproduction" in card:
         rp = card["reproduction"]
         parts.append(f"- **reproduction of the shipped reference**: "
@@ -168,7 +187,7 @@ def card_markdown(card: dict) -> str:
               _md_table(PAIRED_HEAD, _paired_rows(card)) if _paired_rows(card) else "No reference results.", "",
               "## Reference planners", "",
               _md_table(REFERENCE_HEAD, _reference_rows(card)) if card.get("references") else "None shipped.", "",
-              f"Schema {card['schema']}; the figure and every number are in card.json.", ""]
+              f"Schema {e(card['schema'])}; the figure and every number are in card.json.", ""]
     return "\n".join(parts)
 
 
@@ -241,7 +260,9 @@ def compare_rows(cards: list[dict]) -> list[list[str]]:
 
 def compare_text(cards: list[dict]) -> str:
     """The comparison as a plain-text table (columns padded)."""
-    rows = [COMPARE_HEAD] + compare_rows(cards)
+    from pbdyn.errors import one_line_text
+
+    rows = [COMPARE_HEAD] + [[one_line_text(c) for c in r] for r in compare_rows(cards)]
     widths = [max(len(r[i]) for r in rows) for i in range(len(COMPARE_HEAD))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows) + "\n"
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from pbdyn.benchmark.card import DETERMINISTIC_FIELDS, TASK_FIELDS, make_card, task_key, task_row
 from pbdyn.benchmark.suite import Suite, flight_scenario, load_suite, read_versioned_json
 from pbdyn.config import PlannerEntry
-from pbdyn.errors import ConfigError
+from pbdyn.errors import ConfigError, check_writable_folder
 
 REFERENCE_FILE = "reference.json.gz"
 REFERENCE_FORMAT = "pbdyn-reference/1"
@@ -37,7 +37,7 @@ MARKER = "bench.json"
 def planner_entry(planner: str, gaze: str | None = None, params: Mapping | None = None) -> PlannerEntry:
     """The (trajectory, gaze) pair benched: ``gaze`` or the planner's THESIS_GAZE (LookAhead for a plug-in);
     ``params``: the trajectory planner's parameters (a table with string keys; default none)."""
-    from pbdyn.planning.registry import pair_fingerprint
+    from pbdyn.planning.registry import pair_fingerprint, resolve_gaze_planner, resolve_trajectory_planner
 
     if not isinstance(planner, str) or not planner:
         raise ConfigError("planner", "must be a registry name or 'package.module:Class'", planner)
@@ -46,6 +46,8 @@ def planner_entry(planner: str, gaze: str | None = None, params: Mapping | None 
     if params is not None and (not isinstance(params, Mapping) or not all(isinstance(k, str) for k in params)):
         raise ConfigError("params", "must be a table of the trajectory planner's parameters (string keys)", params)
     entry = PlannerEntry(planner, gaze or THESIS_GAZE.get(planner, "lookahead"), dict(params or {}))
+    resolve_trajectory_planner(entry.trajectory, "planner")   # each name's error names its own option
+    resolve_gaze_planner(entry.gaze, "gaze")
     pair_fingerprint(entry.trajectory, entry.gaze)         # unknown names fail here, before anything is written
     return entry
 
@@ -211,6 +213,7 @@ def bench(planner: str, *, gaze: str | None = None, params=None, suite=DEFAULT_S
     from pbdyn.benchmark.render import card_html, card_markdown
     from pbdyn.planning.registry import pair_fingerprint
 
+    given_scheduler = scheduler
     s = suite if isinstance(suite, Suite) else load_suite(suite)
     if any(m.get("difficulty") is None or m.get("level") is None for m in s.maps):
         raise ConfigError("suite", "is a draft: its maps have no measured difficulty yet (tools/make_suites.py "
@@ -221,9 +224,14 @@ def bench(planner: str, *, gaze: str | None = None, params=None, suite=DEFAULT_S
         raise ConfigError("planner", f"has no shipped reference results on {s.name} to reproduce (references: "
                           + (", ".join(sorted(refs)) or "none") + ")", entry.label)
     _check_entry(s, entry)
-    out = Path(out)
-    _check_marker(out, s, entry)
-    rows = fly(s, entry, out, workers=workers, scheduler=scheduler, progress=progress, command=command)
+    out = check_writable_folder("out", out)
+    workers, scheduler = _checked_executor(workers, scheduler)
+    try:
+        _check_marker(out, s, entry)
+        rows = fly(s, entry, out, workers=workers, scheduler=scheduler, progress=progress, command=command)
+    finally:
+        if scheduler is not None and not isinstance(scheduler, str) and scheduler is not given_scheduler:
+            scheduler.close()
     info = {"label": entry.label, "trajectory": entry.trajectory, "gaze": entry.gaze,
             "fingerprint": pair_fingerprint(entry.trajectory, entry.gaze)}
     if entry.trajectory_params:
@@ -243,14 +251,44 @@ def bench(planner: str, *, gaze: str | None = None, params=None, suite=DEFAULT_S
     return card
 
 
+def _checked_executor(workers, scheduler):
+    """(workers, scheduler) checked as a batch checks them, before the bench folder is made: a scheduler address is
+    reached now (its Client is returned; the caller closes it); ConfigError naming the option otherwise."""
+    from pbdyn.experiments.cluster import connect
+    from pbdyn.experiments.runner import BatchOptions, _checked_options
+
+    if scheduler is None:
+        _checked_options(BatchOptions(workers=workers))
+    elif isinstance(scheduler, str):
+        scheduler = connect(scheduler)
+    return workers, scheduler
+
+
 def read_card(path) -> dict:
     """A card.json (or a bench folder holding one); ConfigError naming the file if it is not a score card."""
     from pbdyn.benchmark.card import CARD_SCHEMA
+    from pbdyn.benchmark.schema import card_errors
 
     p = Path(path)
     if p.is_dir():
         p = p / "card.json"
-    return read_versioned_json(p, "card", "schema", CARD_SCHEMA, "score card", shown=str(path))
+    if p.exists() and not p.is_file():
+        raise ConfigError("card", "is not a file", str(path))
+    if p.is_file() and p.stat().st_size > MAX_CARD_BYTES:
+        raise ConfigError("card", f"is larger than a score card can be ({MAX_CARD_BYTES >> 20} MiB)", str(path))
+    try:
+        doc = read_versioned_json(p, "card", "schema", CARD_SCHEMA, "score card", shown=str(path))
+    except RecursionError:
+        raise ConfigError("card", "cannot be read (nested too deeply)", str(path)) from None
+    problems = card_errors(doc)
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise ConfigError("card", f"is not a valid {CARD_SCHEMA} score card: {problems[0]}{more}", str(path))
+    return doc
+
+
+MAX_CARD_BYTES = 64 << 20
+"""Largest card.json read (a card of the largest suite is well under 1 MiB)."""
 
 
 def _write_atomic(path: Path, text: str) -> None:

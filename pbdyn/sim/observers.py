@@ -125,9 +125,8 @@ class TraceObserver:
                  "goal_radius": np.array(env.goal_radius), "mav_radius": np.array(sc.drone.radius),
                  "fov_deg": np.array(env.fov_deg), "range_m": np.array(sc.sensor.range),
                  "vfov_deg": np.array(sc.sensor.vfov_deg if d == 3 else np.nan),
-                 "reason": np.array(env.reason), "label": np.array(f"{sc.name} map {env.spec.map_spec.index}, "
-                                                                   f"{env.spec.planner.label}, v_max "
-                                                                   f"{env.spec.v_max:g} m/s"),
+                 "reason": np.array(env.reason), "label": np.array(trace_label(
+                     f"{sc.name} map {env.spec.map_spec.index}, {env.spec.planner.label}, v_max {env.spec.v_max:g} m/s")),
                  "static_kind": np.array([b.kind for b in static], dtype=str),
                  "static_center": np.array([np.asarray(b.center, float)[:d] for b in static]).reshape(len(static), d),
                  "static_radius": np.array([b.radius for b in static], dtype=float),
@@ -136,6 +135,15 @@ class TraceObserver:
                  "static_yaw": np.array([b.yaw for b in static], dtype=float),
                  **still_body_outlines(env.rollout.bodies, d, sc.world.flight_height)}
         save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome, extra)
+
+
+MAX_LABEL_CHARS = 300
+"""Longest label a trace stores (the replay's title); a longer one is cut, its end marked "..."."""
+
+
+def trace_label(text: str) -> str:
+    """``text`` as a trace's label: at most MAX_LABEL_CHARS characters ("..." marks a cut)."""
+    return text if len(text) <= MAX_LABEL_CHARS else text[:MAX_LABEL_CHARS - 3] + "..."
 
 
 def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | None = None) -> None:

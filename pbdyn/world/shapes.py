@@ -159,6 +159,7 @@ class _MeshScene:
     def __init__(self, path: str, scale: tuple[float, float, float]):
         import open3d as o3d  # lazy: only worlds with <mesh> geometry need it
 
+        o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # its warnings off the terminal
         with stdout_fd_to(2):   # open3d prints its read warnings on stdout
             mesh = o3d.io.read_triangle_mesh(path)
         if len(mesh.triangles) == 0:
