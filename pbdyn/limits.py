@@ -27,6 +27,9 @@ and the limit. The limits are generous: every bundled scenario and dataset uses 
 - MAX_START_WAIT_S = 1 000 s: task.start_window_s and task.start_wait_max_s.
 - MAX_METRIC_SAMPLES = 10 000 000: points or cells of a metric's sample grid over the arena (checked when the metric
   runs: its spacing / cell is a metric parameter, named in the error).
+- Gymnasium observations (pbdyn.gym, checked when an environment or policy planner is built, naming the argument):
+  MAX_GYM_TRACKS = 1 000 tracks (K), MAX_GYM_RAYS = 10 000 depth bins (B), MAX_GYM_PATCH_CELLS = 1 048 576 cells
+  of the occupancy patch (P^d: P <= 1023 in 2D, P <= 101 in 3D).
 - Command-line numbers (pbdyn/cli.py; an error names the flag): MAX_FLAG_COUNT = 1 000 000 for --lockstep,
   --every and demo's --maps and --pairs; MAX_BOOTSTRAP = 100 000 for evaluate --bootstrap; MAX_INDEX = 2**63 - 1
   for --map, --limit and --seed (the largest integer a results store or a TOML file holds); MAX_MAGNITUDE for
@@ -60,6 +63,13 @@ MAX_PLAN_DISTANCE_M = 10_000.0
 MAX_NESTING = 32
 MAX_METRIC_SAMPLES = 10_000_000
 MAX_START_WAIT_S = 1_000.0
+MAX_GYM_TRACKS = 1_000
+"""Tracks (K) a Gymnasium observation may hold: K x (2d + 3) <= 9 000 entries."""
+MAX_GYM_RAYS = 10_000
+"""Depth bins (B) a Gymnasium observation may hold."""
+MAX_GYM_PATCH_CELLS = 2 ** 20
+"""Cells (P^d) of a Gymnasium observation's occupancy patch: 4 MiB of float32; P <= 1023 in 2D, P <= 101 in 3D."""
+
 MAX_FLAG_COUNT = 1_000_000
 MAX_BOOTSTRAP = 100_000
 MAX_INDEX = 2 ** 63 - 1

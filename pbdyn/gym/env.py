@@ -25,7 +25,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from pbdyn.gym.episodes import Episode, EpisodeSource
+from pbdyn.gym.episodes import WORLDS_KEPT, Episode, EpisodeSource
 from pbdyn.gym.observation import check_observed, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
@@ -50,11 +50,11 @@ class _CoreEnv(gymnasium.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
-                 patch: int = 0, reward=None):
+                 patch: int = 0, reward=None, keep_worlds: int = WORLDS_KEPT):
         super().__init__()
-        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch)
-        self.episodes = EpisodeSource(scenario, dims)
+        self.episodes = EpisodeSource(scenario, dims, keep_worlds)
         self.dims = self.episodes.dims
+        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch, self.dims)
         self.reward_config = RewardConfig.of(reward)
         n = observation_size(self.dims, tracks, rays, self.patch)
         self.observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
@@ -64,11 +64,10 @@ class _CoreEnv(gymnasium.Env):
     # ------------------------------------------------------------------------------------------------ gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode: a map and task drawn by the environment's Generator (seeded by ``seed``), or chosen by
-        ``options`` ("scenario", "map", "level", "difficulty"; pbdyn.gym.episodes). Returns (observation, info)."""
+        ``options`` (a dict of pbdyn.gym.episodes.OPTIONS or None; a bad one is a ConfigError naming it). Returns
+        (observation, info)."""
         super().reset(seed=seed)
-        if options is not None and not isinstance(options, dict):
-            raise ValueError(f"options must be a dict or None (got {options!r})")
-        episode = self.episodes.choose(self.np_random, dict(options or {}))
+        episode = self.episodes.choose(self.np_random, options)
         spec = episode.spec
         rollout = self.episodes.rollout(spec)
         world = self.episodes.world_for(spec, rollout)
@@ -98,9 +97,10 @@ class _CoreEnv(gymnasium.Env):
         return observe(st, self.tracks, self.rays, self.patch), reward, terminated, truncated, self._info(st, terms)
 
     def close(self) -> None:
-        """Release the PyBullet world."""
-        self.episodes.close()
+        """Release what the environment keeps: its trial, every PyBullet world (their clients disconnected) and
+        rollout (EpisodeSource.close). A later reset builds them again."""
         self.batch = None
+        self.episodes.close()
 
     # ------------------------------------------------------------------------------------------------ parts
     def _checked(self, action) -> np.ndarray:
@@ -116,6 +116,7 @@ class _CoreEnv(gymnasium.Env):
                 "reason": st.reason if st.outcome is not None else "",
                 "scenario": spec.scenario.name, "map_index": ep.map_index, "map_id": spec.map_spec.map_id,
                 "map_key": spec.map_spec.key, "difficulty": ep.difficulty, "level": ep.level,
+                "difficulty_clamped": ep.difficulty_clamped,
                 "start": tuple(spec.start), "goal": tuple(spec.goal), "v_max": float(spec.v_max), "t": st.t,
                 "speed": math.sqrt(float(st.velocity @ st.velocity)),
                 "acceleration": math.sqrt(float(st.acceleration @ st.acceleration))}
@@ -130,11 +131,13 @@ class AvoidEnv(_CoreEnv):
     scenario: a bundled scenario name, a file or a Scenario (default "quickstart"; its maps, tasks and MAV speeds
     are the episodes' unless a reset asks for the ladder); dims: 2 or 3 (checked against the scenario); tracks: K,
     the nearest tracks observed; rays: B, depth bins observed (0: none); patch: P, the cells per side of the
-    occupancy patch observed (0: none; odd); reward: a RewardConfig or dict of weights."""
+    occupancy patch observed (0: none; odd); reward: a RewardConfig or dict of weights; keep_worlds: the PyBullet
+    worlds kept for the last maps flown (about 29 MiB each; docs/gym.md "Memory")."""
 
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
-                 patch: int = 0, reward=None):
-        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward)
+                 patch: int = 0, reward=None, keep_worlds: int = WORLDS_KEPT):
+        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward,
+                         keep_worlds=keep_worlds)
         self.action_space = spaces.Box(-1.0, 1.0, (self.dims + 1,), np.float32)
 
     def _start(self, episode: Episode, rollout, world) -> None:
@@ -171,8 +174,9 @@ class GazeEnv(_CoreEnv):
     trajectory planner's registry name (default "local_primitives"); other arguments as AvoidEnv."""
 
     def __init__(self, scenario="quickstart", *, dims: int | None = None, tracks: int = 8, rays: int = 0,
-                 patch: int = 0, reward=None, planner: str = "local_primitives"):
-        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward)
+                 patch: int = 0, reward=None, planner: str = "local_primitives", keep_worlds: int = WORLDS_KEPT):
+        super().__init__(scenario, dims=dims, tracks=tracks, rays=rays, patch=patch, reward=reward,
+                         keep_worlds=keep_worlds)
         self.planner = planner
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         self.agent: Agent | None = None

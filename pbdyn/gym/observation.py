@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from pbdyn.errors import ConfigError
+from pbdyn.limits import MAX_GYM_PATCH_CELLS, MAX_GYM_RAYS, MAX_GYM_TRACKS
 from pbdyn.perception.grid import OCCUPIED, UNKNOWN
 
 
@@ -33,21 +35,26 @@ PATCH_VALUES = {"occupied": 1.0, "unknown": 0.5, "free": 0.0}
 """What a cell of the occupancy patch reads (a cell outside the grid reads as occupied)."""
 
 
-def check_patch(patch) -> int:
-    """``patch`` (P, the occupancy patch's cells per side) checked: 0 (none) or an odd integer >= 1 (ValueError)."""
+def check_patch(patch, dims: int = 2) -> int:
+    """``patch`` (P, the occupancy patch's cells per side) checked: 0 (none) or an odd integer >= 1 with P^dims <=
+    MAX_GYM_PATCH_CELLS (ConfigError naming ``patch``)."""
     if isinstance(patch, bool) or not isinstance(patch, (int, np.integer)) or patch < 0 \
-            or (patch and patch % 2 == 0):
-        raise ValueError(f"patch must be 0 or an odd integer >= 1 (cells per side; got {patch!r})")
+            or (patch and patch % 2 == 0) or int(patch) ** dims > MAX_GYM_PATCH_CELLS:
+        side = math.floor(MAX_GYM_PATCH_CELLS ** (1.0 / dims) + 1e-9)
+        side -= 1 - side % 2
+        raise ConfigError("patch", f"must be 0 or an odd integer >= 1 and <= {side} in {dims}D (cells per side; "
+                          f"P^d <= pbdyn.limits.MAX_GYM_PATCH_CELLS = {MAX_GYM_PATCH_CELLS})", patch)
     return int(patch)
 
 
-def check_observed(tracks, rays, patch) -> tuple[int, int, int]:
-    """(K, B, P) of an environment's observation checked: tracks and rays integers >= 0, patch as check_patch
-    (ValueError naming the argument otherwise)."""
-    for name, value in (("tracks", tracks), ("rays", rays)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ValueError(f"{name} must be an integer >= 0 (got {value!r})")
-    return tracks, rays, check_patch(patch)
+def check_observed(tracks, rays, patch, dims: int = 2) -> tuple[int, int, int]:
+    """(K, B, P) of a ``dims``-D environment's observation checked: tracks integers 0..MAX_GYM_TRACKS, rays
+    0..MAX_GYM_RAYS, patch as check_patch (ConfigError naming the argument and its value otherwise)."""
+    for name, value, limit in (("tracks", tracks, MAX_GYM_TRACKS), ("rays", rays, MAX_GYM_RAYS)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= limit:
+            raise ConfigError(name, f"must be an integer >= 0 and <= {limit} (pbdyn.limits.MAX_GYM_{name.upper()})",
+                              value)
+    return tracks, rays, check_patch(patch, dims)
 
 
 def observation_size(dims: int, tracks: int, rays: int, patch: int = 0) -> int:

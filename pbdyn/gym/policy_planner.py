@@ -14,13 +14,14 @@ is two samples, the view's state and that next state, and always keeps the plan 
 flies the same trial through them as in AvoidEnv with the same map, task and speed (tests/test_gym_policy.py).
 
 For ``pbdyn bench`` the policy is named as "package.module:factory" in the trajectory planner's parameters (the
-factory, called with ``policy_args``, returns the callable); from Python, policy_pair() builds both planners of one
-callable for pbdyn.run_trial.
+factory, defined in a module of your own, not the standard library's nor pbdyn's, is called with ``policy_args`` and
+returns the callable); from Python, policy_pair() builds both planners of one callable for pbdyn.run_trial.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 import threading
 from collections.abc import Callable, Mapping
 
@@ -28,7 +29,7 @@ import numpy as np
 
 from pbdyn.errors import ConfigError, import_object, one_line, user_location
 from pbdyn.gym.env import command
-from pbdyn.gym.observation import check_patch, observe_view
+from pbdyn.gym.observation import check_observed, observe_view
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.sim.guard import integrate
 
@@ -42,7 +43,8 @@ _LAST = threading.local()       # the last step a PolicyPlanner took in this thr
 def load_policy(policy, policy_args: Mapping | None = None) -> Policy:
     """The policy callable of ``policy``: a callable (returned as it is), or "package.module:factory", whose factory
     is called as ``factory(**policy_args)`` once per process for each (name, args) (the callable is then shared by
-    every trial the process flies, so it must hold no state between calls). ConfigError naming ``policy`` otherwise."""
+    every trial the process flies, so it must hold no state between calls). The factory must be a user module's
+    (own_factory). ConfigError naming ``policy`` otherwise."""
     args = dict(policy_args or {})
     if callable(policy):
         if args:
@@ -56,7 +58,9 @@ def load_policy(policy, policy_args: Mapping | None = None) -> Policy:
         raise ConfigError("policy_args", "must be a table of JSON values (the factory's keyword arguments)",
                           args) from None
     if key not in _LOADED:
+        own_factory(policy, policy.partition(":")[0])
         factory = import_object(policy, "policy")
+        own_factory(policy, getattr(factory, "__module__", None))
         try:
             made = factory(**args)
         except Exception as exc:
@@ -69,10 +73,17 @@ def load_policy(policy, policy_args: Mapping | None = None) -> Policy:
     return _LOADED[key]
 
 
-def _count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ConfigError(name, "must be an integer >= 0", value)
-    return value
+def own_factory(policy: str, module) -> None:
+    """ConfigError naming ``policy`` unless ``module`` (the named module, then the module the factory was defined
+    in) is a user module: not of Python's standard library (builtins, os, subprocess, ...) nor pbdyn's. The factory
+    is called with parameters that a bench's --params or a scenario file supply, so a name such as "os:system" or
+    "builtins:eval" must not reach a call; this is a guard against such names, not a sandbox (docs/gym.md)."""
+    top = module.partition(".")[0] if isinstance(module, str) else ""
+    if not top or top in sys.stdlib_module_names or top == "pbdyn":
+        where = "it is defined in no module" if not top else f"{top!r} is " + \
+            ("pbdyn's own package" if top == "pbdyn" else "in Python's standard library")
+        raise ConfigError("policy", f"must name a factory defined in a module of your own ({where}; pbdyn calls "
+                          "the factory with policy_args)", policy)
 
 
 class PolicyPlanner:
@@ -92,11 +103,7 @@ class PolicyPlanner:
                               show_value=False)
         self.context = context
         self.policy = load_policy(policy, policy_args)
-        self.tracks = _count(tracks, "tracks")
-        try:
-            self.patch = check_patch(patch)
-        except ValueError:
-            raise ConfigError("patch", "must be 0 or an odd integer >= 1 (cells per side)", patch) from None
+        self.tracks, _, self.patch = check_observed(tracks, 0, patch, getattr(context, "dims", 2))
         self._view = None
         self._action: np.ndarray | None = None
 
@@ -104,6 +111,8 @@ class PolicyPlanner:
         """The policy's action for ``view``, checked and clipped to [-1, 1] as AvoidEnv does (float64 [d + 1]); the
         policy is called once per view (the same View object reaches plan() and the gaze's yaw_rate())."""
         if view is not self._view:
+            if self.patch and view.dims == 3:
+                check_observed(self.tracks, 0, self.patch, 3)
             obs = observe_view(view, self.tracks, 0, self.patch)
             try:
                 raw = self.policy(obs)
@@ -187,4 +196,4 @@ def policy_pair(policy, *, tracks: int = 8, policy_args: Mapping | None = None,
     return planner, PolicyGaze(planner=planner)
 
 
-__all__ = ["Policy", "PolicyGaze", "PolicyPlanner", "load_policy", "policy_action", "policy_pair"]
+__all__ = ["Policy", "PolicyGaze", "PolicyPlanner", "load_policy", "own_factory", "policy_action", "policy_pair"]

@@ -14,7 +14,9 @@ options) while the old map's running episodes finish.
 Spaces, reward and outcomes are AvoidEnv's (GazeEnv's). Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after
 an episode ended resets that sub-environment: its action is ignored, it returns the new episode's first observation
 with reward 0). ``infos`` hold, for the sub-environments whose episode ended or began in the step, "outcome",
-"reason", "map_id", "level", "difficulty" and "t" (masked as Gymnasium does).
+"reason", "map_id", "level", "difficulty", "difficulty_clamped" and "t" (masked as Gymnasium does). A map's
+world and rollout are held while episodes run on it (the current epoch's, and an older one's until its last
+episode ends); close() disconnects every map's PyBullet client.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from pbdyn.gym.env import PolicyYaw, command, gaze_spec
-from pbdyn.gym.episodes import Episode, EpisodeSource
+from pbdyn.gym.episodes import Episode, EpisodeSource, check_options
 from pbdyn.gym.observation import check_observed, observation_size, observe
 from pbdyn.gym.reward import RewardConfig, step_reward
 from pbdyn.outcome import Outcome
@@ -60,9 +62,9 @@ class _VectorCore(VectorEnv):
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1 (got {num_envs!r})")
         self.num_envs = num_envs
-        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch)
         self.episodes = EpisodeSource(scenario, dims)
         self.dims = d = self.episodes.dims
+        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch, d)
         self.reward_config = RewardConfig.of(reward)
         n = observation_size(d, tracks, rays, self.patch)
         self.single_observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
@@ -79,10 +81,12 @@ class _VectorCore(VectorEnv):
 
     # ------------------------------------------------------------------------------------------------ gymnasium
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        """Start N episodes on a map drawn (or chosen by ``options``, as AvoidEnv.reset) for all of them."""
+        """Start N episodes on a map drawn (or chosen by ``options``, as AvoidEnv.reset) for all of them; bad
+        options are one ConfigError naming the option."""
+        options = check_options(options)
         super().reset(seed=seed, options=options)
         self._close_epochs()
-        self._options = dict(options or {})
+        self._options = options
         epoch = self._new_epoch()
         obs = np.zeros(self.observation_space.shape, np.float32)
         infos: dict = {}
@@ -154,8 +158,9 @@ class _VectorCore(VectorEnv):
         return obs, rewards, terminated, truncated, infos
 
     def close_extras(self, **kwargs) -> None:
-        """Release every map's PyBullet world."""
+        """Release every map's PyBullet world (their clients disconnected) and rollout."""
         self._close_epochs()
+        self.episodes.close()
 
     # ------------------------------------------------------------------------------------------------ the subclass's
     def _action_size(self, dims: int) -> int:
@@ -184,7 +189,8 @@ class _VectorCore(VectorEnv):
         ep = epoch.episode
         return {"outcome": "" if st.outcome is None else st.outcome.value, "reason": st.reason,
                 "map_id": ep.spec.map_spec.map_id, "level": -1 if ep.level is None else ep.level,
-                "difficulty": math.nan if ep.difficulty is None else ep.difficulty, "t": st.t}
+                "difficulty": math.nan if ep.difficulty is None else ep.difficulty,
+                "difficulty_clamped": ep.difficulty_clamped, "t": st.t}
 
     def _new_epoch(self) -> _Epoch:
         """A new map (drawn with the last reset's options), its rollout over epoch_s, world and empty batch."""

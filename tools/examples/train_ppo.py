@@ -8,7 +8,9 @@ Its dependencies are the optional extra ``rl`` (stable-baselines3, which brings 
     .venv/bin/python tools/examples/train_ppo.py [--minutes 5] [--envs 8] [--episodes 10] [--out results/ppo.zip]
 
 The policy observes the 8 nearest tracks and a 9 x 9 patch of the MAV's occupancy grid (``--tracks``, ``--patch``:
-without the patch a policy cannot see walls and shelves, which the tracks do not hold). PPO's rewards are normalised
+without the patch a policy cannot see walls and shelves, which the tracks do not hold). Each environment keeps the
+PyBullet worlds of its last ``--keep-worlds`` maps (default 4, every map of one ladder level; about 29 MiB each,
+docs/gym.md "Memory"), and each is closed at the end, which disconnects them. PPO's rewards are normalised
 (VecNormalize, observations untouched: they are already in [-1, 1]). The curriculum (pbdyn.gym.Curriculum, shared
 by the training environments) starts at the easiest level and moves one level up when the last ``--window`` episodes
 succeeded more often than the band's top, down below its bottom. After training, every level is flown
@@ -46,6 +48,8 @@ def main() -> int:
     ap.add_argument("--window", type=int, default=20, help="curriculum: episodes per decision")
     ap.add_argument("--tracks", type=int, default=8, help="K, the nearest tracks observed")
     ap.add_argument("--patch", type=int, default=9, help="P, cells per side of the occupancy patch observed (odd)")
+    ap.add_argument("--keep-worlds", type=int, default=4,
+                    help="PyBullet worlds each environment keeps (about 29 MiB each)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="results/ppo-avoid2d.zip", help="where the trained model is saved")
     args = ap.parse_args()
@@ -60,7 +64,7 @@ def main() -> int:
     from pbdyn.gym import AvoidEnv, Curriculum, CurriculumEnv
 
     def make_env():
-        return AvoidEnv(tracks=args.tracks, patch=args.patch)
+        return AvoidEnv(tracks=args.tracks, patch=args.patch, keep_worlds=args.keep_worlds)
 
     probe = make_env()
     levels = probe.episodes.levels()
