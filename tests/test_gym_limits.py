@@ -15,7 +15,7 @@ from gymnasium.utils.env_checker import check_env
 
 import pbdyn.gym.episodes as episodes
 from pbdyn.errors import ConfigError
-from pbdyn.gym import AvoidEnv, AvoidVectorEnv, PolicyPlanner
+from pbdyn.gym import AvoidEnv, AvoidVectorEnv, CurriculumEnv, PolicyPlanner
 from tests.conftest import ROOT
 
 MAX_CLIENTS = 1024
@@ -93,7 +93,8 @@ def test_a_difficulty_outside_the_ladder_is_clamped_and_info_says_so():
         venv.close()
 
 
-@pytest.mark.parametrize("make", [AvoidEnv, lambda: AvoidVectorEnv(2)], ids=["single", "vector"])
+@pytest.mark.parametrize("make", [AvoidEnv, lambda: AvoidVectorEnv(2), lambda: CurriculumEnv(AvoidEnv())],
+                         ids=["single", "vector", "curriculum"])
 def test_options_that_are_not_a_dict_are_one_clear_error(make):
     env = make()
     try:

@@ -21,6 +21,7 @@ from collections import deque
 import gymnasium
 
 from pbdyn.errors import ConfigError
+from pbdyn.gym.episodes import check_options
 
 
 class Curriculum:
@@ -84,7 +85,7 @@ class CurriculumEnv(gymnasium.Wrapper):
         self._level: int | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        options = dict(options or {})
+        options = check_options(options)
         if not any(options.get(k) is not None for k in ("map", "level", "difficulty")):
             options["level"] = self.curriculum.level
         obs, info = self.env.reset(seed=seed, options=options)

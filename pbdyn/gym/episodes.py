@@ -263,7 +263,7 @@ def release_memory() -> None:
     closed environment freed leaves the process's resident set instead of staying reserved by malloc."""
     try:
         ctypes.CDLL(None).malloc_trim(0)
-    except (AttributeError, OSError):
+    except (AttributeError, OSError, TypeError):
         pass
 
 
