@@ -5,7 +5,8 @@ pbdyn's stdout belongs to its results (``--json`` prints one JSON document there
 prints go to stderr: ``user_stdout()`` points ``sys.stdout`` at ``sys.stderr`` (cheap: per planner call),
 ``stdout_fd_to(2)`` also points file descriptor 1 at descriptor 2 (C-level writes, PyBullet's chatter; a few
 system calls: around imports and whole loops). ``time_budget(seconds)`` bounds the wall-clock time of a block of
-user calls: in the main thread of a POSIX process an interval timer (SIGALRM) interrupts a call that hangs; elsewhere
+user calls (a motion function over a rollout: USER_CODE_TIMEOUT_S; a plug-in planner pair's decision:
+PLANNER_CALL_TIMEOUT_S): in the main thread of a POSIX process an interval timer (SIGALRM) interrupts a call that hangs; elsewhere
 (worker threads, platforms without SIGALRM) the budget is checked after each call (``budget.check()``), which
 catches slow code but cannot stop one call that never returns. Both raise ``UserCodeTimeout``.
 
@@ -26,6 +27,15 @@ from collections.abc import Iterator
 
 USER_CODE_TIMEOUT_S = 10.0
 """Wall-clock budget (s) of one body's motion function over a whole rollout (all its calls together)."""
+
+PLANNER_CALL_TIMEOUT_S = 60.0
+"""Wall-clock budget (s) of one decision of a trial whose planner pair includes a plug-in: its ``replan_check``,
+``plan`` and ``yaw_rate`` calls of one step together (pbdyn.sim.agent.Agent.act). A decision past it ends the trial as
+an error naming the budget (a batch's ``error`` row; the batch goes on). Built-in pairs have no budget and pay
+nothing for it; a plug-in pair pays about a microsecond: a clock read, within the loop's decision_watchdog). Interrupts Python code (loops, sleeps, waits) in a process's main thread -- local batch workers,
+``pbdyn run`` --, not one C call that never returns, and not on Dask workers (threads), where a decision is not
+bounded. Within pbdyn.sim.trial.fly one interval timer (decision_watchdog) serves every decision of the loop;
+elsewhere each decision arms a time_budget of its own."""
 
 _RETRY_S = 0.5
 """After the budget is spent, the timer fires again every _RETRY_S s (user code that swallows the first
@@ -190,3 +200,62 @@ class time_budget:
             if self._outer is not None:
                 deadline, interval = self._outer
                 signal.setitimer(signal.ITIMER_REAL, max(deadline - time.monotonic(), 1e-4), interval)
+
+
+_watchdog: "decision_watchdog | None" = None
+
+
+def watchdog() -> "decision_watchdog | None":
+    """The decision_watchdog armed in this process (None: none is; decisions then arm a time_budget each)."""
+    return _watchdog
+
+
+class decision_watchdog:
+    """Context manager: one interval timer for many short, budgeted calls of a loop (plug-in planners' decisions in
+    pbdyn.sim.trial.fly), armed once. A call marks its start (``started = time.monotonic()``) and clears it
+    (``started = None``) when it returns; the timer ticks every min(1 s, seconds / 4) and raises UserCodeTimeout in
+    a call that has run ``seconds`` or more (again at each tick if user code swallows it), so a call costs a clock
+    read instead of the timer and handler calls of a time_budget. It arms only in the main thread of a POSIX
+    process, with no other watchdog armed and no interval timer running (pytest-timeout, a caller's time_budget);
+    otherwise ``armed`` is False and callers fall back to a time_budget per call."""
+
+    def __init__(self, seconds: float):
+        self.seconds = float(seconds)
+        self.started: float | None = None
+        self.armed = False
+
+    def __enter__(self) -> "decision_watchdog":
+        global _watchdog
+        if (_watchdog is not None or not hasattr(signal, "SIGALRM") or not hasattr(signal, "setitimer")
+                or threading.current_thread() is not threading.main_thread()):
+            return self
+        try:
+            if signal.getitimer(signal.ITIMER_REAL)[0] > 0:     # someone else's timer runs: leave it alone
+                return self
+            self._old_handler = signal.getsignal(signal.SIGALRM)
+            if self._old_handler is None:
+                self._old_handler = signal.SIG_DFL
+            signal.signal(signal.SIGALRM, self._on_alarm)
+            tick = min(1.0, self.seconds / 4.0)
+            signal.setitimer(signal.ITIMER_REAL, tick, tick)
+        except (ValueError, OSError):  # pragma: no cover - signals unavailable here after all
+            return self
+        self.armed = True
+        _watchdog = self
+        return self
+
+    def _on_alarm(self, signum, frame) -> None:
+        started = self.started
+        if started is not None and time.monotonic() - started >= self.seconds:
+            raise UserCodeTimeout(self.seconds)
+
+    def __exit__(self, *exc) -> None:
+        global _watchdog
+        if not self.armed:
+            return
+        self.armed = False
+        _watchdog = None
+        try:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+        finally:
+            signal.signal(signal.SIGALRM, self._old_handler)

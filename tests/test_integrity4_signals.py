@@ -89,3 +89,111 @@ def test_generate_measures_on_the_batch_runners_worker_pool():
 
     src = Path(generate.__file__).read_text()
     assert "ProcessPoolExecutor" not in src and "WorkerPool" in src
+
+
+# ------------------------------------------------------------------------------------------------ plug-ins that crash
+def _scenario(tmp_path: Path, trajectory: str, gaze: str = "lookahead", maps: int = 1) -> Path:
+    """One or two small maps, 6 start/goal pairs (one of them the plug-ins' chosen trial: 46,4 -> 4,46)."""
+    sc = tmp_path / "s.toml"
+    sc.write_text(f'name = "crash"\n[world]\ntime_limit = 10.0\n[obstacles]\ncount = 6\nmaps_per_setup = {maps}\n'
+                  '[drone]\nv_max = [4.0]\n[task]\ncandidates = [[4.0, 4.0], [46.0, 4.0], [4.0, 46.0]]\n'
+                  f'[[planners]]\ntrajectory = "{trajectory}"\ngaze = "{gaze}"\n')
+    return sc
+
+
+def _batch(sc: Path, out: Path, misbehave: bool, *extra: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(HERE.parent), PBDYN_TEST_MISBEHAVE="1" if misbehave else "0")
+    return subprocess.run(pbdyn_cmd() + ["batch", str(sc), "--out", str(out), "--no-metrics", "--json", *extra],
+                          capture_output=True, text=True, timeout=300, env=env)
+
+
+def _rows(path: Path) -> dict[str, dict]:
+    with sqlite3.connect(path) as c:
+        c.row_factory = sqlite3.Row
+        return {r["trial_key"]: {k: r[k] for k in r.keys() if "wall" not in k and k not in _NOT_FLOWN}
+                for r in c.execute("SELECT * FROM trials")}
+
+
+_NOT_FLOWN = ("result_json", "finished", "planner_fingerprint", "world_fingerprint")
+"""Columns that are not the flight's (its JSON copy holds wall times; when it was stored; digests of the code)."""
+
+
+def _check_isolated(tmp_path: Path, cls: str, reason: str, maps: int = 1, *extra: str) -> None:
+    import json
+
+    sc = _scenario(tmp_path, f"tests.integrity4_plugins:{cls}", maps=maps)
+    res = _batch(sc, tmp_path / "bad.sqlite", True, *extra)
+    assert res.returncode == 0, res.stderr
+    assert "Traceback" not in res.stderr and "Error" not in res.stderr, res.stderr
+    doc = json.loads(res.stdout)
+    assert (doc["ran"], doc["errors"]) == (6 * maps, maps), doc
+    bad = _rows(tmp_path / "bad.sqlite")
+    errs = {k: r for k, r in bad.items() if r["outcome"] == "error"}
+    assert len(errs) == maps
+    for r in errs.values():
+        assert r["error"] == f"worker process died ({reason}) while flying this trial", r["error"]
+        assert json.loads(r["start"]) == [46.0, 4.0] and json.loads(r["goal"]) == [4.0, 46.0]
+    ok = _batch(sc, tmp_path / "ok.sqlite", False, *extra)                # the same planner, well-behaved
+    assert ok.returncode == 0, ok.stderr
+    good = _rows(tmp_path / "ok.sqlite")
+    assert set(good) == set(bad)
+    assert {k: r for k, r in bad.items() if k not in errs} == {k: r for k, r in good.items() if k not in errs}
+
+
+def test_a_planner_that_segfaults_its_worker_gives_one_error_row_and_the_batch_completes(tmp_path):
+    _check_isolated(tmp_path, "SegfaultPlanner", "exit -11 / signal SIGSEGV", 1, "--workers", "2")
+
+
+def test_a_planner_that_segfaults_through_ctypes_is_isolated_on_each_map(tmp_path):
+    _check_isolated(tmp_path, "CtypesSegfaultPlanner", "exit -11 / signal SIGSEGV", 2, "--workers", "2")
+
+
+def test_a_planner_that_calls_os_exit_gives_one_error_row_and_the_batch_completes(tmp_path):
+    _check_isolated(tmp_path, "ExitPlanner", "exit 3", 1, "--workers", "1", "--lockstep", "1")
+
+
+# ------------------------------------------------------------------------------------------------ plug-ins that hang
+@pytest.mark.parametrize("trajectory, gaze", [("tests.integrity4_plugins:HangingPlanner", "lookahead"),
+                                              ("local_primitives", "tests.integrity4_plugins:HangingGaze")])
+def test_a_planner_that_never_returns_ends_its_trial_as_an_error_naming_the_budget(tmp_path, trajectory, gaze):
+    import json
+
+    sc = _scenario(tmp_path, trajectory, gaze)
+    t0 = time.monotonic()
+    res = _batch(sc, tmp_path / "hang.sqlite", True, "--workers", "1")
+    assert res.returncode == 0, res.stderr
+    assert time.monotonic() - t0 < 60
+    assert (json.loads(res.stdout)["ran"], json.loads(res.stdout)["errors"]) == (6, 1)
+    errs = [r for r in _rows(tmp_path / "hang.sqlite").values() if r["outcome"] == "error"]
+    assert len(errs) == 1 and "did not return within its time budget of 0.5 s per decision" in errs[0]["error"]
+    assert "PLANNER_CALL_TIMEOUT_S" in errs[0]["error"] and "integrity4_plugins.py:" in errs[0]["error"]
+
+
+def test_a_hanging_planner_in_run_is_one_line_and_exit_2(tmp_path):
+    sc = _scenario(tmp_path, "tests.integrity4_plugins:HangingPlanner")
+    env = dict(os.environ, PYTHONPATH=str(HERE.parent), PBDYN_TEST_MISBEHAVE="1")
+    res = subprocess.run(pbdyn_cmd() + ["run", str(sc), "--start", "46,4", "--goal", "4,46"], capture_output=True,
+                         text=True, timeout=120, env=env)
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    assert res.stderr.count("\n") == 1 and "time budget of 0.5 s per decision" in res.stderr
+
+
+def test_built_in_planners_arm_no_timer_and_plug_ins_arm_one_per_flight(monkeypatch):
+    """Built-in pairs pay nothing for the budget; a flight with a plug-in arms one watchdog, not a timer per call."""
+    import pbdyn
+    from pbdyn import usercode
+
+    calls = []
+    real = signal.setitimer
+    monkeypatch.setattr(signal, "setitimer", lambda *a: calls.append(a) or real(*a))
+    sc = pbdyn.load_scenario({"name": "b", "world": {"time_limit": 5.0}, "obstacles": {"count": 4},
+                              "drone": {"v_max": [4.0]}})
+    pbdyn.run_trial(sc, map=0, planner="straight_line")
+    assert calls == []
+    sys.path.insert(0, str(HERE.parent))
+    try:
+        res = pbdyn.run_trial(sc, map=0, planner="tests.integrity4_plugins:SegfaultPlanner")
+    finally:
+        sys.path.remove(str(HERE.parent))
+    assert res.steps > 10 and len(calls) == 2           # armed once, disarmed once
+    assert usercode.watchdog() is None

@@ -4,15 +4,20 @@ metric tasks to the workers (pbdyn.experiments.pool), and store what comes back.
 The coordinator is the only writer of the store: rows are inserted as they arrive (a lockstep group's rows stream
 in as each trial ends) and committed at least every COMMIT_INTERVAL_S, so a killed batch loses no committed trial
 and the same command resumes. At most a window of tasks is in flight; a pool whose worker died is restarted (at
-most MAX_POOL_RESTARTS times) with its lost tasks queued again, minus the rows already stored. SIGTERM/SIGINT
-(a KeyboardInterrupt) keep what has arrived, commit it and end the workers (docs/experiments.md, "Resume and
-interruption", "Lockstep").
+most MAX_POOL_RESTARTS times in a row without a row stored in between) with its lost tasks queued again, minus the
+rows already stored. A map whose tasks were in flight at ISOLATE_AFTER worker deaths (a plug-in planner that
+crashes its process: a segfault, os._exit) is isolated: its trials are flown one at a time in a worker process of
+their own (a local pool of one worker beside the main pool), so a death there names its trial, which is stored as an
+"error" row ("worker process died (exit -11 / signal SIGSEGV) while flying this trial") and the batch goes on; rows
+are the same whether flown in a lockstep group or alone. SIGTERM/SIGINT (a KeyboardInterrupt) keep what has arrived,
+commit it and end the workers (docs/experiments.md, "Resume and interruption", "Lockstep").
 """
 
 from __future__ import annotations
 
 import collections
 import concurrent.futures as cf
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -26,8 +31,8 @@ from pbdyn.experiments.plan import BatchPlan
 from pbdyn.experiments.pool import WorkerPool
 from pbdyn.experiments.progress import Progress
 from pbdyn.experiments.store import WORLD_FINGERPRINT_CHARS, ResultsStore
-from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialGroupTask, TrialTask, run_map_task,
-                                     run_trial_group_task, run_trial_task, trial_spec)
+from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialGroupTask, TrialTask, error_row,
+                                     run_map_task, run_trial_group_task, run_trial_task, trial_spec)
 from pbdyn.world.rollout import default_horizon, rollout_file
 
 if TYPE_CHECKING:
@@ -36,7 +41,11 @@ if TYPE_CHECKING:
 COMMIT_INTERVAL_S = 1.0
 """The store is committed at least this often while rows arrive, in s."""
 MAX_POOL_RESTARTS = 3
-"""How many times a local pool whose worker died is restarted before the batch stops."""
+"""How many times in a row a local pool whose worker died is restarted, with no row stored and no map newly
+isolated in between, before the batch stops."""
+ISOLATE_AFTER = 2
+"""A map whose tasks were in flight at this many deaths of local workers is flown one trial at a time in a worker
+process of its own (Dispatcher._isolate)."""
 
 
 def execute(store: ResultsStore, scenario: Scenario, items: Iterator, plan: BatchPlan, files: dict, workers: int,
@@ -64,7 +73,13 @@ class Dispatcher:
         self.retry: collections.deque = collections.deque()
         self.in_flight: dict = {}
         self.last_commit = time.perf_counter()
-        self.restarts = 0
+        self.restarts = 0               # pool restarts in a row without progress (a row stored, a map isolated)
+        self.ran_at_break = 0
+        self.strikes: collections.Counter = collections.Counter()   # map id -> worker deaths with its tasks in flight
+        self.isolated: set = set()      # map ids whose trials fly one at a time in the solo pool
+        self.solo: collections.deque = collections.deque()   # ("trial", trial, replaces) items of isolated maps
+        self.solo_pool: WorkerPool | None = None
+        self.solo_flight: tuple | None = None                # (future, item) of the isolated trial in flight
         self.window = (4 if options.lockstep <= 1 else 2) * workers if not self.pool.dask else max(64, 8 * workers)
 
     def run(self) -> tuple[int, int, int]:
@@ -87,7 +102,11 @@ class Dispatcher:
             try:
                 self.store.commit()
             finally:
-                self.pool.close(terminate=interrupted)
+                try:
+                    self.pool.close(terminate=interrupted)
+                finally:
+                    if self.solo_pool is not None:
+                        self.solo_pool.close(terminate=True)
         return self.ran, self.errors, self.maps
 
     # ------------------------------------------------------------------------------------------- the task stream
@@ -114,12 +133,16 @@ class Dispatcher:
         """Keep the window full and take the results until nothing is left; BrokenProcessPool if the pool broke."""
         while True:
             self._fill()
-            if not self.in_flight:
+            self._fill_solo()
+            waiting = list(self.in_flight) + ([self.solo_flight[0]] if self.solo_flight is not None else [])
+            if not waiting:
                 break
-            finished, _ = cf.wait(list(self.in_flight), timeout=None if self.pool.dask else 0.5,
-                                  return_when=cf.FIRST_COMPLETED)
+            finished, _ = cf.wait(waiting, timeout=None if self.pool.dask else 0.5, return_when=cf.FIRST_COMPLETED)
             self._drain()
             for fut in finished:
+                if self.solo_flight is not None and fut is self.solo_flight[0]:
+                    self._take_solo()
+                    continue
                 result = fut.result()
                 self._take(self.in_flight.pop(fut), result)
             self._maybe_commit()
@@ -134,6 +157,9 @@ class Dispatcher:
                 item = unfinished(item, self.streamed)
                 if item is None:
                     continue
+            if item[0] != "map" and map_of(item) in self.isolated:
+                self._to_solo(item)
+                continue
             try:
                 fut = submit(self.pool, self.scenario, item, self.files)
             except BrokenProcessPool:
@@ -155,14 +181,66 @@ class Dispatcher:
         self.in_flight.clear()
         self.retry.extendleft(reversed(lost))
         self.store.commit()
-        self.restarts += 1
+        newly = self._isolate(lost)
+        progress = newly or self.ran > self.ran_at_break
+        self.ran_at_break = self.ran
+        self.restarts = 1 if progress else self.restarts + 1
         if self.restarts > MAX_POOL_RESTARTS:
             left = self.plan.pending - self.ran
-            raise PbdynError(f"worker processes died {self.restarts} times; {left} trials not run (re-run the "
-                             "same command to resume)") from None
-        sys.stderr.write(f"pbdyn batch: a worker died; restarting the pool ({self.restarts}/"
-                         f"{MAX_POOL_RESTARTS}) and resuming\n")
+            raise PbdynError(f"worker processes died {self.restarts} times in a row; {left} trials not run (re-run "
+                             "the same command to resume)") from None
+        sys.stderr.write("pbdyn batch: a worker died; restarting the pool and resuming\n")
         self.pool.restart()
+
+    # ------------------------------------------------------------------------------------------- isolation
+    def _isolate(self, lost: list) -> bool:
+        """Count a worker death against the maps of the ``lost`` tasks; the trials of a map at ISOLATE_AFTER deaths
+        are flown one at a time in a process of their own from now on (its lost tasks among them). True if a map was
+        newly isolated."""
+        newly = False
+        for mid in dict.fromkeys(map_of(item) for item in lost):
+            self.strikes[mid] += 1
+            if self.strikes[mid] >= ISOLATE_AFTER and mid not in self.isolated and not self.pool.dask:
+                self.isolated.add(mid)
+                newly = True
+                sys.stderr.write(f"pbdyn batch: workers died {self.strikes[mid]} times flying map {mid}; flying "
+                                 "its trials one per process\n")
+        return newly
+
+    def _to_solo(self, item) -> None:
+        """Queue the trials of a (group or trial) item of an isolated map for the solo pool, one per task."""
+        kind, obj, rep = item
+        if kind == "trial":
+            self.solo.append(item)
+            return
+        for t, r in zip(obj, rep):
+            self.streamed.pop(t[0], None)
+            self.solo.append(("trial", t, r))
+
+    def _fill_solo(self) -> None:
+        """Submit the next isolated trial to the solo pool (one worker, one trial at a time)."""
+        if self.solo_flight is not None or not self.solo:
+            return
+        if self.solo_pool is None:
+            self.solo_pool = WorkerPool(1, None)
+        item = self.solo.popleft()
+        self.solo_flight = (submit(self.solo_pool, self.scenario, item, self.files), item)
+
+    def _take_solo(self) -> None:
+        """Store the result of the isolated trial in flight; if its worker died, its "error" row (the trial was the
+        only task of that process) and a new solo worker."""
+        fut, item = self.solo_flight
+        self.solo_flight = None
+        try:
+            result = fut.result()
+        except BrokenProcessPool:
+            codes = [c for c in self.solo_pool.exit_codes() if c is not None]
+            self.solo_pool.check_broken()
+            self.solo_pool.restart()
+            key, spec, ref = trial_spec_of(self.scenario, item[1], self.files)
+            msg = f"worker process died ({exit_text(codes[0] if codes else None)}) while flying this trial"
+            result = (key, error_row(TrialTask(key, spec, ref), msg), msg)
+        self._take(item, result)
 
     def _keep_arrived(self) -> None:
         """On an interrupt: store the rows of trials that ended inside groups still in flight and the results that
@@ -171,6 +249,9 @@ class Dispatcher:
         for fut, item in list(self.in_flight.items()):
             if _succeeded(fut):
                 self._take(item, fut.result())
+        if self.solo_flight is not None and _succeeded(self.solo_flight[0]):
+            self._take(self.solo_flight[1], self.solo_flight[0].result())
+            self.solo_flight = None
 
     # ------------------------------------------------------------------------------------------- storing rows
     def _take(self, item, result) -> None:
@@ -220,6 +301,26 @@ class Dispatcher:
         if now - self.last_commit >= COMMIT_INTERVAL_S:
             self.store.commit()
             self.last_commit = now
+
+
+def map_of(item: tuple) -> str:
+    """The map id of a stream item (a lockstep group, a map's metrics or one trial)."""
+    kind, obj, _ = item
+    if kind == "group":
+        return obj[0][1].map_id
+    return obj.map_id if kind == "map" else obj[1].map_id
+
+
+def exit_text(code: int | None) -> str:
+    """A dead process' exit code as text: "exit -11 / signal SIGSEGV", "exit 3", "exit code unknown"."""
+    if code is None:
+        return "exit code unknown"
+    if code < 0:
+        try:
+            return f"exit {code} / signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"exit {code} / signal {-code}"
+    return f"exit {code}"
 
 
 def _succeeded(fut) -> bool:

@@ -23,7 +23,8 @@ from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.contract import PlanViolation, check_plan, plan_violations
 from pbdyn.sim.state import Action, vector_norm
 from pbdyn.sim.spec import TrialSpec
-from pbdyn.usercode import quiet_user_code, user_stdout
+from pbdyn import usercode
+from pbdyn.usercode import UserCodeTimeout, quiet_user_code, time_budget, user_stdout
 
 
 def brake(p: np.ndarray, v: np.ndarray, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -134,18 +135,49 @@ class Agent:
         (SystemExit, GeneratorExit; not KeyboardInterrupt), and any exception of a plug-in pair, becomes a ConfigError
         naming the pair, the time and the file:line in the user's code that raised (pbdyn.errors.user_location), so
         it ends only this trial (a batch's "error" row; ``pbdyn run``: exit 2, one line); a built-in pair's
-        exceptions keep their type and traceback (pbdyn's own bug)."""
+        exceptions keep their type and traceback (pbdyn's own bug). A pair with a plug-in decides within
+        pbdyn.usercode.PLANNER_CALL_TIMEOUT_S of wall-clock time, else the same error names the budget."""
         with user_stdout():
             try:
-                return self._act(view)
+                if not self._plugin:     # a plug-in's decision gets a wall-clock budget; built-ins pay nothing
+                    return self._act(view)
+                wd = usercode.watchdog()
+                if wd is None:           # outside fly()'s watchdog: a timer of its own
+                    with time_budget(usercode.PLANNER_CALL_TIMEOUT_S):
+                        return self._act(view)
+                wd.started = time.monotonic()
+                try:
+                    return self._act(view)
+                finally:
+                    wd.started = None
             except KeyboardInterrupt:
                 raise
+            except UserCodeTimeout as exc:
+                raise self._timeout_error(exc, view.t) from None
             except Exception as exc:
                 if not self._plugin:   # a built-in planner's failure is pbdyn's own bug: keep it as it is
                     raise
                 raise self._user_error("plug-in planner pair", exc, view.t) from exc
             except BaseException as exc:
                 raise self._user_error("planner pair", exc, view.t) from exc
+
+    @property
+    def plugin(self) -> bool:
+        """True if the trajectory or the gaze planner is a plug-in (not pbdyn's own): its decisions are budgeted
+        (pbdyn.usercode.PLANNER_CALL_TIMEOUT_S)."""
+        return self._plugin
+
+    def _timeout_error(self, exc: UserCodeTimeout, t: float) -> ConfigError:
+        """The ConfigError of a plug-in pair's decision that ran past its budget (PLANNER_CALL_TIMEOUT_S), naming
+        the budget and where the user's code was when it was interrupted."""
+        entry = self.spec.planner
+        where = user_location(exc)
+        err = ConfigError("planner", f"the plug-in planner pair {entry.trajectory} + {entry.gaze} did not return "
+                          f"within its time budget of {exc.seconds:g} s per decision (PLANNER_CALL_TIMEOUT_S, "
+                          f"pbdyn.usercode) at t = {t:g} s" + (f" (at {where})" if where else ""), None,
+                          show_value=False)
+        err.location = where
+        return err
 
     def _user_error(self, what: str, exc: BaseException, t: float) -> ConfigError:
         """The ConfigError of a planner call that raised ``exc`` at time ``t``: it names the pair, the exception and

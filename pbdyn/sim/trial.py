@@ -8,6 +8,7 @@ batch of one. Each ended trial becomes its TrialResult.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Sequence
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pbdyn import usercode
 from pbdyn.outcome import Outcome
 from pbdyn.planning.registry import pair_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
@@ -23,6 +25,7 @@ from pbdyn.sim.observers import SPLITS, ProfileObserver, StepRecord, TraceObserv
 from pbdyn.sim.result import TrialResult
 from pbdyn.sim.spec import TrialSpec, make_trial_spec
 from pbdyn.sim.state import TrialState, make_world
+from pbdyn.usercode import decision_watchdog
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
@@ -97,7 +100,9 @@ def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | 
         try:
             for b, i in enumerate(flying):
                 logs[i] = _Log(agent_s[i] + batch.setup_s[b] + world_share)
-            _Flight(batch, flying, specs, rollout, agents, watchers, logs, out).run()
+            budget = usercode.PLANNER_CALL_TIMEOUT_S    # one timer for the loop: plug-ins' decisions are budgeted
+            with (decision_watchdog(budget) if any(agents[i].plugin for i in flying) else contextlib.nullcontext()):
+                _Flight(batch, flying, specs, rollout, agents, watchers, logs, out).run()
         finally:
             batch.close()
     if raise_errors:
