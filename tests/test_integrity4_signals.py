@@ -197,3 +197,37 @@ def test_built_in_planners_arm_no_timer_and_plug_ins_arm_one_per_flight(monkeypa
         sys.path.remove(str(HERE.parent))
     assert res.steps > 10 and len(calls) == 2           # armed once, disarmed once
     assert usercode.watchdog() is None
+
+
+def test_a_bench_of_a_planner_that_segfaults_on_some_tasks_completes_with_their_errors_on_its_card(tmp_path):
+    import json
+
+    from pbdyn.benchmark.suite import load_suite
+    from pbdyn.config import parse_scenario
+
+    (tmp_path / "crashy_planner.py").write_text(
+        "import os\nimport signal\n\nfrom my_planner import GoalSeeker\n\n\n"
+        "class Crashy(GoalSeeker):\n"
+        "    def plan(self, view):\n"
+        "        if view.t == 0.0 and view.position[0] > 20.0:\n"
+        "            os.kill(os.getpid(), signal.SIGSEGV)\n"
+        "        return super().plan(view)\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent / "tools" / "templates"), str(tmp_path),
+                                                       str(HERE.parent)]))
+    out = tmp_path / "crashy"
+    res = subprocess.run(pbdyn_cmd() + ["bench", "crashy_planner:Crashy", "--suite", "pbdyn-2d-mini", "--out",
+                                        str(out), "--workers", "2"], capture_output=True, text=True, timeout=600,
+                         env=env)
+    assert res.returncode == 0, res.stderr
+    assert "Traceback" not in res.stderr
+    card = json.loads((out / "card.json").read_text())
+    suite = load_suite("pbdyn-2d-mini")
+
+    def start_x(part: str, candidate: int) -> float:
+        p = suite.part(part)
+        return float(parse_scenario(p.doc, p.path).task.candidates[candidate][0])
+
+    crashing = sum(1 for m in suite.maps for q in suite.part(m["part"]).pairs
+                   if suite.part(m["part"]).doc is not None and start_x(m["part"], q[0]) > 20.0)
+    assert crashing > 0 and card["outcomes"]["error"] == card["trials"]["errors"] == crashing
+    assert card["trials"]["flown"] == card["trials"]["expected"] == suite.n_tasks()
