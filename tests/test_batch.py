@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+import re
 import json
 import os
 import signal
@@ -414,13 +415,16 @@ def test_store_columns_follow_the_trial_result_fields(reference):
     with sqlite3.connect(f"file:{out}?mode=ro", uri=True) as c:
         cols = [(r[1], r[2]) for r in c.execute("PRAGMA table_info(trials)")]
         version = c.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
-    assert int(version) == SCHEMA_VERSION == 5
+    assert int(version) == SCHEMA_VERSION == 6
     assert cols == [("trial_key", "TEXT")] + [(n, "TEXT" if t == "JSON" else t) for n, t in TRIAL_COLUMNS] + \
         [("error", "TEXT"), ("result_json", "TEXT"), ("finished", "REAL"), ("world_fingerprint", "TEXT")]
     store = ResultsStore.open(out)
     rows = store.results()
     store.close()
-    assert {r["planner_fingerprint"] for r in rows} == {"builtin:1+builtin:1"}
+    from pbdyn.planning.registry import pair_fingerprint
+
+    assert all(r["planner_fingerprint"] == pair_fingerprint(r["planner"], r["gaze"]) for r in rows)
+    assert re.fullmatch(r"pbdyn:[0-9a-f]{16}\+pbdyn:[0-9a-f]{16}\+core:[0-9a-f]{16}", rows[0]["planner_fingerprint"])
 
 
 def test_a_version_1_store_is_read_and_upgraded_and_its_rows_count_as_changed(reference, tmp_path):
@@ -480,12 +484,12 @@ def test_changed_planner_code_stops_the_batch_until_rerun_changed(tmp_path, monk
     assert json.loads(res.stdout)["ran"] == 12
     registry.planner_fingerprint.cache_clear()
     fp_old = registry.pair_fingerprint("fpplug_mod:Straight", "lookahead")
-    assert registry.pair_fingerprint("local_primitives", "lookahead") == \
-        f"builtin:{registry.PLANNER_MODEL_VERSION}+builtin:{registry.PLANNER_MODEL_VERSION}"
+    fp_builtin = registry.pair_fingerprint("local_primitives", "lookahead")
+    assert fp_builtin.startswith("pbdyn:") and fp_old.startswith("sha256:")
     before = rows_without_wall(out)
     by_label = {lab: {r["planner_fingerprint"] for r in before.values() if r["planner_label"] == lab}
                 for lab in ("lookahead+local_primitives", "lookahead+fpplug_mod:Straight")}
-    assert by_label == {"lookahead+local_primitives": {"builtin:1+builtin:1"},
+    assert by_label == {"lookahead+local_primitives": {fp_builtin},
                         "lookahead+fpplug_mod:Straight": {fp_old}}
     with sqlite3.connect(out) as c:
         finished = dict(c.execute("SELECT trial_key, finished FROM trials"))
@@ -493,7 +497,7 @@ def test_changed_planner_code_stops_the_batch_until_rerun_changed(tmp_path, monk
     plug.write_text(PLUGIN + "\n# an edit: the same behaviour, other code\n")
     registry.planner_fingerprint.cache_clear()
     fp_new = registry.pair_fingerprint("fpplug_mod:Straight", "lookahead")
-    assert fp_new != fp_old and fp_new.endswith("+builtin:1")
+    assert fp_new != fp_old and fp_new.split("+", 1)[1] == fp_old.split("+", 1)[1]
     res = batch(args, env=env)
     assert res.returncode == 2
     line = res.stderr.strip()
@@ -509,7 +513,7 @@ def test_changed_planner_code_stops_the_batch_until_rerun_changed(tmp_path, monk
     assert set(after) == set(before)                               # replaced in place: no duplicates
     for key, row in after.items():
         changed = row["planner_label"] == "lookahead+fpplug_mod:Straight"
-        assert row["planner_fingerprint"] == (fp_new if changed else "builtin:1+builtin:1")
+        assert row["planner_fingerprint"] == (fp_new if changed else fp_builtin)
         assert {**row, "planner_fingerprint": None} == {**before[key], "planner_fingerprint": None}
     with sqlite3.connect(out) as c:
         now = dict(c.execute("SELECT trial_key, finished FROM trials"))

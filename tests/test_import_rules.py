@@ -5,6 +5,7 @@ Every import in every pbdyn module is checked with ``ast`` - module level, insid
 under ``if TYPE_CHECKING`` and ``importlib.import_module("pbdyn....")`` with a literal name.
 
 Layers, bottom to top: usercode (running foreign code; imports nothing of pbdyn), errors, files (atomic writes),
+codeid (code identity by content),
 limits (resource limits), urdf (URDF validation), resources, jit (numba's njit, its cache never in the way), outcome
 (how a trial ends: the vocabulary sim/ writes and analysis/ reads), motion (the obstacle motion models and their
 registry: config validates their names and tables, world's rollouts run them), config | world | perception |
@@ -25,7 +26,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "pbdyn"
 
-_BASE = ("usercode", "errors", "files", "limits", "urdf", "resources", "jit", "outcome", "motion", "config")
+_BASE = ("usercode", "errors", "files", "codeid", "limits", "urdf", "resources", "jit", "outcome", "motion", "config")
 _BELOW_SIM = _BASE + ("world", "perception", "planning", "metrics")
 _BELOW_EXPERIMENTS = _BELOW_SIM + ("sim", "analysis")
 _BELOW_API = _BELOW_EXPERIMENTS + ("experiments",)
@@ -33,8 +34,9 @@ RULES: dict[str, tuple[str, ...]] = {
     "usercode": (),
     "errors": ("usercode",),
     "files": ("usercode", "errors"),
+    "codeid": ("usercode", "errors", "files"),
     "limits": ("usercode", "errors"),
-    "urdf": ("usercode", "errors"),
+    "urdf": ("usercode", "errors", "limits"),
     "resources": ("usercode", "errors"),
     "jit": (),
     "outcome": (),

@@ -198,11 +198,50 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
     scale = f"anchored-{SCALE_VERSION}/{anchors.version}" if anchors is not None else "unanchored"
     card = {"schema": CARD_SCHEMA, "summary": "", "suite": suite_info, "planner": dict(planner),
             "provenance": {"pbdyn": __version__, "scale": scale, "machine": machine(),
+                           "code": code_provenance(planner, references),
                            "date": date or datetime.now(timezone.utc).replace(microsecond=0).isoformat()},
             "trials": {"flown": len(rows), "expected": suite.n_tasks(), "errors": mine["outcomes"][Outcome.ERROR.value]},
             **mine, "rank": {"by": "ability", "rank": rank, "of": n_ranked}, "references": refs}
     card["summary"] = summary_line(card)
     return card
+
+
+def code_provenance(planner: dict, references: dict) -> dict:
+    """Which code flew this card and its references (docs/design.md "Code identity"): the trial core's identity
+    now, and per reference label whether its recorded fingerprint is what this pbdyn's code gives for that planner
+    pair ("same"), another ("other"), or was not recorded by content ("not recorded": references flown before
+    pbdyn identified code by content, fingerprints "builtin:..."); "statement" says it in one line. Nothing is
+    refused: a reader decides (``pbdyn bench --reproduce`` re-flies a reference)."""
+    from pbdyn import codeid
+    from pbdyn.planning.registry import pair_fingerprint
+
+    status = {}
+    for label in sorted(references):
+        meta = references[label]["meta"]
+        fp = str(meta.get("fingerprint") or "")
+        if "+core:" not in fp:
+            status[label] = "not recorded"
+            continue
+        try:
+            now = pair_fingerprint(meta.get("trajectory"), meta.get("gaze"))
+        except Exception:  # a reference planner this pbdyn cannot resolve: not the same code
+            now = ""
+        status[label] = "same" if now == fp else "other"
+    counts = {k: sum(v == k for v in status.values()) for k in ("same", "other", "not recorded")}
+    if not status:
+        statement = "no reference results to compare"
+    elif counts["same"] == len(status):
+        statement = "this pbdyn flies the references' code (every reference's code identity matches)"
+    elif counts["not recorded"] == len(status):
+        statement = ("the references were flown before pbdyn recorded code identities: whether this pbdyn flies "
+                     "their code is unknown (pbdyn bench --reproduce re-flies one)")
+    else:
+        other = [k for k, v in status.items() if v != "same"]
+        statement = (f"{len(other)} of {len(status)} references were flown by other code than this pbdyn's "
+                     f"({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}): compare with care "
+                     "(pbdyn bench --reproduce re-flies one)")
+    return {"core": codeid.core_identity(), "planner": planner.get("fingerprint"), "references": status,
+            "statement": statement}
 
 
 def summary_line(card: dict) -> str:

@@ -158,24 +158,46 @@ def read_rows(suite: Suite, out: Path, label: str | None = None) -> list[dict]:
 
 
 def load_references(suite: Suite) -> dict:
-    """The suite's shipped reference results: label -> {"meta": {...}, "rows": [task rows]} ({} if none)."""
+    """The suite's shipped reference results: label -> {"meta": {...}, "rows": [task rows]} ({} if none). The file
+    must be whole, a reference document of this suite, and match the digest its manifest records
+    (pbdyn.benchmark.suite.references_digest); else one ConfigError naming "reference" and the file."""
+    from pbdyn.benchmark.suite import REFERENCES_DIGEST, references_digest
+
     path = suite.folder / REFERENCE_FILE
+    recorded = suite.doc.get(REFERENCES_DIGEST)
     if not path.is_file():
+        if recorded:
+            raise ConfigError("reference", f"is missing: suite {suite.name} records reference results "
+                              f"({REFERENCE_FILE}, sha256 {recorded[:12]})", str(path))
         return {}
-    doc = json.loads(gzip.decompress(path.read_bytes()).decode("utf-8"))
-    if doc.get("format") != REFERENCE_FORMAT:
+    try:
+        doc = json.loads(gzip.decompress(path.read_bytes()).decode("utf-8"))
+    except (OSError, EOFError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError("reference", f"is damaged: not a gzip-compressed JSON document ({exc.__class__.__name__})",
+                          str(path)) from None
+    if not isinstance(doc, dict) or doc.get("format") != REFERENCE_FORMAT:
         raise ConfigError("reference", f"is not a {REFERENCE_FORMAT} file", str(path))
-    if doc.get("suite_hash") != suite.hash:
-        raise ConfigError("reference", f"was flown on another version of suite {suite.name} (hash "
-                          f"{str(doc.get('suite_hash'))[:12]}, the suite's is {suite.hash[:12]})", str(path))
-    cols = doc["columns"]
-    out = {}
-    for label, meta in doc["planners"].items():
-        out[label] = {"meta": meta, "rows": []}
-    for values in doc["rows"]:
+    if doc.get("suite") != suite.name or doc.get("suite_hash") != suite.hash:
+        raise ConfigError("reference", f"was flown on another suite or version of suite {suite.name} (suite "
+                          f"{str(doc.get('suite'))[:40]!r}, hash {str(doc.get('suite_hash'))[:12]}, the suite's is "
+                          f"{suite.hash[:12]})", str(path))
+    if recorded is not None:
+        got = references_digest(doc)
+        if got != recorded:
+            raise ConfigError("reference", f"does not match the digest suite {suite.name} records (sha256 "
+                              f"{got[:12]}, the manifest's {str(recorded)[:12]}): the reference results were "
+                              "altered or replaced", str(path))
+    cols, planners, rows = doc.get("columns"), doc.get("planners"), doc.get("rows")
+    if (not isinstance(cols, list) or cols != ["label", *TASK_FIELDS] or not isinstance(planners, dict)
+            or not isinstance(rows, list)
+            or not all(isinstance(m, dict) for m in planners.values())
+            or not all(isinstance(v, list) and len(v) == len(cols) and v[0] in planners for v in rows)):
+        raise ConfigError("reference", "is malformed: its columns, planners or rows are not those of a "
+                          f"{REFERENCE_FORMAT} document", str(path))
+    out = {label: {"meta": meta, "rows": []} for label, meta in planners.items()}
+    for values in rows:
         r = dict(zip(cols, values))
-        label = r.pop("label")
-        out[label]["rows"].append(r)
+        out[r.pop("label")]["rows"].append(r)
     return out
 
 

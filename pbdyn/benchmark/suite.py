@@ -10,7 +10,11 @@ the ordered start/goal pairs ``pairs_flown`` of its manifest entry (default: the
 pbdyn.analysis.scale.reference_pairs) at each of the suite's speeds.
 
 A suite's identity is its content hash (suite_hash): the sha256 of the manifest and of every part's resolved
-scenario (canonical JSON), printed on every score card; a test fixes the shipped suites' hashes.
+scenario (canonical JSON), printed on every score card; a test fixes the shipped suites' hashes. The manifest records
+the digest of the suite's reference results (``references_sha256``: references_digest of reference.json.gz), which
+pbdyn.benchmark.run.load_references checks before a card uses them. A "pbdyn-suite/2" manifest's hash covers that
+digest; a "pbdyn-suite/1" manifest's hash leaves it out (the digest was recorded after those suites were frozen, and
+their hash, quoted in papers, stays), so a v1 suite's references are checked against the manifest at load only.
 """
 
 from __future__ import annotations
@@ -26,7 +30,11 @@ from pbdyn.config import PlannerEntry, Scenario, canonical_json, parse_scenario
 from pbdyn.errors import ConfigError
 
 SUITE_FILE = "suite.json"
-SUITE_FORMAT = "pbdyn-suite/1"
+SUITE_FORMAT = "pbdyn-suite/2"
+SUITE_FORMATS = ("pbdyn-suite/1", SUITE_FORMAT)
+"""Manifest formats this pbdyn reads: 1 (hash without the references' digest), 2 (module doc)."""
+REFERENCES_DIGEST = "references_sha256"
+"""The manifest key of the reference results' digest (references_digest)."""
 SUITES_FOLDER = "suites"
 
 
@@ -106,19 +114,20 @@ def load_suite(name_or_path) -> Suite:
             raise ConfigError("suite", "is neither a bundled suite (" + ", ".join(suite_names()) +
                               ") nor a suite folder", str(name_or_path))
         p = bundled
-    return suite_from_doc(read_versioned_json(p, "suite", "format", SUITE_FORMAT, "manifest"), p.parent)
+    return suite_from_doc(read_versioned_json(p, "suite", "format", SUITE_FORMATS, "manifest"), p.parent)
 
 
-def read_versioned_json(path: Path, field: str, key: str, version: str, what: str, shown=None) -> dict:
-    """The JSON object in ``path`` whose ``key`` is ``version``; else ConfigError naming ``field`` and ``shown``
-    (default: the path) -- unreadable, or not a ``version`` ``what``."""
+def read_versioned_json(path: Path, field: str, key: str, version, what: str, shown=None) -> dict:
+    """The JSON object in ``path`` whose ``key`` is ``version`` (or one of a tuple of versions); else ConfigError
+    naming ``field`` and ``shown`` (default: the path) -- unreadable, or not a ``version`` ``what``."""
+    versions = version if isinstance(version, tuple) else (version,)
     shown = str(path) if shown is None else shown
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(field, f"cannot be read ({exc.__class__.__name__})", shown) from None
-    if not isinstance(doc, dict) or doc.get(key) != version:
-        raise ConfigError(field, f"is not a {version} {what}", shown)
+    if not isinstance(doc, dict) or doc.get(key) not in versions:
+        raise ConfigError(field, f"is not a {' or '.join(versions)} {what}", shown)
     return doc
 
 
@@ -143,13 +152,23 @@ def suite_from_doc(doc: dict, folder: Path) -> Suite:
 
 
 def suite_hash(suite: Suite) -> str:
-    """sha256 (hex) over the manifest and every part's resolved scenario, in canonical JSON."""
+    """sha256 (hex) over the manifest and every part's resolved scenario, in canonical JSON (a v1 manifest without
+    its references' digest: module doc)."""
+    doc = suite.doc
+    if doc.get("format") == "pbdyn-suite/1":
+        doc = {k: v for k, v in doc.items() if k != REFERENCES_DIGEST}
     h = hashlib.sha256()
-    h.update(canonical_json(suite.doc).encode())
+    h.update(canonical_json(doc).encode())
     for part in suite.parts:
         sc = parse_scenario(part.doc, part.path)
         h.update(b"\0" + part.name.encode() + b"\0" + canonical_json(sc.to_dict()).encode())
     return h.hexdigest()
+
+
+def references_digest(doc: dict) -> str:
+    """sha256 (hex) of a reference-results document in canonical JSON, without its "suite_hash" (the suite's hash
+    may cover this digest, so the digest cannot cover the hash)."""
+    return hashlib.sha256(canonical_json({k: v for k, v in doc.items() if k != "suite_hash"}).encode()).hexdigest()
 
 
 def flight_levels(paths) -> dict[str, dict[str, int]]:

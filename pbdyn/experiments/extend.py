@@ -129,3 +129,24 @@ def changed_worlds(store: ResultsStore, scenario: Scenario, maps: list,
     more = f" and {len(changed) - 5} more" if len(changed) > 5 else ""
     return frozenset(m.map_id for m, _ in changed), [
         f"the world of map(s) {shown}{more} differs from the one their stored rows were flown in{because}"]
+
+
+def changed_metrics(store: ResultsStore, scenario: Scenario, maps: list) -> tuple[frozenset, list[str]]:
+    """(map ids of ``maps`` whose stored metrics were computed by other code than the current one, notes naming
+    them): the maps' recorded metrics_code against pbdyn.metrics.cached.metrics_code of the batch's metric set.
+    Maps whose metrics predate schema 6 record no code and are not judged."""
+    from pbdyn.experiments.tasks import METRIC_SET
+    from pbdyn.metrics.cached import metrics_code, resolve_backend
+
+    stored = store.metric_codes()
+    if not stored:
+        return frozenset(), []
+    current = metrics_code(METRIC_SET, resolve_backend(scenario, "auto"))
+    changed = [m for m in maps if stored.get(m.map_id, current) != current]
+    if not changed:
+        return frozenset(), []
+    shown = ", ".join(f"{m.index} ({m.map_id})" for m in changed[:5])
+    more = f" and {len(changed) - 5} more" if len(changed) > 5 else ""
+    return frozenset(m.map_id for m in changed), [
+        f"the metrics of map(s) {shown}{more} were computed by code {stored[changed[0].map_id]}, the code now "
+        f"gives {current}"]

@@ -20,10 +20,8 @@ from pathlib import Path
 
 from pbdyn.errors import ConfigError
 from pbdyn.experiments.signals import BatchInterrupted, stop_on_signals
-from pbdyn.experiments.store import TRIAL_COLUMNS, ResultsStore, check_store_path, read_only_uri, store_error
+from pbdyn.experiments.store import MAP_COLUMNS, TRIAL_COLUMNS, ResultsStore, check_store_path, read_only_uri, store_error
 
-_MAP_COLUMNS = ("map_id", "map_index", "map_key", "setup_json", "seed", "rollout_key", "dataset",
-                "mean_obstacle_speed", "mean_obstacle_radius", "metrics_json", "metric_times_json", "backend")
 _RUN_COLUMNS = ("started", "ended", "version", "scenario_json", "command", "workers")
 
 
@@ -142,6 +140,7 @@ def check_same_code(stores: list[tuple]) -> None:
     one key. Rows without a recorded fingerprint (older schemas) are not compared."""
     planners: dict[str, dict[str, Path]] = {}
     worlds: dict[str, dict[str, Path]] = {}
+    metric_codes: dict[str, dict[str, Path]] = {}
     index: dict[str, int] = {}
     for path, field in stores:
         st = ResultsStore.open(path, field=field)
@@ -153,9 +152,18 @@ def check_same_code(stores: list[tuple]) -> None:
                 for fp in fps:
                     if fp:
                         worlds.setdefault(map_id, {}).setdefault(fp, Path(path))
+            for map_id, code in st.metric_codes().items():
+                metric_codes.setdefault(map_id, {}).setdefault(code, Path(path))
             index.update(st.map_indices())
         finally:
             st.conn.close()
+    for map_id, codes in sorted(metric_codes.items(), key=lambda kv: (index.get(kv[0], -1), kv[0])):
+        if len(codes) > 1:
+            (c1, p1), (c2, p2) = list(codes.items())[:2]
+            raise ConfigError("RESULTS", f"the metrics of map {index.get(map_id, '?')} ({map_id}) were computed by "
+                              f"code {c1} in {p1.name} and {c2} in {p2.name} (a metric's code changed); merged, one "
+                              "map would hold two versions of its metrics (re-run one store with `pbdyn batch "
+                              "--rerun-changed`)", show_value=False)
     for label, fps in sorted(planners.items(), key=lambda kv: str(kv[0])):
         if len(fps) > 1:
             (f1, p1), (f2, p2) = list(fps.items())[:2]
@@ -190,6 +198,7 @@ def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
             conn.execute(f"ATTACH DATABASE ? AS {alias}", (read_only_uri(Path(path)),))
             try:
                 src_cols = {r[1] for r in conn.execute(f"PRAGMA {alias}.table_info(trials)")}
+                src_map_cols = {r[1] for r in conn.execute(f"PRAGMA {alias}.table_info(maps)")}
                 cols = ["trial_key"] + [n for n, _ in TRIAL_COLUMNS if n in src_cols and n in have_cols] + \
                     ["error", "result_json", "finished"] + (["world_fingerprint"] if "world_fingerprint" in src_cols
                                                             else [])
@@ -201,9 +210,9 @@ def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
                 conflicts += int(bad)
                 names = ", ".join(cols)
                 conn.execute(f"INSERT OR IGNORE INTO main.trials ({names}) SELECT {names} FROM {alias}.trials")
-                mcols = ", ".join(_MAP_COLUMNS)
+                mcols = ", ".join(c for c in MAP_COLUMNS if c in src_map_cols)
                 conn.execute(f"INSERT OR IGNORE INTO main.maps ({mcols}) SELECT {mcols} FROM {alias}.maps")
-                rest = _MAP_COLUMNS[1:]      # a map row without metrics takes the one with them
+                rest = [c for c in MAP_COLUMNS[1:] if c in src_map_cols]      # a map row without metrics takes the one with them
                 conn.execute(f"UPDATE main.maps SET ({', '.join(rest)}) = (SELECT "
                              f"{', '.join('s.' + c for c in rest)} FROM {alias}.maps s WHERE "
                              f"s.map_id = main.maps.map_id) WHERE metrics_json IS NULL AND map_id IN "

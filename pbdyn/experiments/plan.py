@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 
 from pbdyn.config import Scenario
 from pbdyn.errors import ConfigError
-from pbdyn.experiments.extend import changed_planners, changed_worlds, check_scenario, world_fingerprints
+from pbdyn.experiments.extend import (changed_metrics, changed_planners, changed_worlds, check_scenario,
+                                     world_fingerprints)
 from pbdyn.experiments.shards import shard_range
 from pbdyn.experiments.store import ResultsStore
 
@@ -87,6 +88,12 @@ def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchO
             raise ConfigError("; ".join(world_notes), "a world's code or files changed since these rows were "
                               "flown; pass --rerun-changed to re-fly those maps (or use a new --out file)",
                               show_value=False)
+        stale_metrics, metric_notes = (changed_metrics(store, scenario, per_map_maps) if options.metrics
+                                       else (frozenset(), []))
+        if stale_metrics and not options.rerun_changed:
+            raise ConfigError("; ".join(metric_notes), "a metric's code changed since these metrics were computed; "
+                              "pass --rerun-changed to compute them again (or use a new --out file)",
+                              show_value=False)
         if not options.rerun_changed:
             stale = {}
         stored = store.count() > 0
@@ -97,7 +104,7 @@ def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchO
             pending += 1
             rerun += rep
             maps.setdefault(t[1].map_id, t[1])
-        done = (store.maps_with_metrics() - stale_maps) if options.metrics else set()
+        done = (store.maps_with_metrics() - stale_maps - stale_metrics) if options.metrics else set()
         metric_maps = [m for m in per_map_maps if m.map_id not in done] if options.metrics else []
         return BatchPlan(start, total, pending, rerun, list(maps.values()), metric_maps, stored, stale, worlds,
                          stale_maps)

@@ -23,7 +23,8 @@ Schema versions: 2 added trials.planner_fingerprint; 3 added profile, start_dela
 max_accel_mps2 and limits_exceeded (a store holds one profile: pbdyn.experiments.extend.check_scenario); 4 added
 trials.world_fingerprint (the first 16 hex digits of the row's map rollout key, which covers the world's code and
 files: pbdyn.world.rollout.rollout_key) and the meta key "world" (pbdyn.world.rollout.world_description); 5 added
-trials.path_length_m. Older stores are read as they are (a column they lack reads as
+trials.path_length_m; 6 added maps.metrics_code (the identity of the code that computed the map's metrics,
+pbdyn.metrics.cached.metrics_code). Older stores are read as they are (a column they lack reads as
 NULL) and upgraded in place when `pbdyn batch` writes to them (ResultsStore.create adds the missing columns); a
 store from a newer schema is refused.
 """
@@ -43,7 +44,12 @@ from pathlib import Path
 from pbdyn.errors import NAME_MAX, ConfigError, check_path_length
 from pbdyn.sim.result import TrialResult
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
+
+MAP_COLUMNS = ("map_id", "map_index", "map_key", "setup_json", "seed", "rollout_key", "dataset",
+               "mean_obstacle_speed", "mean_obstacle_radius", "metrics_json", "metric_times_json", "backend",
+               "metrics_code")
+"""The maps table's columns (schema 6)."""
 
 WORLD_FINGERPRINT_CHARS = 16
 """A row's world fingerprint: this many leading hex digits of its map's rollout key."""
@@ -75,7 +81,7 @@ CREATE TABLE IF NOT EXISTS runs (id INTEGER PRIMARY KEY AUTOINCREMENT, started R
     scenario_json TEXT, command TEXT, workers TEXT);
 CREATE TABLE IF NOT EXISTS maps (map_id TEXT PRIMARY KEY, map_index INTEGER, map_key TEXT, setup_json TEXT,
     seed INTEGER, rollout_key TEXT, dataset TEXT, mean_obstacle_speed REAL, mean_obstacle_radius REAL,
-    metrics_json TEXT, metric_times_json TEXT, backend TEXT);
+    metrics_json TEXT, metric_times_json TEXT, backend TEXT, metrics_code TEXT);
 CREATE TABLE IF NOT EXISTS trials (trial_key TEXT PRIMARY KEY, {", ".join(_column_sql(*c) for c in TRIAL_COLUMNS)},
     error TEXT, result_json TEXT NOT NULL, finished REAL, world_fingerprint TEXT);
 CREATE INDEX IF NOT EXISTS trials_map ON trials (map_id);
@@ -224,6 +230,8 @@ class ResultsStore:
                 for name, sql_type in (*TRIAL_COLUMNS, ("world_fingerprint", "TEXT")):
                     if name not in have:
                         conn.execute(f"ALTER TABLE trials ADD COLUMN {_column_sql(name, sql_type)}")
+                if "metrics_code" not in store._map_table_columns():
+                    conn.execute("ALTER TABLE maps ADD COLUMN metrics_code TEXT")
                 conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
             return store
         except BaseException as exc:
@@ -273,6 +281,9 @@ class ResultsStore:
 
     def _trial_table_columns(self) -> set[str]:
         return {r[1] for r in self.conn.execute("PRAGMA table_info(trials)")}
+
+    def _map_table_columns(self) -> set[str]:
+        return {r[1] for r in self.conn.execute("PRAGMA table_info(maps)")}
 
     def _schema_version(self) -> int | None:
         try:
@@ -401,6 +412,15 @@ class ResultsStore:
         return out
 
     @_guarded
+    def metric_codes(self) -> dict[str, str]:
+        """map_id -> the code identity its stored metrics were computed by (maps with metrics and a recorded code:
+        stores before schema 6 recorded none)."""
+        if "metrics_code" not in self._map_table_columns():
+            return {}
+        return dict(self.conn.execute("SELECT map_id, metrics_code FROM maps WHERE metrics_json IS NOT NULL "
+                                      "AND metrics_code IS NOT NULL"))
+
+    @_guarded
     def map_indices(self) -> dict[str, int]:
         """map_id -> map index of every map with trials or a maps row."""
         out = {r[0]: int(r[1]) for r in self.conn.execute("SELECT map_id, map_index FROM maps "
@@ -425,8 +445,7 @@ class ResultsStore:
     @_guarded
     def add_map(self, row: dict) -> None:
         """Insert or replace a map row (keys as the maps table's columns; dicts/lists stored as JSON); no commit."""
-        cols = ("map_id", "map_index", "map_key", "setup_json", "seed", "rollout_key", "dataset",
-                "mean_obstacle_speed", "mean_obstacle_radius", "metrics_json", "metric_times_json", "backend")
+        cols = MAP_COLUMNS
         self.conn.execute(f"INSERT OR REPLACE INTO maps ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
                           tuple(_cell(row.get(c)) for c in cols))
 

@@ -411,7 +411,7 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
     """Compute one map's metrics in this worker: a maps-table row (metrics, their compute times, the map's mean
     obstacle speed and radius)."""
     _limit_threads()
-    from pbdyn.metrics.cached import metric_params, resolve_backend
+    from pbdyn.metrics.cached import metric_params, metrics_code, resolve_backend
     from pbdyn.metrics.registry import compute
 
     ro = _rollout(task.rollout, data)
@@ -427,7 +427,8 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
             "rollout_key": task.rollout.key, "dataset": task.scenario.name,
             "mean_obstacle_speed": float(speeds.mean()) if speeds.size else 0.0,
             "mean_obstacle_radius": float(ro.radii.mean()) if ro.n_obstacles else 0.0,
-            "metrics_json": metrics, "metric_times_json": times, "backend": backend}
+            "metrics_json": metrics, "metric_times_json": times, "backend": backend,
+            "metrics_code": metrics_code(task.metrics, backend)}
 
 
 PARENT_POLL_S = 0.5

@@ -15,7 +15,30 @@ from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, METRIC_TABLE, NAMES, S
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
 
-METRICS_VERSION = "metrics-1"
+BACKEND_MODULES = {"bullet": "pbdyn.metrics.bullet_backend", "mesh": "pbdyn.metrics.mesh_backend"}
+"""The survivability backends' own modules ("analytic" lives in pbdyn.metrics.survivability): a metric value's
+code identity holds the module of the backend it ran with and no other's."""
+
+
+def metric_code(name: str, backend: str | None = None) -> str:
+    """The identity of the code that computes metric ``name`` with ``backend`` (pbdyn.codeid; docs/design.md "Code
+    identity"): its module and its backend's, with the pbdyn modules they use. Part of every cached value's key, so
+    the cache never serves a value computed by other code (and serves the old values again after a revert)."""
+    from pbdyn import codeid
+
+    module = next(m.module for m in METRIC_TABLE if m.name == name)
+    own = BACKEND_MODULES.get(backend or "")
+    return codeid.identity((module,) + ((own,) if own else ()),
+                           tuple(m for m in BACKEND_MODULES.values() if m != own))
+
+
+def metrics_code(names, backend: str | None) -> str:
+    """One identity for the code behind a set of metric values computed with ``backend`` (metric_code of each
+    name, in one digest): recorded with a map's metrics in a results store (maps.metrics_code)."""
+    h = hashlib.sha256()
+    for name in sorted(names):
+        h.update(f"{name}={metric_code(name, backend if name in BACKEND_METRICS else None)}\n".encode())
+    return h.hexdigest()[:16]
 
 
 def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
@@ -104,7 +127,8 @@ def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend:
     out = {}
     for name in names:
         params = metric_params(scenario, name, backend)
-        tag = hashlib.sha256(canonical_json({"v": METRICS_VERSION, "name": name, "params": params}).encode())
+        code = metric_code(name, params.get("backend"))
+        tag = hashlib.sha256(canonical_json({"v": code, "name": name, "params": params}).encode())
         path = cache_dir() / "metrics" / key / f"{name}-{tag.hexdigest()[:16]}.json"
         if use_cache and path.is_file():
             try:

@@ -6,11 +6,9 @@ flies (the MPC's convex solver, the global planner's search, ... stay unloaded o
 from __future__ import annotations
 
 import functools
-import hashlib
 import importlib
 import inspect
 from collections.abc import Iterator, MutableMapping
-from pathlib import Path
 
 from pbdyn.errors import ConfigError, check_finite_params, import_object, one_line, user_location
 from pbdyn.planning.protocols import PlannerContext
@@ -59,11 +57,6 @@ GAZE_PLANNERS: MutableMapping[str, type] = _Registry({
     "lookahead": _P + "gaze.rules:LookAhead", "fullrange": _P + "gaze.rules:FullRange",
     "lookgoal": _P + "gaze.rules:LookGoal", "lookgoal_unexplored": _P + "gaze.rules:LookGoalUnexplored",
     "rotating": _P + "gaze.rules:Rotating", "finean": _P + "gaze.finean:Finean", "owl": _P + "gaze.owl:Owl"})
-
-PLANNER_MODEL_VERSION = "1"
-"""Version of the built-in planners' behaviour, recorded in every row's planner_fingerprint: bump it when a
-built-in planner's behaviour changes, so that stores flown with the old code stop `pbdyn batch` (docs/design.md
-"Determinism": results never go stale silently)."""
 
 _TRAJECTORY_METHODS = ("replan_check", "plan")
 _GAZE_METHODS = ("yaw_rate",)
@@ -143,28 +136,45 @@ def _accepted_params(cls) -> tuple[str, ...] | None:
                  if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY))
 
 
+def _entry_module(name: str) -> str:
+    """The module a registry name's planner lives in (its entry's "module:Class", or the class put there)."""
+    for reg in (TRAJECTORY_PLANNERS, GAZE_PLANNERS):
+        if name in reg:
+            value = reg._entries[name] if isinstance(reg, _Registry) else reg[name]
+            return value.partition(":")[0] if isinstance(value, str) else getattr(value, "__module__", "")
+    raise KeyError(name)
+
+
 @functools.lru_cache(maxsize=None)
 def planner_fingerprint(name: str) -> str:
-    """What code a planner name runs: "builtin:<PLANNER_MODEL_VERSION>" for a registry name; for a plug-in
-    "package.module:Class", "sha256:" + the first 16 hex digits of the sha256 over the source files of the named
-    module and of the module that defines the object (cached per process). Unknown names raise ConfigError."""
+    """What code a planner name runs, by content (docs/design.md "Code identity"; pbdyn.codeid): "pbdyn:" + the
+    identity of a built-in's module and the pbdyn modules it uses; for a plug-in "package.module:Class" (or a class
+    a caller put in the registry), "sha256:" + the identity of its package, or of its module and the user modules
+    it imports, with the module that defines the object. Cached per process (``planner_fingerprint.cache_clear()``
+    with pbdyn.codeid.clear_cache() after an edit). Unknown names raise ConfigError."""
+    from pbdyn import codeid
+
     if name in TRAJECTORY_PLANNERS or name in GAZE_PLANNERS:
-        return f"builtin:{PLANNER_MODEL_VERSION}"
-    if not isinstance(name, str) or ":" not in name:
-        raise ConfigError("planner", "unknown planner (a registry name or 'package.module:Class')", name)
-    obj = import_object(name, "planner")
-    modules = {name.partition(":")[0], getattr(obj, "__module__", None) or name.partition(":")[0]}
-    digest = hashlib.sha256()
-    for mod_name in sorted(modules):
-        module = importlib.import_module(mod_name)
-        try:
-            source = Path(inspect.getsourcefile(module) or module.__file__).read_bytes()
-        except (TypeError, OSError):   # no source file (a built-in or frozen module): its name stands for it
-            source = b""
-        digest.update(mod_name.encode() + b"\0" + hashlib.sha256(source).digest())
-    return "sha256:" + digest.hexdigest()[:16]
+        module = _entry_module(name)
+        if module == "pbdyn" or module.startswith("pbdyn."):
+            return "pbdyn:" + codeid.identity((module,))
+        modules = (module,)
+    else:
+        if not isinstance(name, str) or ":" not in name:
+            raise ConfigError("planner", "unknown planner (a registry name or 'package.module:Class')", name)
+        obj = import_object(name, "planner")
+        module = name.partition(":")[0]
+        modules = (module, getattr(obj, "__module__", None) or module)
+    try:
+        return "sha256:" + codeid.user_identity(*dict.fromkeys(modules))
+    except (OSError, ValueError) as exc:
+        raise ConfigError("planner", f"its code cannot be identified ({one_line(exc)})", name) from None
 
 
 def pair_fingerprint(trajectory: str, gaze: str) -> str:
-    """The planner fingerprint of a (trajectory, gaze) entry: "<trajectory's>+<gaze's>" (see planner_fingerprint)."""
-    return f"{planner_fingerprint(trajectory)}+{planner_fingerprint(gaze)}"
+    """The code fingerprint of a (trajectory, gaze) entry's rows: "<trajectory's>+<gaze's>+core:<the trial core's
+    identity>" (planner_fingerprint, pbdyn.codeid.core_identity): an edit of either planner or of the code every
+    trial runs through gives rows a new fingerprint."""
+    from pbdyn import codeid
+
+    return f"{planner_fingerprint(trajectory)}+{planner_fingerprint(gaze)}+core:{codeid.core_identity()}"

@@ -29,7 +29,6 @@ from pbdyn.world.imported.bodies import (WorldBodies, bodies_fingerprint, build_
 from pbdyn.world.maps import MapSpec, spawn_obstacles, static_bodies
 from pbdyn.world.structure import structure_of
 
-ROLLOUT_MODEL_VERSION = "rollout-2"
 STATIC_KINDS = ("pillar", "box")
 
 
@@ -132,12 +131,31 @@ class Rollout:
                    static, json.loads(str(a["meta"])), WorldBodies.from_arrays(a))
 
 
+def rollout_code(motion: str | None) -> str:
+    """The identity of the code that computes a rollout moved by ``motion`` (a registry name; None: an imported
+    world's bodies): "code:" + pbdyn.codeid's identity of this module and what it uses, with that motion model's
+    module and no other's (docs/design.md "Code identity")."""
+    from pbdyn import codeid
+
+    model = type(MODELS[motion]).__module__ if motion in MODELS else None
+    others = tuple(m for m in codeid.MOTION_MODELS if m != model)
+    return "code:" + codeid.identity((__name__,) + ((model,) if model else ()), others)
+
+
+def _motion_of(scenario: Scenario, spec: MapSpec) -> str | None:
+    """The motion model a map's obstacles move by (its structure's, else obstacles.motion; None: imported)."""
+    if scenario.is_world:
+        return None
+    st = structure_of(scenario, spec.setup)
+    return st.motion if st is not None and st.motion is not None else scenario.obstacles.motion
+
+
 def rollout_key(scenario: Scenario, spec: MapSpec, horizon: float) -> str:
-    """sha256 of everything a rollout depends on (and the model version); the motion model's parameters are its
-    key_params (pbdyn.motion.registry.key_params)."""
+    """sha256 of everything a rollout depends on, with the identity of the code that computes it (rollout_code);
+    the motion model's parameters are its key_params (pbdyn.motion.registry.key_params)."""
     w = scenario.world
     payload = {
-        "version": ROLLOUT_MODEL_VERSION, "map": spec.key, "root_seed": spec.root_seed,
+        "version": rollout_code(_motion_of(scenario, spec)), "map": spec.key, "root_seed": spec.root_seed,
         "world": {"dims": w.dims, "size": w.size, "dt": w.dt},
         "obstacles": {"jitter": scenario.obstacles.radius_jitter, "motion": scenario.obstacles.motion,
                       **key_params(scenario.obstacles)},
@@ -165,7 +183,7 @@ def world_description(scenario: Scenario) -> dict:
     """What a scenario's worlds are made of beyond its settings: the rollout model's version and, for an imported
     world, each body's URDF and mesh digests and its motion module's source digest (bodies_fingerprint). Stored
     with a results store (meta "world") so that a changed world can be named (world_changes)."""
-    out: dict = {"rollout_model": ROLLOUT_MODEL_VERSION}
+    out: dict = {"rollout_model": rollout_code(None if scenario.is_world else scenario.obstacles.motion)}
     if scenario.is_world:
         out["bodies"] = bodies_fingerprint(scenario)
     return out
@@ -229,7 +247,7 @@ def build_rollout(scenario: Scenario, spec: MapSpec, horizon: float | None = Non
     model = MODELS[motion]
     pos, vel = model.rollout(p0, v0, radii, size, times, dt, model.params(scenario.obstacles))
     meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": motion,
-            "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name}
+            "version": rollout_code(motion), "scenario": scenario.name}
     return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario, spec), meta)
 
 
@@ -241,7 +259,7 @@ def _world_rollout(scenario: Scenario, spec: MapSpec, times: np.ndarray, size: n
     pos, vel = sphere_tracks(bodies, scenario.world.dims, dt, scenario)
     radii = bodies.sphere_radius[bodies.moving_index]
     meta = {"map_key": spec.key, "map_index": spec.index, "seed": spec.seed, "motion": "imported",
-            "version": ROLLOUT_MODEL_VERSION, "scenario": scenario.name, "bodies": list(bodies.names),
+            "version": rollout_code(None), "scenario": scenario.name, "bodies": list(bodies.names),
             "flight_height": scenario.world.flight_height}
     return Rollout(times, pos, vel, radii, size, dt, static_bodies(scenario), meta, bodies)
 
