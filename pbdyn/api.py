@@ -467,12 +467,14 @@ def merge_results(out: str | Path, inputs):
     """Join results stores of one experiment (e.g. the shards of run_batch(..., shard="I/N")) into ``out``; trials
     held by several inputs are stored once. Returns a MergeSummary (trials, added, duplicates, conflicts, maps)."""
     from pbdyn.experiments.merge import merge_stores
+    from pbdyn.experiments.signals import merge_signals
 
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
     elif isinstance(inputs, (bytes, Mapping)) or not hasattr(inputs, "__iter__"):
         raise ConfigError("inputs", "must be a path or a list of paths of results stores", inputs)
-    return merge_stores(_path(out, "out"), [_path(p, "inputs") for p in inputs])
+    with merge_signals(out):        # SIGTERM/SIGINT while the inputs are checked, too: one line, nothing written
+        return merge_stores(_path(out, "out"), [_path(p, "inputs") for p in inputs])
 
 
 class Results:

@@ -231,3 +231,35 @@ def test_a_bench_of_a_planner_that_segfaults_on_some_tasks_completes_with_their_
                    if suite.part(m["part"]).doc is not None and start_x(m["part"], q[0]) > 20.0)
     assert crashing > 0 and card["outcomes"]["error"] == card["trials"]["errors"] == crashing
     assert card["trials"]["flown"] == card["trials"]["expected"] == suite.n_tasks()
+
+
+# ------------------------------------------------------------------------------------------------ merge
+def _open_inputs(pid: int, folder: Path) -> bool:
+    """True if process ``pid`` holds one of the files in ``folder`` open (a merge checking its inputs)."""
+    try:
+        return any(os.readlink(f"/proc/{pid}/fd/{fd}").startswith(str(folder)) for fd in os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_merge_stopped_while_it_checks_its_inputs_says_so_in_one_line(tmp_path, sig, status):
+    sc = _scenario(tmp_path, "straight_line")
+    one = tmp_path / "one.sqlite"
+    assert _batch(sc, one, False, "--workers", "1", "--limit", "2").returncode == 0
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    for i in range(300):                           # checking 300 inputs takes long enough to be signalled
+        (inputs / f"s{i:03d}.sqlite").write_bytes(one.read_bytes())
+    out = tmp_path / "merged.sqlite"
+    proc = subprocess.Popen(pbdyn_cmd() + ["merge", *sorted(map(str, inputs.iterdir())), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not _open_inputs(proc.pid, inputs):
+        assert proc.poll() is None and time.monotonic() < deadline, "the merge ended before it could be stopped"
+        time.sleep(0.002)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == status, err
+    assert err.count("\n") == 1 and err.startswith(f"pbdyn: merge stopped by {sig.name}: ") and "Traceback" not in err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".merged")]

@@ -1,4 +1,5 @@
-"""SIGTERM and SIGINT during a batch or a merge: BatchInterrupted and the stop_on_signals block that raises it.
+"""SIGTERM and SIGINT during a batch, a merge or `pbdyn generate`: BatchInterrupted and the stop_on_signals block that
+raises it.
 
 The batch runner (pbdyn.experiments.runner) and `pbdyn merge` (pbdyn.experiments.merge) run their work inside
 stop_on_signals(), commit or roll back what they hold when BatchInterrupted arrives, and re-raise it with a message
@@ -8,6 +9,7 @@ saying what was kept; the command line exits with its ``exit_status`` (docs/expe
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -42,3 +44,18 @@ def stop_on_signals() -> Iterator[None]:
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
+
+
+@contextlib.contextmanager
+def merge_signals(out) -> Iterator[None]:
+    """The whole of `pbdyn merge` under stop_on_signals, its checks of the inputs included (the merge itself
+    re-raises with what it kept): a signal before anything is written says so, "merge stopped by SIGTERM: nothing
+    written to OUT" (pbdyn.experiments.merge)."""
+    with stop_on_signals():
+        try:
+            yield
+        except BatchInterrupted as exc:
+            if str(exc).startswith("merge stopped"):
+                raise
+            raise BatchInterrupted(exc.signum, f"merge stopped by {signal.Signals(exc.signum).name}: "
+                                   f"nothing written to {os.path.basename(os.fspath(out))}") from None
