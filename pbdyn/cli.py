@@ -453,10 +453,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     res = api.calibrate(args.scenario, maps=args.map, store=args.store, workers=args.workers,
                         progress=not args.json)
+    from pbdyn.experiments.calibrate import load_anchors
+
+    anchors = load_anchors()
+    status = anchors.code_status() if anchors is not None else "no anchors"
     if args.json:
-        sys.stdout.write(json.dumps({"maps": [r.to_dict() for r in res]}, sort_keys=True) + "\n")
+        sys.stdout.write(json.dumps({"maps": [r.to_dict() for r in res], "anchors_code": status},
+                                    sort_keys=True) + "\n")
     else:
         sys.stdout.write(format_difficulties(res))
+        if status != "same":
+            sys.stdout.write(f"note: the shipped anchors' code: {status} (docs/difficulty-scale.md)\n")
     return 0
 
 

@@ -427,3 +427,35 @@ def test_the_card_says_whether_this_pbdyn_flies_the_references_code():
     stale = {"meta": {**refs["a"]["meta"], "fingerprint": now.replace("+core:", "+core:0")[:len(now)]}}
     doc = code_provenance({"fingerprint": now}, {"a": refs["a"], "c": stale})
     assert doc["references"] == {"a": "same", "c": "other"} and "1 of 2 references" in doc["statement"]
+
+
+# ------------------------------------------------------------------------------------- the calibration's code
+def test_the_calibration_records_its_code_and_says_whether_this_pbdyn_flies_it(tmp_path, monkeypatch):
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import fit_anchors as fa
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    from pbdyn.analysis.scale import PANEL
+    from pbdyn.experiments.calibrate import Anchors, load_anchors
+    from pbdyn.experiments.runner import BatchOptions, run_batch
+    from pbdyn.planning.registry import pair_fingerprint
+
+    import pbdyn
+    sc = pbdyn.load_scenario({"name": "calcode", "world": {"time_limit": 5.0}, "obstacles": {"count": 3},
+                              "drone": {"v_max": [4.0]},
+                              "planners": [{"trajectory": e.trajectory, "gaze": e.gaze} for e in PANEL]})
+    store = tmp_path / "cal.sqlite"
+    run_batch(sc, store, BatchOptions(workers=1, metrics=False, limit=len(PANEL) * 2))
+    monkeypatch.setattr(fa, "DATA", tmp_path / "data")
+    fa.export([store])
+    code = json.loads((tmp_path / "data" / fa.CODE_FILE).read_text())["2d"]
+    assert set(code) <= {e.label for e in PANEL} and code
+    assert all(fps == [pair_fingerprint(e.trajectory, e.gaze)] for e in PANEL for fps in [code.get(e.label)] if fps)
+    assert fa._recorded_code("2d") == {"code": code}
+    shipped = load_anchors()
+    assert shipped.code_status() == "not recorded"          # fitted before pbdyn recorded code identities
+    now = {e.label: [pair_fingerprint(e.trajectory, e.gaze)] for e in PANEL}
+    assert Anchors(shipped.version, shipped.abilities, code=now).code_status() == "same"
+    stale = {**now, PANEL[0].label: ["sha256:0+pbdyn:0+core:0"]}
+    assert Anchors(shipped.version, shipped.abilities, code=stale).code_status() == "other"

@@ -27,10 +27,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pbdyn.analysis.scale import PRIOR_TRIALS, SCALE_VERSION, difficulty_given_abilities, respondent  # noqa: E402
+from pbdyn.analysis.scale import (PANEL, PRIOR_TRIALS, SCALE_VERSION, difficulty_given_abilities,  # noqa: E402
+                                  respondent)
 from pbdyn.experiments.calibrate import RESPONDENTS  # noqa: E402
 
 DATA = ROOT / "pbdyn" / "analysis" / "data"
+CODE_FILE = "calibration_code.json"
+"""Per exported kind (2d, 3d, worlds), panel label -> the code fingerprints its calibration rows were flown with
+(pbdyn.planning.registry.pair_fingerprint); fit() records the 2D set's in anchors.json ("code")."""
 FIELDS = ("map_id", "map_index", "family", "count", "radius", "speed", "start", "goal", "respondent", "success")
 
 
@@ -61,14 +65,33 @@ def store_outcomes(store: Path) -> tuple[str, list[tuple]]:
     return kind, out
 
 
+def store_code(store: Path) -> dict[str, list[str]]:
+    """Panel label -> the sorted code fingerprints its rows in ``store`` were flown with."""
+    from pbdyn.experiments.store import ResultsStore
+
+    st = ResultsStore.open(store)
+    try:
+        counts = st.fingerprint_counts()
+    finally:
+        st.close()
+    out: dict[str, set] = {}
+    for label, fp, _ in counts:
+        if label in {e.label for e in PANEL}:
+            out.setdefault(label, set()).add(fp or "not recorded")
+    return {k: sorted(v) for k, v in sorted(out.items())}
+
+
 def export(stores: list[Path]) -> list[Path]:
     """Write the panel's outcomes of ``stores`` to DATA/calibration_<kind>.csv.gz (one file per kind: 2d, 3d,
     worlds -- the stores of one kind together); returns the paths written."""
     import collections
 
     per: dict[str, list] = {}
+    code: dict[str, dict] = {}
     for store in stores:
         kind, rows = store_outcomes(store)
+        for label, fps in store_code(store).items():
+            code.setdefault(kind, {}).setdefault(label, set()).update(fps)
         counts = collections.Counter(r[0] for r in rows)
         full = max(counts.values()) if counts else 0
         partial = sorted(m for m, c in counts.items() if c < full)
@@ -88,6 +111,11 @@ def export(stores: list[Path]) -> list[Path]:
         DATA.mkdir(parents=True, exist_ok=True)
         path.write_bytes(gzip.compress(buf.getvalue().encode(), mtime=0))
         paths.append(path)
+    code_path = DATA / CODE_FILE
+    recorded = json.loads(code_path.read_text()) if code_path.is_file() else {}
+    recorded.update({kind: {k: sorted(v) for k, v in sorted(c.items())} for kind, c in code.items()})
+    code_path.write_text(json.dumps(recorded, indent=1, sort_keys=True) + "\n")
+    paths.append(code_path)
     return paths
 
 
@@ -113,7 +141,14 @@ def fit(outcomes_2d: list[dict]) -> dict:
             "ability_se": {r: round(float(s), 6) for r, s in zip(res.respondents, res.ability_se)},
             "source": f"fit_rasch (statsmodels GLM, {PRIOR_TRIALS:g} pseudo-trial per map) on calibration_2d: "
                       f"{len(res.items)} maps, {int(y.size)} trials",
-            "converged": bool(res.converged)}
+            "converged": bool(res.converged), **_recorded_code("2d")}
+
+
+def _recorded_code(kind: str) -> dict:
+    """{"code": panel label -> fingerprints} of the exported ``kind`` where the export recorded it, else {}."""
+    path = DATA / CODE_FILE
+    code = json.loads(path.read_text()).get(kind) if path.is_file() else None
+    return {"code": code} if code else {}
 
 
 def map_difficulties(outcomes: list[dict], abilities: dict) -> list[float]:

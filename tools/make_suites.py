@@ -330,7 +330,7 @@ def freeze(name: str, out: Path) -> None:
     from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
     from pbdyn.benchmark.card import machine
     from pbdyn.benchmark.run import REFERENCE_FILE, THESIS_GAZE, read_rows, reference_document
-    from pbdyn.benchmark.suite import load_suite
+    from pbdyn.benchmark.suite import REFERENCES_DIGEST, SUITE_FORMAT, load_suite, references_digest
     from pbdyn.experiments.calibrate import load_anchors, measure, panel_counts
     from pbdyn.planning.registry import pair_fingerprint
 
@@ -343,7 +343,10 @@ def freeze(name: str, out: Path) -> None:
             raise SystemExit(f"{out / traj}: {len(rows)} of {suite.n_tasks()} tasks flown; fly them first")
         label = f"{gaze}+{traj}"
         flown[label] = {"rows": rows, "meta": {"trajectory": traj, "gaze": gaze,
-                                               "fingerprint": pair_fingerprint(traj, gaze)}}
+                                               "fingerprint": _flown_fingerprint(out / traj, label)}}
+        if flown[label]["meta"]["fingerprint"] != pair_fingerprint(traj, gaze):
+            print(f"note: {label} was flown by other code than this checkout's (its rows record "
+                  f"{flown[label]['meta']['fingerprint']}); the references record the code that flew them")
     panel_rows = []
     for e in PANEL:
         for r in flown[e.label]["rows"]:
@@ -370,16 +373,38 @@ def freeze(name: str, out: Path) -> None:
         doc["levels"] = [lv for lv in doc["levels"] if any(m["level"] == lv["level"] for m in doc["maps"])]
     doc["built"] = {"tool": "tools/make_suites.py", "pbdyn": pbdyn.__version__,
                     "scale": f"anchored/{load_anchors().version}"}
+    doc["format"] = SUITE_FORMAT                # the hash covers the references' digest (suite.py module doc)
+    doc.pop(REFERENCES_DIGEST, None)
     (folder / "suite.json").write_text(json.dumps(doc, indent=1) + "\n")
     suite = load_suite(folder)
     date = datetime.now(timezone.utc).replace(microsecond=0).isoformat()
     for v in flown.values():
         v["meta"].update({"pbdyn": pbdyn.__version__, "machine": machine(), "date": date,
                           "python": platform.python_version()})
+    doc[REFERENCES_DIGEST] = references_digest(reference_document(suite, flown))
+    (folder / "suite.json").write_text(json.dumps(doc, indent=1) + "\n")
+    suite = load_suite(folder)
     ref = reference_document(suite, flown)
     (folder / REFERENCE_FILE).write_bytes(gzip.compress(json.dumps(ref, separators=(",", ":")).encode(), mtime=0))
     print(f"{name}: hash {suite.hash}; levels " + " ".join(
         f"{lv['level']}:{sum(m['level'] == lv['level'] for m in doc['maps'])}" for lv in doc["levels"]))
+
+
+def _flown_fingerprint(folder: Path, label: str) -> str:
+    """The one code fingerprint the rows of ``label`` in a bench folder's flight stores were flown with."""
+    from pbdyn.experiments.store import ResultsStore
+
+    fps = set()
+    for path in sorted((folder / "flights").glob("*.sqlite")):
+        st = ResultsStore.open(path)
+        try:
+            fps |= {fp for lab, fp, _ in st.fingerprint_counts() if lab == label}
+        finally:
+            st.close()
+    if len(fps) != 1:
+        raise SystemExit(f"{folder}: the rows of {label} were flown with {len(fps)} code fingerprints "
+                         f"({', '.join(sorted(map(str, fps)))}); fly them with one code")
+    return fps.pop()
 
 
 def _toml(doc: dict, comment: str) -> str:

@@ -37,12 +37,28 @@ RESPONDENTS = tuple(respondent(e.label, v) for e in PANEL for v in PANEL_SPEEDS)
 @dataclass(frozen=True)
 class Anchors:
     """The shipped calibration: ``abilities`` (respondent -> logits), the calibration maps' ``difficulties`` per
-    dims ({2: [...], 3: [...]}, logits; for percentiles), its version and where it came from (``source``)."""
+    dims ({2: [...], 3: [...]}, logits; for percentiles), its version and where it came from (``source``);
+    ``code``: the code fingerprints the calibration was flown with (panel label -> [fingerprints]; {} for anchors
+    fitted before pbdyn recorded code identities)."""
 
     version: str
     abilities: dict
     difficulties: dict = field(default_factory=dict)
     source: str = ""
+    code: dict = field(default_factory=dict)
+
+    def code_status(self) -> str:
+        """Whether this pbdyn flies the calibration's code (docs/design.md "Code identity"): "same" when every
+        panel pair's fingerprint now is the one recorded, "other" when one differs, "not recorded"."""
+        from pbdyn.planning.registry import pair_fingerprint
+
+        if not self.code:
+            return "not recorded"
+        for label, fps in self.code.items():
+            gaze, _, traj = label.partition("+")
+            if list(fps) != [pair_fingerprint(traj, gaze)]:
+                return "other"
+        return "same"
 
     def theta(self) -> np.ndarray:
         """The abilities in RESPONDENTS order."""
@@ -71,7 +87,7 @@ def load_anchors(path: str | Path | None = None) -> Anchors | None:
     if missing:
         raise ConfigError("anchors", f"lacks the abilities of {', '.join(missing)}", str(p))
     return Anchors(str(doc["version"]), {k: float(v) for k, v in doc["abilities"].items()},
-                   doc.get("difficulties", {}), doc.get("source", ""))
+                   doc.get("difficulties", {}), doc.get("source", ""), dict(doc.get("code") or {}))
 
 
 @dataclass(frozen=True)
@@ -144,10 +160,13 @@ def _setup_entry(setup: dict) -> dict:
 
 
 def default_store(ref: Scenario) -> Path:
-    """Where a calibration is kept unless told: <cache>/calibration/<name>-<hash of what is flown>.sqlite."""
-    from pbdyn.world.rollout import cache_dir
+    """Where a calibration is kept unless told: <cache>/calibration/<name>-<hash of what is flown and the code that
+    flies it>.sqlite (an edit of pbdyn's code starts another store; reverting it finds the old one)."""
+    from pbdyn.planning.registry import pair_fingerprint
+    from pbdyn.world.rollout import cache_dir, world_description
 
-    digest = hashlib.sha256(canonical_json(ref.to_dict()).encode()).hexdigest()[:16]
+    code = [pair_fingerprint(e.trajectory, e.gaze) for e in ref.planners] + [world_description(ref)]
+    digest = hashlib.sha256(canonical_json({"scenario": ref.to_dict(), "code": code}).encode()).hexdigest()[:16]
     return cache_dir() / "calibration" / f"{ref.name}-{digest}.sqlite"
 
 
