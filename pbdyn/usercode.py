@@ -30,12 +30,13 @@ USER_CODE_TIMEOUT_S = 10.0
 
 PLANNER_CALL_TIMEOUT_S = 60.0
 """Wall-clock budget (s) of one decision of a trial whose planner pair includes a plug-in: its ``replan_check``,
-``plan`` and ``yaw_rate`` calls of one step together (pbdyn.sim.agent.Agent.act). A decision past it ends the trial as
-an error naming the budget (a batch's ``error`` row; the batch goes on). Built-in pairs have no budget and pay
-nothing for it; a plug-in pair pays about a microsecond: a clock read, within the loop's decision_watchdog). Interrupts Python code (loops, sleeps, waits) in a process's main thread -- local batch workers,
+``plan`` and ``yaw_rate`` calls of one step together (pbdyn.sim.agent.Agent.act). A decision past it ends the trial
+as an error naming the budget (a batch's ``error`` row; the batch goes on). Built-in pairs have no budget and pay
+nothing for it. Within pbdyn.sim.trial.fly one interval timer (decision_watchdog) serves every decision of the
+loop, and a decision costs a clock read (about 0.1 us); elsewhere each decision arms a time_budget of its own
+(about 12 us). Interrupts Python code (loops, sleeps, waits) in a process's main thread -- local batch workers,
 ``pbdyn run`` --, not one C call that never returns, and not on Dask workers (threads), where a decision is not
-bounded. Within pbdyn.sim.trial.fly one interval timer (decision_watchdog) serves every decision of the loop;
-elsewhere each decision arms a time_budget of its own."""
+bounded."""
 
 _RETRY_S = 0.5
 """After the budget is spent, the timer fires again every _RETRY_S s (user code that swallows the first

@@ -144,6 +144,7 @@ def test_a_planner_that_segfaults_its_worker_gives_one_error_row_and_the_batch_c
     _check_isolated(tmp_path, "SegfaultPlanner", "exit -11 / signal SIGSEGV", 1, "--workers", "2")
 
 
+@pytest.mark.slow
 def test_a_planner_that_segfaults_through_ctypes_is_isolated_on_each_map(tmp_path):
     _check_isolated(tmp_path, "CtypesSegfaultPlanner", "exit -11 / signal SIGSEGV", 2, "--workers", "2")
 
