@@ -103,10 +103,10 @@ class Dispatcher:
                 self.store.commit()
             finally:
                 try:
-                    self.pool.close(terminate=interrupted)
-                finally:
-                    if self.solo_pool is not None:
+                    if self.solo_pool is not None:     # closed before the main pool: their guards nest
                         self.solo_pool.close(terminate=True)
+                finally:
+                    self.pool.close(terminate=interrupted)
         return self.ran, self.errors, self.maps
 
     # ------------------------------------------------------------------------------------------- the task stream
