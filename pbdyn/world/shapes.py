@@ -205,7 +205,7 @@ def body_primitives(urdf: str | Path, scale: Sequence[float], field: str = "urdf
     path = Path(urdf)
     check_urdf(path, field, tuple(scale))
     try:
-        root = ET.fromstring(scale_urdf_text(path.read_text(), tuple(scale), path.parent))
+        root = ET.fromstring(scale_urdf_text(path.read_text(encoding="utf-8"), tuple(scale), path.parent))
     except (ET.ParseError, ValueError, UnicodeDecodeError) as exc:
         raise ConfigError(field, f"cannot read the URDF ({' '.join(str(exc).split())})", str(urdf)) from None
     links = {link.get("name"): link for link in root.findall("link")}

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn import resources
-from pbdyn.urdf import check_urdf
+from pbdyn.errors import ConfigError
+from pbdyn.urdf import MAX_LINE_BYTES, check_urdf
 from pbdyn.world.pybullet_client import pybullet, stdout_to_stderr
 
 IDENTITY_QUATERNION = (0.0, 0.0, 0.0, 1.0)
@@ -85,14 +86,20 @@ def scale_urdf_text(text: str, scale_xyz: Sequence[float], base_dir: str | Path 
                 name = shape.get("filename", "")
                 if base_dir is not None and name and "://" not in name and not os.path.isabs(name):
                     shape.set("filename", str(Path(base_dir, name).resolve()))
+    ET.indent(root)   # one element a line: PyBullet splits lines longer than ~8 KiB (pbdyn.urdf.MAX_LINE_BYTES)
     return ET.tostring(root, encoding="unicode")
 
 
 @functools.lru_cache(maxsize=256)
 def _scaled_text(path: str, scale: tuple[float, float, float], cylinders_as_spheres: bool) -> str:
     check_urdf(path, "urdf", scale)   # scenarios' URDFs were checked at load time naming their field: a backstop
-    text = Path(path).read_text()
-    return scale_urdf_text(text, scale, Path(path).parent, cylinders_as_spheres=cylinders_as_spheres)
+    text = Path(path).read_text(encoding="utf-8")
+    text = scale_urdf_text(text, scale, Path(path).parent, cylinders_as_spheres=cylinders_as_spheres)
+    longest = max(len(line.encode("utf-8")) for line in text.split("\n"))
+    if longest > MAX_LINE_BYTES:
+        raise ConfigError("urdf", f"{Path(path).name}: scaled for PyBullet it has a line of {longest:,} bytes, more "
+                          f"than PyBullet's URDF reader takes whole ({MAX_LINE_BYTES:,}); shorten its attributes", path)
+    return text
 
 
 def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], position: Sequence[float],
@@ -108,7 +115,7 @@ def load_scaled_urdf(client, path: str | Path, scale_xyz: Sequence[float], posit
     text = _scaled_text(key[0], key[1], bool(cylinders_as_spheres))
     fd, tmp = tempfile.mkstemp(prefix="pbdyn-", suffix=".urdf")
     try:
-        with os.fdopen(fd, "w") as fh:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
         with stdout_to_stderr():
             body = client.loadURDF(tmp, basePosition=[float(x) for x in position],
