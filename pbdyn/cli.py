@@ -251,6 +251,8 @@ def _command_line(command: str) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from pbdyn import api
 
+    if args.follow and not args.gui:
+        raise ConfigError("--follow", "needs --gui (the camera follows the MAV in the GUI)", None, show_value=False)
     if args.replay is not None:
         from pbdyn.analysis.replay import check_output
 
@@ -345,6 +347,9 @@ def cmd_metrics(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from pbdyn import api
 
+    for flag, value in (("--maps", args.maps), ("--pairs", args.pairs)):
+        if value == 0:
+            raise ConfigError(flag, "must be >= 1", 0)
     rows = api.run_demo(args.scenario, n_maps=args.maps, n_pairs=args.pairs, json_out=args.json)
     if args.json:
         sys.stdout.write(json.dumps(rows, sort_keys=True) + "\n")
@@ -532,8 +537,10 @@ COMMANDS = {"run": cmd_run, "rollout": cmd_rollout, "metrics": cmd_metrics, "dem
             "generate": cmd_generate, "calibrate": cmd_calibrate, "bench": cmd_bench}
 
 
-COMMAND_FLAGS = {"bench": {"planner": "PLANNER"}}
-"""Where a command names an option otherwise than FLAGS does (bench's planner is its positional PLANNER)."""
+COMMAND_FLAGS = {"bench": {"planner": "PLANNER", "card": "--compare"}, "generate": {"scenario": "--scenario"},
+                 "calibrate": {"out": "--store", "results": "--store"}}
+"""Where a command names an option otherwise than FLAGS does (bench's planner is its positional PLANNER, generate's
+base scenario its --scenario, calibrate's results store its --store)."""
 
 
 def _flag(command: str, field: str) -> str | None:
