@@ -14,7 +14,16 @@ worlds/warehouse_2d.toml, worlds/mixed_3d.toml) and applies one mutation (someti
 - ``text``: the TOML text itself broken (truncated, a table header repeated, invalid UTF-8, a NUL byte);
 - ``urdf``: (world files) a body's URDF copied into the case folder and broken: box sizes, sphere radii, cylinder
   lengths, origin rpy/xyz, mesh scale or file, missing geometry, broken XML;
-- ``motionfn``: (world files) a body's motion becomes one of tests/usercode_motions.py's misbehaving functions.
+- ``motionfn``: (world files) a body's motion becomes one of tests/usercode_motions.py's misbehaving functions;
+- ``card``: (no scenario) a file given to ``pbdyn bench --compare``: truncated, foreign (a suite manifest, gzip or
+  random bytes, an empty file, a JSON list, a schema name alone), tampered (a card-like document with wrong types),
+  deeply nested, or a folder without card.json;
+- ``suite``: (no scenario) a copy of the mini suite folder whose suite.json or reference.json.gz is tampered
+  (truncated, not JSON, a value changed, the references' digest changed, random bytes, recompressed with a changed
+  row, removed), given to ``pbdyn bench straight_line --suite FOLDER``;
+- ``flag``: (no scenario) one numeric flag of one command with a huge, negative, NaN or infinite value.
+
+Card, suite and flag cases must be refused: exit 2 with one line, nothing written.
 
 A case's command is ``pbdyn run CASE --json`` (half the cases; a mutated [[planners]] entry is moved to the front,
 since run flies the first), ``pbdyn metrics CASE --json --metric density`` or
@@ -130,6 +139,37 @@ TEXT_KINDS = ("truncate", "dup_header", "invalid_utf8", "nul_byte")
 
 COMMANDS = ("run", "metrics", "rollout")
 
+MINI_SUITE = ROOT / "scenarios" / "suites" / "pbdyn-2d-mini"
+CARD_KINDS = ("truncated_manifest", "manifest", "gzip", "random_bytes", "empty", "json_list", "schema_only",
+              "wrong_types", "deep_nesting", "huge_number", "folder", "nul_bytes")
+SUITE_KINDS = ("manifest:truncate", "manifest:not_json", "manifest:value", "manifest:digest", "manifest:remove",
+               "reference:truncate", "reference:random_bytes", "reference:row", "reference:remove")
+_GEN = ["generate", "--metric", "density", "--target", "1", "--tolerance", "0.1", "--out", "{dir}/g.toml"]
+NUMERIC_FLAGS = {
+    ("run", "--map"): ["run", "quickstart"], ("run", "--vmax"): ["run", "quickstart"],
+    ("replay", "--fps"): ["replay", "{dir}/t.npz", "--out", "{dir}/r.gif"],
+    ("replay", "--every"): ["replay", "{dir}/t.npz", "--out", "{dir}/r.gif"],
+    ("rollout", "--map"): ["rollout", "quickstart", "--out", "{dir}/out.npz"],
+    ("rollout", "--horizon"): ["rollout", "quickstart", "--out", "{dir}/out.npz"],
+    ("metrics", "--map"): ["metrics", "quickstart"], ("demo", "--maps"): ["demo", "quickstart"],
+    ("demo", "--pairs"): ["demo", "quickstart"],
+    ("batch", "--workers"): ["batch", "quickstart", "--out", "{dir}/b.db"],
+    ("batch", "--limit"): ["batch", "quickstart", "--out", "{dir}/b.db"],
+    ("batch", "--lockstep"): ["batch", "quickstart", "--out", "{dir}/b.db"],
+    ("evaluate", "--bootstrap"): ["evaluate", "{dir}/none.db"],
+    ("generate", "--target"): _GEN[:4] + _GEN[6:], ("generate", "--tolerance"): _GEN[:6] + _GEN[8:],
+    ("generate", "--success"): ["generate", "--tolerance", "0.1", "--out", "{dir}/g.toml"],
+    **{("generate", f): _GEN for f in ("--count", "--dims", "--obstacles", "--radius", "--speed", "--seed",
+                                        "--workers")},
+    ("calibrate", "--map"): ["calibrate", "quickstart"], ("calibrate", "--workers"): ["calibrate", "quickstart"],
+    ("bench", "--workers"): ["bench", "straight_line", "--out", "{dir}/bench"],
+}
+"""Every numeric flag of every command, with the rest of a command line that is valid."""
+FLAG_VALUES = {"nan": ["nan", "NaN", "-nan"], "inf": ["inf", "-inf", "Infinity"], "negative": ["-1", "-1e300"],
+               "huge": ["1e400", str(2 ** 64), "9" * 40, "1e10", "-1e10"]}
+SIGNED_FLAGS = {("generate", "--target")}
+"""Flags a negative value is valid for (huge values beyond the limits, NaN and infinity only)."""
+
 
 # ------------------------------------------------------------------------------------------------ TOML writer
 _BARE = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -207,6 +247,13 @@ class Case:
     text: bytes = b""
     urdfs: dict[str, str] = field(default_factory=dict)   # file name in the case folder -> text
     mutations: list[tuple[str, str]] = field(default_factory=list)
+    files: dict[str, bytes] = field(default_factory=dict)  # card, suite and flag cases: path in the folder -> bytes
+    command_line: list[str] | None = None                 # card, suite and flag cases: argv, "{dir}": the folder
+
+    @property
+    def must_refuse(self) -> bool:
+        """Card, suite and flag cases are bad input: exit 2 only."""
+        return self.command_line is not None
 
     @property
     def classes(self) -> list[str]:
@@ -217,11 +264,17 @@ class Case:
         folder.mkdir(parents=True, exist_ok=True)
         for name, text in self.urdfs.items():
             (folder / name).write_text(text)
+        for name, data in self.files.items():
+            (folder / name).parent.mkdir(parents=True, exist_ok=True)
+            if data is not None:
+                (folder / name).write_bytes(data)
         path = folder / "case.toml"
         path.write_bytes(self.text)
         return path
 
     def argv(self, path: Path, folder: Path) -> list[str]:
+        if self.command_line is not None:
+            return [a.replace("{dir}", str(folder)) for a in self.command_line]
         if self.command == "run":
             return ["run", str(path), "--json"]
         if self.command == "metrics":
@@ -525,9 +578,85 @@ def _mutate_urdf(doc: dict, rng: np.random.Generator, urdfs: dict[str, str]) -> 
     return f"urdf:{kind}:{val}", f"bodies[{i}] ({src.name}) {kind} = {val}"
 
 
+def _card_case(case: Case, rng: np.random.Generator) -> None:
+    kind = str(rng.choice(CARD_KINDS))
+    manifest = (MINI_SUITE / "suite.json").read_bytes()
+    data = {"truncated_manifest": manifest[: int(rng.integers(1, len(manifest)))], "manifest": manifest,
+            "gzip": (MINI_SUITE / "reference.json.gz").read_bytes()[:4096],
+            "random_bytes": rng.bytes(int(rng.integers(1, 2048))), "empty": b"", "json_list": b"[1, 2, 3]",
+            "schema_only": b'{"schema": "pbdyn-card/1"}',
+            "wrong_types": json.dumps({"schema": "pbdyn-card/1", "suite": "x", "planner": 1, "success": [],
+                                       "levels": {"a": None}}).encode(),
+            "deep_nesting": b"[" * 100_000 + b"]" * 100_000, "huge_number": b'{"schema": "pbdyn-card/1", "x": 1e999}',
+            "nul_bytes": b'{"schema": "pbdyn-\x00card/1"}'}.get(kind)
+    if kind == "folder":
+        case.files["cards/notes.txt"] = b"no card here\n"
+        target = "{dir}/cards"
+    else:
+        case.files["card.json"] = data
+        target = "{dir}/card.json"
+    others = ["{dir}/card.json"] if kind == "folder" and rng.integers(2) else []
+    case.command_line = ["bench", "--compare", target, *others, "--json"]
+    case.mutations.append((f"card:{kind}", f"bench --compare {target}"))
+
+
+def _suite_case(case: Case, rng: np.random.Generator) -> None:
+    import gzip
+
+    kind = str(rng.choice(SUITE_KINDS))
+    files = {f"suite/{p.name}": p.read_bytes() for p in MINI_SUITE.iterdir() if p.is_file()}
+    what, how = kind.split(":")
+    name = "suite/suite.json" if what == "manifest" else "suite/reference.json.gz"
+    data = files[name]
+    if how == "truncate":
+        files[name] = data[: int(rng.integers(1, len(data)))]
+    elif how == "not_json":
+        files[name] = b"suite = 'not json'\n"
+    elif how == "random_bytes":
+        files[name] = rng.bytes(int(rng.integers(1, 4096)))
+    elif how == "remove":
+        files[name] = None
+    elif how == "digest":
+        doc = json.loads(data)
+        doc["references_sha256"] = "0" * 64
+        files[name] = json.dumps(doc).encode()
+    elif how == "value":
+        doc = json.loads(data)
+        key = str(rng.choice(["name", "dims", "speeds", "levels", "maps"]))
+        doc[key] = {"name": "pbdyn-2d-other", "dims": 3, "speeds": [6.0], "levels": [], "maps": []}[key]
+        files[name] = json.dumps(doc).encode()
+    else:   # a changed row in the references, recompressed
+        text = gzip.decompress(data).decode()
+        for old, new in (('"success"', '"collision"'), ('"outcome": "success"', '"outcome": "timeout"'), ("0", "1")):
+            if old in text:
+                text = text.replace(old, new, 1)
+                break
+        files[name] = gzip.compress(text.encode(), mtime=0)
+    case.files = {k: v for k, v in files.items()}
+    case.command_line = ["bench", "straight_line", "--suite", "{dir}/suite", "--out", "{dir}/bench", "--workers", "1"]
+    case.mutations.append((f"suite:{kind}", f"{name} {how}"))
+
+
+def _flag_case(case: Case, rng: np.random.Generator) -> None:
+    keys = sorted(NUMERIC_FLAGS)
+    command, flag = keys[int(rng.integers(len(keys)))]
+    cats = [c for c in FLAG_VALUES if not (c == "negative" and (command, flag) in SIGNED_FLAGS)]
+    cat = str(rng.choice(cats))
+    value = str(rng.choice(FLAG_VALUES[cat]))
+    case.command_line = [*NUMERIC_FLAGS[(command, flag)], f"{flag}={value}"]
+    case.mutations.append((f"flag:{command}{flag}:{cat}", f"pbdyn {command} {flag}={value}"))
+
+
 def make_case(index: int) -> Case:
     """Fuzz case ``index`` (deterministic)."""
     rng = np.random.default_rng([FUZZ_SEED, index])
+    other = np.random.default_rng([FUZZ_SEED, index, 1])   # the classes added later leave the others' draws alone
+    r = other.random()
+    if r < 0.12:
+        kind, build = [("card", _card_case), ("suite", _suite_case), ("flag", _flag_case)][int(r / 0.04)]
+        case = Case(index, kind, kind)
+        build(case, other)
+        return case
     base = str(rng.choice(list(BASES)))
     doc = tomllib.loads(BASES[base].read_text())
     _absolute_bodies(doc, BASES[base])
@@ -631,6 +760,8 @@ def verdict(case: Case, out: Outcome, time_bound_s: float) -> str | None:
     problem = basic_problem(out, time_bound_s)
     if problem:
         return problem
+    if out.code == 0 and case.must_refuse:
+        return f"exit 0 for bad input: {out.stdout[:200]!r}"
     if out.code == 0:
         if case.command == "rollout":
             if not out.out_exists:
@@ -660,7 +791,7 @@ CACHE_DIR = "cache"
 
 
 def expected_files(case: Case) -> set[str]:
-    return {"case.toml", CACHE_DIR, *case.urdfs}
+    return {"case.toml", CACHE_DIR, *case.urdfs, *(name.split("/")[0] for name in case.files)}
 
 
 def run_subprocess(case: Case, folder: Path, *, timeout_s: float = 60.0, memory_bytes: int = 4 << 30,
