@@ -205,7 +205,7 @@ def test_bad_bench_input_gets_one_line(tmp_path):
     cases = [(["no_such_planner", "--suite", MINI, "--out", str(tmp_path / "a")], "planner"),
              (["local_primitives", "--suite", "no-such-suite", "--out", str(tmp_path / "b")], "--suite"),
              (["local_primitives", "--suite", MINI], "--out"),
-             (["--compare", str(tmp_path / "missing.json")], "CARD")]
+             (["--compare", str(tmp_path / "missing.json")], "--compare")]
     full = tmp_path / "full"
     full.mkdir()
     (full / "notes.txt").write_text("mine")

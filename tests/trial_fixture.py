@@ -44,7 +44,7 @@ def fly_cases(every: int = 1) -> list[dict]:
     """Fly every ``every``-th case; each row is TrialResult.without_wall_times() plus the case."""
     from pbdyn.config import load_scenario
     from pbdyn.sim.trial import make_trial_spec, run_trial
-    from pbdyn.world.maps import get_map
+    from pbdyn.world.maps import get_map, legacy_map_id
     from pbdyn.world.rollout import get_rollout
 
     rows = []
@@ -56,6 +56,7 @@ def fly_cases(every: int = 1) -> list[dict]:
         res = run_trial(spec, get_rollout(sc, ms))
         row = res.without_wall_times()
         row.pop("planner_fingerprint", None)   # provenance of the code, not behaviour: not part of the fixture
+        row["map_id"] = legacy_map_id(row["map_key"])   # recorded under the id rule before (setup-1); same key
         rows.append({"case": [name, m, traj, gaze, list(start), list(goal)], "row": row})
     return rows
 

@@ -194,7 +194,8 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
                   "maps": len(suite.maps), "tasks": suite.n_tasks(), "speeds_mps": list(suite.speeds),
                   "levels": [{"level": int(lv["level"]), "success_range": lv["success_range"],
                               "maps": sum(int(m["level"]) == int(lv["level"]) for m in suite.maps)}
-                             for lv in suite.levels]}
+                             for lv in suite.levels],
+                  "map_ids": suite.id_rule, **({"note": V1_NOTE} if suite.id_rule == "setup-1" else {})}
     scale = f"anchored-{SCALE_VERSION}/{anchors.version}" if anchors is not None else "unanchored"
     card = {"schema": CARD_SCHEMA, "summary": "", "suite": suite_info, "planner": dict(planner),
             "provenance": {"pbdyn": __version__, "scale": scale, "machine": machine(),
@@ -204,6 +205,12 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
             **mine, "rank": {"by": "ability", "rank": rank, "of": n_ranked}, "references": refs}
     card["summary"] = summary_line(card)
     return card
+
+
+V1_NOTE = ("a pbdyn-suite/1 suite: its map ids follow the rule before (setup values and replicate alone; they repeat "
+           "across parts, so a map is named by part and id) and its hash does not cover its reference results, "
+           "which are checked against the digest its manifest records (docs/benchmark.md)")
+"""The note a card of a v1 suite carries."""
 
 
 def code_provenance(planner: dict, references: dict) -> dict:

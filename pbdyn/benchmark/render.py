@@ -161,7 +161,8 @@ def _header_facts(card: dict) -> list[tuple[str, str]]:
                      f"{card['rank']['rank']} of {card['rank']['of']} with the references") if a else NA),
         ("made with", f"pbdyn {pv['pbdyn']} on {m.get('cpu') or m.get('machine')} ({m.get('cpus')} CPUs, "
                       f"{m.get('system')}, Python {m.get('python')}), {pv['date']}"),
-    ] + ([("code", f"core {pv['code']['core']}; {pv['code']['statement']}")] if pv.get("code") else [])
+    ] + ([("code", f"core {pv['code']['core']}; {pv['code']['statement']}")] if pv.get("code") else []) \
+        + ([("note", card["suite"]["note"])] if card["suite"].get("note") else [])
 
 
 def _md_table(head: list[str], rows: list[list[str]]) -> str:

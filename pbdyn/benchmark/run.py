@@ -152,8 +152,8 @@ def read_rows(suite: Suite, out: Path, label: str | None = None) -> list[dict]:
         finally:
             st.close()
         wanted = {m["map_id"] for m in suite.maps if m["part"] == part.name}
-        rows.extend(task_row(part.name, r) for r in results
-                    if r["map_id"] in wanted and (label is None or r.get("planner_label") == label))
+        rows.extend(task_row(part.name, {**r, "map_id": suite.row_map_id(r)}) for r in results
+                    if suite.row_map_id(r) in wanted and (label is None or r.get("planner_label") == label))
     return sorted(rows, key=task_key)
 
 

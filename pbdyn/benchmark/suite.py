@@ -68,6 +68,23 @@ class Suite:
         """The suite's identity (module doc)."""
         return suite_hash(self)
 
+    @property
+    def id_rule(self) -> str:
+        """The rule its manifest names maps by (pbdyn.world.maps.MAP_ID_RULE): "setup-1" for a pbdyn-suite/1
+        manifest (frozen before map ids covered the world: ids may repeat across parts), else "content-1"."""
+        return "setup-1" if self.doc.get("format") == "pbdyn-suite/1" else "content-1"
+
+    def row_map_id(self, row: dict) -> str:
+        """The id this suite's manifest and references name a flown row's map by (id_rule; a v1 suite's from the
+        row's map key)."""
+        from pbdyn.world.maps import legacy_map_id
+
+        return legacy_map_id(row["map_key"]) if self.id_rule == "setup-1" else row["map_id"]
+
+    def spec_map_id(self, spec) -> str:
+        """The id this suite names a MapSpec by (id_rule)."""
+        return spec.setup_id if self.id_rule == "setup-1" else spec.map_id
+
     def part(self, name: str) -> Part:
         """The part called ``name``."""
         for p in self.parts:
@@ -173,8 +190,9 @@ def references_digest(doc: dict) -> str:
 
 def flight_levels(paths) -> dict[str, dict[str, int]]:
     """The levels of the suite maps in results stores flown by `pbdyn bench` (flight_document's scenario name
-    "<suite>.<part>" of a shipped suite): scenario name -> {map id: level}, for the stores whose flown world is
-    the suite part's (the map ids the store holds are among the part's); other stores are left out."""
+    "<suite>.<part>" of a shipped suite): scenario name -> {the store's map id: level}, for the stores whose flown
+    world is the suite part's (the map ids the store holds are among the part's, by the suite's id rule); other
+    stores are left out."""
     import json as _json
 
     from pbdyn.experiments.store import ResultsStore
@@ -188,13 +206,14 @@ def flight_levels(paths) -> dict[str, dict[str, int]]:
             suite_name, _, part = name.rpartition(".")
             if suite_name not in names:          # not a suite's flight store: its rows are not read
                 continue
-            held = {r["map_id"] for r in st.results()}
+            results = st.results()
         finally:
             st.close()
         suite = load_suite(suite_name)
         levels = {m["map_id"]: int(m["level"]) for m in suite.maps if m["part"] == part and m.get("level")}
-        if levels and held <= set(levels):
-            out[name] = levels
+        held = {r["map_id"]: suite.row_map_id(r) for r in results}      # the store's id -> the suite's
+        if levels and set(held.values()) <= set(levels):
+            out[name] = {mid: levels[sid] for mid, sid in held.items()}
     return out
 
 

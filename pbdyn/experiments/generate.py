@@ -203,7 +203,7 @@ def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]
     radius and backend)."""
     from pbdyn.metrics.cached import metric_params, resolve_backend
     from pbdyn.metrics.registry import compute
-    from pbdyn.world.maps import MapSpec
+    from pbdyn.world.maps import MapSpec, world_digest
     from pbdyn.world.rollout import build_rollout
 
     backend = resolve_backend(scenario, "auto")
@@ -216,14 +216,14 @@ def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]
         horizon = max([INFO[m].horizon_s for m in MAP_METRICS] + [ROUTE_HORIZON_S]) + scenario.world.dt
         pairs = reference_pairs(scenario.task.candidates)
         for i, setup, rep in entries:
-            spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed)
+            spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed, world_digest(scenario, setup))
             feats = rollout_features(scenario, build_rollout(scenario, spec, horizon), pairs, backend)
             out.append((i, float(predictor.predict([feats])[0][0]), spec.seed))
         return out
     horizon = INFO[metric].horizon_s + scenario.world.dt
     params = metric_params(scenario, metric, backend)
     for i, setup, rep in entries:
-        spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed)
+        spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed, world_digest(scenario, setup))
         ro = build_rollout(scenario, spec, horizon)
         out.append((i, float(compute(ro, metric, **params).value), spec.seed))
     return out

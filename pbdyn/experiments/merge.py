@@ -43,12 +43,14 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         raise ConfigError("RESULTS", "no store to merge", [])
     out_path = check_store_path(out, "out")
     scenario = None
+    rules: dict = {}
     for path in inputs:
         if Path(path).resolve() == out_path.resolve():
             raise ConfigError("RESULTS", "lists the output store as an input", str(path))
         st = ResultsStore.open(path)
         try:
             doc = st.get_meta("scenario")
+            rules.setdefault(st.get_meta("map_ids") or "setup-1", Path(path))
         finally:
             st.conn.close()
         if doc is None:
@@ -68,6 +70,13 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         if have is not None and have != scenario:
             raise ConfigError("out", "holds another scenario than the stores to merge (use a new --out file)",
                               str(out))
+        if have is not None:
+            rules.setdefault(_id_rule(out_path), out_path)
+    if len(rules) > 1:
+        (r1, p1), (r2, p2) = list(rules.items())[:2]
+        raise ConfigError("RESULTS", f"{p1.name} names its maps by the map id rule {r1} and {p2.name} by {r2} (an "
+                          "older pbdyn); merged, one map would have two ids (re-fly the older store)",
+                          show_value=False)
     check_same_code(([(out_path, "out")] if existed else []) + [(p, "RESULTS") for p in inputs])
     if existed:
         target = out_path
@@ -179,6 +188,20 @@ def check_same_code(stores: list[tuple]) -> None:
                               show_value=False)
 
 
+def _common_rule(inputs: list) -> str:
+    """The map id rule of the inputs (merge_stores has checked they share one)."""
+    return _id_rule(Path(inputs[0])) if inputs else "setup-1"
+
+
+def _id_rule(path: Path) -> str:
+    """The map id rule a store's rows were made by (meta "map_ids"; none recorded: "setup-1")."""
+    st = ResultsStore.open(path, field="out")
+    try:
+        return st.get_meta("map_ids") or "setup-1"
+    finally:
+        st.conn.close()
+
+
 def _remove(path: Path) -> None:
     for suffix in ("", "-wal", "-shm", "-journal"):
         Path(str(path) + suffix).unlink(missing_ok=True)
@@ -190,6 +213,9 @@ def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
     try:
         if store.get_meta("scenario") is None:
             store.set_meta("scenario", scenario)
+            rule = _common_rule(inputs)
+            if rule != "setup-1":
+                store.set_meta("map_ids", rule)
         before = store.count()
         duplicates = conflicts = 0
         have_cols = store._trial_table_columns()

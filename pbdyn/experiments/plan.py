@@ -63,12 +63,36 @@ def pending_trials(trials, start: int, stop: int, states_of, stale: dict,
                     yield t, True
 
 
+def check_unique_ids(maps) -> None:
+    """ConfigError if two of the run's maps share an id (MapSpec.map_id: a store keys maps by it)."""
+    seen: dict[str, int] = {}
+    for m in maps:
+        if m.map_id in seen:
+            raise ConfigError("map", f"maps {seen[m.map_id]} and {m.index} share the id {m.map_id}; a store keys "
+                              "maps by id (report this: two different maps should never share one)", m.map_id)
+        seen[m.map_id] = m.index
+
+
+def check_id_rule(store: ResultsStore, out: Path, field: str = "out") -> None:
+    """ConfigError if ``store`` holds rows or maps named by another map id rule than this pbdyn's
+    (pbdyn.world.maps.MAP_ID_RULE; stores without the meta key were written by the rule before, "setup-1"): their
+    ids and the run's would name one map twice."""
+    from pbdyn.world.maps import MAP_ID_RULE
+
+    rule = store.get_meta("map_ids")
+    if rule == MAP_ID_RULE or (rule is None and store.count() == 0 and not store.maps()):
+        return
+    raise ConfigError(field, f"names its maps by the map id rule {rule or 'setup-1'} (an older pbdyn); this pbdyn "
+                      f"names them by {MAP_ID_RULE}, and one store cannot hold both (use a new --out file)", str(out))
+
+
 def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchOptions) -> BatchPlan:
     """Read the existing store (if any) read-only and work out the plan; refuse a changed scenario or changed
     planner code here, before anything is built or written."""
     start, stop, map_idx = shard_range(trials, total, options.shard)
     total = stop - start
     per_map_maps = [trials.maps[i] for i in map_idx]
+    check_unique_ids(per_map_maps)
     worlds = world_fingerprints(scenario, per_map_maps)
     if not out.exists() or out.stat().st_size == 0:
         return BatchPlan(start, total, total, 0, per_map_maps, per_map_maps if options.metrics else [], False, {},
@@ -78,6 +102,7 @@ def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchO
         if store._foreign_tables():
             raise ConfigError("out", "is an SQLite file but not a pbdyn results store (use a new --out file)",
                               str(out))
+        check_id_rule(store, out)
         stale, notes = changed_planners(store, scenario)
         if stale and not options.rerun_changed:
             raise ConfigError("; ".join(notes), "planner code changed since these rows were flown; pass "

@@ -42,6 +42,7 @@ from pbdyn.experiments.shards import parse_shard
 from pbdyn.experiments.signals import BatchInterrupted, stop_on_signals
 from pbdyn.experiments.store import ResultsStore, check_store_path, store_error
 from pbdyn.experiments.tasks import enumerate_trials
+from pbdyn.world.maps import MAP_ID_RULE
 from pbdyn.world.rollout import default_horizon, rollout_file
 
 LOCKSTEP_TRIALS = 72
@@ -203,6 +204,8 @@ def _run(store: ResultsStore, scenario: Scenario, trials, plan: BatchPlan, files
     from pbdyn.world.rollout import world_description
 
     check_scenario(store, scenario, options.extend)
+    if store.get_meta("map_ids") is None:
+        store.set_meta("map_ids", MAP_ID_RULE)
     if plan.stale_maps:          # rows of another world go before any row of the current one is added
         store.drop_maps(plan.stale_maps)
     store.set_meta("world", canonical_json(world_description(scenario)))

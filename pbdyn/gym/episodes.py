@@ -160,9 +160,9 @@ class EpisodeSource:
             for m in suite.maps:
                 sc = scenarios[m["part"]]
                 ms = enumerate_maps(sc)[int(m["map_index"])]
-                if ms.map_id != m["map_id"]:
+                if suite.spec_map_id(ms) != m["map_id"]:
                     raise ConfigError("ladder", f"map {m['map_index']} of {sc.name} is not the suite's "
-                                      f"{m['map_id']}", ms.map_id)
+                                      f"{m['map_id']}", suite.spec_map_id(ms))
                 rows.append((m, sc, ms))
             self._ladder = (suite, rows)
         return self._ladder

@@ -2,6 +2,10 @@
 
 A map is identified by its setup values (count, radius, speed — each a number or a {min, max} range) and its
 replicate number, never by a position in a list, so adding a grid value adds maps without changing existing ones.
+Its seed comes from that key and the scenario's root seed. Its id (MapSpec.map_id, MAP_ID_RULE) is derived from
+everything that makes the map: the key and the scenario's world digest (world_digest: root seed, arena, obstacle
+settings, structures, static geometry, spawn rules, an imported world's bodies and their files' digests), so two
+different maps never share an id (docs/design.md "Maps and seeds").
 """
 
 from __future__ import annotations
@@ -25,6 +29,12 @@ from pbdyn.world.structure import (cluster_centres, draw_radii_speeds, proposals
                                    wall_bodies)
 
 MAX_SPAWN_ATTEMPTS = 20000
+
+MAP_ID_RULE = "content-1"
+"""How map ids are made: "content-1", the first 12 hex digits of sha256(key, world_digest) (MapSpec.map_id). The rule
+before, "setup-1" (MapSpec.setup_id: the key alone), gave every map of the same setup and replicate one id, whatever
+its world: the nine imported worlds of pbdyn-2d-v1 share one. Frozen pbdyn-suite/1 suites name their maps by it;
+a results store records the rule its rows were made with (meta "map_ids")."""
 
 PROGRAM_PX_PER_M = 10.0
 """The thesis program's unit: 10 pixels per metre."""
@@ -57,6 +67,8 @@ class MapSpec:
     setup: dict
     replicate: int
     root_seed: int
+    world: str = ""
+    """The scenario's world_digest (enumerate_maps fills it in): part of the map's id, not of its key or seed."""
 
     @cached_property
     def key(self) -> str:
@@ -65,8 +77,18 @@ class MapSpec:
 
     @cached_property
     def map_id(self) -> str:
-        """A short readable id: the first 12 hex digits of the key's sha256."""
-        return hashlib.sha256(self.key.encode()).hexdigest()[:12]
+        """The map's id (MAP_ID_RULE): the first 12 hex digits of the sha256 of its key and its scenario's world
+        digest. A MapSpec made without the world digest has none (ValueError)."""
+        if not self.world:
+            raise ValueError("a MapSpec made without its scenario's world digest has no map id "
+                             "(pbdyn.world.maps.enumerate_maps makes them with it)")
+        return hashlib.sha256(canonical_json({"map": self.key, "world": self.world}).encode()).hexdigest()[:12]
+
+    @cached_property
+    def setup_id(self) -> str:
+        """The map's id by the rule before (MAP_ID_RULE "setup-1"; the ids of pbdyn-suite/1 suites): the first 12
+        hex digits of the key's sha256 (legacy_map_id)."""
+        return legacy_map_id(self.key)
 
     def seed_sequence(self) -> np.random.SeedSequence:
         """SeedSequence([root_seed, stable hash of the key])."""
@@ -82,6 +104,45 @@ class MapSpec:
         return np.random.default_rng(self.seed_sequence())
 
 
+def legacy_map_id(key: str) -> str:
+    """A map's id by the "setup-1" rule from its key (MapSpec.key, a row's map_key): sha256(key)[:12]."""
+    return hashlib.sha256(key.encode()).hexdigest()[:12]
+
+
+def world_digest(scenario: Scenario, setup: dict | None = None) -> str:
+    """sha256 (16 hex digits) of what makes a scenario's maps besides each map's setup and replicate: the root seed,
+    the arena (dims, size, dt, flight height), the obstacles' settings outside the grid (jitter, motion model and its
+    table, headings, layout, ...), static obstacles, the spawn rules (start/goal candidates, MAV radius, clearances),
+    an imported world's bodies with the digests of their URDF, mesh and motion-module files
+    (pbdyn.world.imported.bodies.bodies_fingerprint), and, given a map's ``setup``, the definition of the structure
+    it names. Not the time limit, planners, sensor or MAV limits: those change the trials on a map, not the map."""
+    from dataclasses import asdict
+
+    from pbdyn.motion.registry import MODELS
+
+    st = structure_of(scenario, setup) if setup is not None else None
+    if st is not None:
+        return hashlib.sha256(canonical_json({"world": world_digest(scenario), "structure": asdict(st)})
+                              .encode()).hexdigest()[:16]
+    sc = scenario.to_dict()
+    motion = sc["obstacles"]["motion"]
+    skip = {"count", "radius", "speed", "structure", "structures", "maps_per_setup", "maps",   # per map: its key
+            "grid_order"}                                                                     # and its structure
+    skip |= {m.table for name, m in MODELS.items() if m.table and name != motion}     # other models' tables
+    payload = {
+        "world": {k: sc["world"][k] for k in ("dims", "size", "dt", "flight_height")},
+        "obstacles": {k: v for k, v in sc["obstacles"].items() if k not in skip and v not in (None, [], {})},
+        "static": sc["static_obstacles"],
+        "spawn": {"candidates": sc["task"]["candidates"], "mav_radius": sc["drone"]["radius"],
+                  "clearance": sc["task"]["spawn_clearance"], "start_clearance": sc["task"]["start_clearance"]},
+    }
+    if scenario.is_world:
+        from pbdyn.world.imported.bodies import bodies_fingerprint
+
+        payload["bodies"] = bodies_fingerprint(scenario)
+    return hashlib.sha256(canonical_json(payload).encode()).hexdigest()[:16]
+
+
 class MapSequence(Sequence):
     """Every map of a scenario, lazily: setups in file order (first grid field slowest), replicates fastest; or the
     maps of an explicit list (obstacles.maps), in file order.
@@ -95,6 +156,16 @@ class MapSequence(Sequence):
         self._root_seed = scenario.obstacles.root_seed
         self._n_setups = math.prod(len(v) for _, v in self._grids)
         self._listed = tuple(scenario.obstacles.maps)     # an explicit map list replaces the grid
+        self._scenario = scenario
+        self._worlds: dict = {}
+
+    def world(self, setup: dict) -> str:
+        """world_digest of a map of this setup (computed once per structure name)."""
+        name = setup.get("structure")
+        got = self._worlds.get(name)
+        if got is None:
+            got = self._worlds[name] = world_digest(self._scenario, setup)
+        return got
 
     def __len__(self) -> int:
         return len(self._listed) if self._listed else self._n_setups * self._reps
@@ -117,9 +188,11 @@ class MapSequence(Sequence):
         i = sequence_index(index, len(self), "map")
         if self._listed:
             m = self._listed[i]
-            return MapSpec(i, m.setup(), m.replicate, self._root_seed)
+            setup = m.setup()
+            return MapSpec(i, setup, m.replicate, self._root_seed, self.world(setup))
         s, rep = divmod(i, self._reps)
-        return MapSpec(i, self.setup(s), rep, self._root_seed)
+        setup = self.setup(s)
+        return MapSpec(i, setup, rep, self._root_seed, self.world(setup))
 
     def __iter__(self) -> Iterator[MapSpec]:
         if self._listed:
@@ -129,8 +202,9 @@ class MapSequence(Sequence):
         i = 0
         for combo in itertools.product(*(v for _, v in self._grids)):
             setup = self._setup(keys, combo)
+            world = self.world(setup)
             for rep in range(self._reps):
-                yield MapSpec(i, setup, rep, self._root_seed)
+                yield MapSpec(i, setup, rep, self._root_seed, world)
                 i += 1
 
 
