@@ -30,6 +30,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse with a one-line error message and exit status 2."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
+        if message.startswith("argument "):     # "argument --vmax: ..." -> "--vmax: ...", as pbdyn's own errors
+            message = message[len("argument "):]
         sys.stderr.write(f"pbdyn: error: {message}\n")
         raise SystemExit(EXIT_USAGE)
 

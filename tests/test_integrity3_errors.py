@@ -198,7 +198,7 @@ def test_cli_vmax_obeys_the_drone_v_max_limit():
                          timeout=600, cwd=ROOT)
     assert res.returncode == 2, res.stderr
     lines = res.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("pbdyn: error: --vmax:") and "1e+300" in lines[0], res.stderr
+    assert len(lines) == 1 and lines[0].startswith("pbdyn: error: --vmax:") and "1e300" in lines[0], res.stderr
 
 
 # ------------------------------------------------------------------------------ speeds that cannot stop in time

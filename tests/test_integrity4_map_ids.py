@@ -78,14 +78,14 @@ def test_what_changes_only_the_trials_keeps_the_ids(change):
 
 
 def test_an_imported_world_whose_urdf_changed_on_disk_gets_new_ids(tmp_path):
-    src = ROOT / "scenarios" / "worlds"
-    world = next(p for p in sorted(src.glob("*.toml")) if "2d" in p.name or "office" in p.name)
-    dest = tmp_path / "worlds"
-    shutil.copytree(src, dest)
-    copy = dest / world.name
-    before = _ids(copy)
+    world = ROOT / "scenarios" / "worlds" / "warehouse_2d.toml"
+    shutil.copy(pbdyn.load_scenario(world).resolve_path("box.urdf"), tmp_path / "mybox.urdf")
+    copy = tmp_path / "world.toml"
+    copy.write_text(world.read_text().replace('urdf = "box.urdf"', 'urdf = "mybox.urdf"'))
     sc = pbdyn.load_scenario(copy)
     urdf = sc.resolve_path(sc.bodies[0].urdf)
+    assert urdf.parent == tmp_path                      # the test edits its own copy, never a bundled file
+    before = _ids(copy)
     urdf.write_text(urdf.read_text() + "\n<!-- an edit of the world's file -->\n")
     after = _ids(copy)
     assert len(before) == len(after) and not set(before) & set(after)

@@ -149,6 +149,7 @@ def test_a_planner_that_segfaults_through_ctypes_is_isolated_on_each_map(tmp_pat
     _check_isolated(tmp_path, "CtypesSegfaultPlanner", "exit -11 / signal SIGSEGV", 2, "--workers", "2")
 
 
+@pytest.mark.slow          # the same isolation as the segfault test (16 s): in the slow run
 def test_a_planner_that_calls_os_exit_gives_one_error_row_and_the_batch_completes(tmp_path):
     _check_isolated(tmp_path, "ExitPlanner", "exit 3", 1, "--workers", "1", "--lockstep", "1")
 
@@ -200,6 +201,7 @@ def test_built_in_planners_arm_no_timer_and_plug_ins_arm_one_per_flight(monkeypa
     assert usercode.watchdog() is None
 
 
+@pytest.mark.slow          # bench flies through the batch runner the segfault test covers (13 s): in the slow run
 def test_a_bench_of_a_planner_that_segfaults_on_some_tasks_completes_with_their_errors_on_its_card(tmp_path):
     import json
 

@@ -114,10 +114,10 @@ def changed_worlds(store: ResultsStore, scenario: Scenario, maps: list,
 
     from pbdyn.world.rollout import world_changes, world_description
 
-    stored = store.world_fingerprints()
+    stored = store.world_fingerprints(by="map_key")     # an edited world keeps its maps' keys, not their ids
     changed = []
     for m in maps:
-        got = stored.get(m.map_id)
+        got = stored.get(m.key)
         if got and any(fp and fp != worlds[m.map_id] for fp in got):
             changed.append((m, sum(got.values())))
     if not changed:

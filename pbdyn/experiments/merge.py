@@ -150,6 +150,7 @@ def check_same_code(stores: list[tuple]) -> None:
     planners: dict[str, dict[str, Path]] = {}
     worlds: dict[str, dict[str, Path]] = {}
     metric_codes: dict[str, dict[str, Path]] = {}
+    keys: dict[str, int] = {}
     index: dict[str, int] = {}
     for path, field in stores:
         st = ResultsStore.open(path, field=field)
@@ -157,10 +158,11 @@ def check_same_code(stores: list[tuple]) -> None:
             for label, fp, _ in st.fingerprint_counts():
                 if fp:
                     planners.setdefault(label, {}).setdefault(fp, Path(path))
-            for map_id, fps in st.world_fingerprints().items():
+            for key, fps in st.world_fingerprints(by="map_key").items():   # one map's place, whatever its id
                 for fp in fps:
                     if fp:
-                        worlds.setdefault(map_id, {}).setdefault(fp, Path(path))
+                        worlds.setdefault(key, {}).setdefault(fp, Path(path))
+            keys.update(st.map_keys())
             for map_id, code in st.metric_codes().items():
                 metric_codes.setdefault(map_id, {}).setdefault(code, Path(path))
             index.update(st.map_indices())
@@ -179,10 +181,10 @@ def check_same_code(stores: list[tuple]) -> None:
             raise ConfigError("RESULTS", f"planner {label} was flown with code {f1} in {p1.name} and {f2} in "
                               f"{p2.name}; merged, one label would hold two planners (re-fly one store with `pbdyn "
                               "batch --rerun-changed`)", show_value=False)
-    for map_id, fps in sorted(worlds.items(), key=lambda kv: (index.get(kv[0], -1), kv[0])):
+    for key, fps in sorted(worlds.items(), key=lambda kv: (keys.get(kv[0], -1), kv[0])):
         if len(fps) > 1:
             (f1, p1), (f2, p2) = list(fps.items())[:2]
-            raise ConfigError("RESULTS", f"map {index.get(map_id, '?')} ({map_id}) was flown in world {f1} in "
+            raise ConfigError("RESULTS", f"map {keys.get(key, '?')} ({key}) was flown in world {f1} in "
                               f"{p1.name} and in world {f2} in {p2.name} (its code or files changed); merged, one "
                               "map would hold two worlds (re-fly one store with `pbdyn batch --rerun-changed`)",
                               show_value=False)

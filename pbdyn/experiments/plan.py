@@ -38,6 +38,7 @@ class BatchPlan:
     stale: dict           # label -> current fingerprint of entries whose rows must be re-flown (rerun_changed)
     worlds: dict = None   # map_id -> world fingerprint (rollout key prefix) of every map of the run's range
     stale_maps: frozenset = frozenset()   # maps whose stored rows were flown in another world (rerun_changed)
+    stale_keys: frozenset = frozenset()   # their map keys (the stored rows of another world carry other map ids)
 
 
 def pending_trials(trials, start: int, stop: int, states_of, stale: dict,
@@ -132,6 +133,6 @@ def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchO
         done = (store.maps_with_metrics() - stale_maps - stale_metrics) if options.metrics else set()
         metric_maps = [m for m in per_map_maps if m.map_id not in done] if options.metrics else []
         return BatchPlan(start, total, pending, rerun, list(maps.values()), metric_maps, stored, stale, worlds,
-                         stale_maps)
+                         stale_maps, frozenset(m.key for m in per_map_maps if m.map_id in stale_maps))
     finally:
         store.conn.close()

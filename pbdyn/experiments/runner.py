@@ -206,8 +206,8 @@ def _run(store: ResultsStore, scenario: Scenario, trials, plan: BatchPlan, files
     check_scenario(store, scenario, options.extend)
     if store.get_meta("map_ids") is None:
         store.set_meta("map_ids", MAP_ID_RULE)
-    if plan.stale_maps:          # rows of another world go before any row of the current one is added
-        store.drop_maps(plan.stale_maps)
+    if plan.stale_keys:          # rows of another world go before any row of the current one is added
+        store.drop_maps(plan.stale_keys, by="map_key")
     store.set_meta("world", canonical_json(world_description(scenario)))
     run_id = store.start_run(__version__, canonical_json(scenario.to_dict()), command,
                              "dask" if options.scheduler is not None else str(workers))

@@ -399,16 +399,19 @@ class ResultsStore:
         return len(batch)
 
     @_guarded
-    def world_fingerprints(self) -> dict[str, dict[str, int]]:
-        """map_id -> {world fingerprint: stored trials} of every map with trials or a maps row: the trials' recorded
-        fingerprints ("" where a row predates schema 4) and the maps row's rollout key (cut to
+    def world_fingerprints(self, by: str = "map_id") -> dict[str, dict[str, int]]:
+        """map_id (or, ``by`` "map_key", map key: the map's place in its scenario, which an edit of its world keeps
+        while its id changes) -> {world fingerprint: stored trials} of every map with trials or a maps row: the
+        trials' recorded fingerprints ("" where a row predates schema 4) and the maps row's rollout key (cut to
         WORLD_FINGERPRINT_CHARS; counted 0 trials). Counted in SQL: no trial key is read."""
+        if by not in ("map_id", "map_key"):
+            raise ValueError(f"by must be map_id or map_key, not {by!r}")
         out: dict[str, dict[str, int]] = {}
         fp = "world_fingerprint" if "world_fingerprint" in self._columns() else "NULL"
-        for map_id, f, n in self.conn.execute(f"SELECT map_id, {fp}, COUNT(*) FROM trials GROUP BY 1, 2"):
-            out.setdefault(map_id, {})[f or ""] = int(n)
-        for map_id, key in self.conn.execute("SELECT map_id, rollout_key FROM maps WHERE rollout_key IS NOT NULL"):
-            out.setdefault(map_id, {}).setdefault(key[:WORLD_FINGERPRINT_CHARS], 0)
+        for mid, f, n in self.conn.execute(f"SELECT {by}, {fp}, COUNT(*) FROM trials GROUP BY 1, 2"):
+            out.setdefault(mid, {})[f or ""] = int(n)
+        for mid, key in self.conn.execute(f"SELECT {by}, rollout_key FROM maps WHERE rollout_key IS NOT NULL"):
+            out.setdefault(mid, {}).setdefault(key[:WORLD_FINGERPRINT_CHARS], 0)
         return out
 
     @_guarded
@@ -421,6 +424,16 @@ class ResultsStore:
                                       "AND metrics_code IS NOT NULL"))
 
     @_guarded
+    def map_keys(self) -> dict[str, int]:
+        """map key -> map index of every map with trials or a maps row."""
+        out = {r[0]: int(r[1]) for r in self.conn.execute("SELECT map_key, map_index FROM maps "
+                                                          "WHERE map_index IS NOT NULL AND map_key IS NOT NULL")}
+        out.update({r[0]: int(r[1]) for r in self.conn.execute("SELECT map_key, MIN(map_index) FROM trials WHERE "
+                                                               "map_index IS NOT NULL AND map_key IS NOT NULL "
+                                                               "GROUP BY map_key")})
+        return out
+
+    @_guarded
     def map_indices(self) -> dict[str, int]:
         """map_id -> map index of every map with trials or a maps row."""
         out = {r[0]: int(r[1]) for r in self.conn.execute("SELECT map_id, map_index FROM maps "
@@ -430,16 +443,19 @@ class ResultsStore:
         return out
 
     @_guarded
-    def drop_maps(self, map_ids: Iterable[str]) -> int:
-        """Delete every trial row and the maps row of ``map_ids`` (their world changed: `pbdyn batch
-        --rerun-changed` flies them again); no commit. Returns the number of trial rows deleted."""
+    def drop_maps(self, map_ids: Iterable[str], by: str = "map_id") -> int:
+        """Delete every trial row and the maps row of ``map_ids`` (``by`` "map_key": of those map keys; their world
+        changed: `pbdyn batch --rerun-changed` flies them again); no commit. Returns the number of trial rows
+        deleted."""
+        if by not in ("map_id", "map_key"):
+            raise ValueError(f"by must be map_id or map_key, not {by!r}")
         ids = list(map_ids)
         n = 0
         for i in range(0, len(ids), 500):
             chunk = ids[i:i + 500]
             marks = ", ".join("?" * len(chunk))
-            n += self.conn.execute(f"DELETE FROM trials WHERE map_id IN ({marks})", chunk).rowcount
-            self.conn.execute(f"DELETE FROM maps WHERE map_id IN ({marks})", chunk)
+            n += self.conn.execute(f"DELETE FROM trials WHERE {by} IN ({marks})", chunk).rowcount
+            self.conn.execute(f"DELETE FROM maps WHERE {by} IN ({marks})", chunk)
         return n
 
     @_guarded

@@ -81,6 +81,14 @@ class EpisodeSource:
         self.world = None                # the world of the last reset
         self._worlds: dict = {}          # (scenario id, map key) -> (scenario, world, 1), least recent first
         self._given: dict = {}
+        self._map_seq = None             # (scenario, its MapSequence) of the last non-ladder reset
+
+    def _maps_of(self, sc: Scenario):
+        """The maps of ``sc`` (one MapSequence per scenario kept: its world digest is computed once)."""
+        got = self._map_seq
+        if got is None or got[0] is not sc:
+            got = self._map_seq = (sc, enumerate_maps(sc))
+        return got[1]
 
     @staticmethod
     def _load(scenario, dims: int | None, field: str = "scenario") -> Scenario:
@@ -115,7 +123,7 @@ class EpisodeSource:
         if ladder:
             episode = self._from_ladder(rng, ladder[0], options[ladder[0]])
         else:
-            maps = enumerate_maps(sc)
+            maps = self._maps_of(sc)
             index = options.get("map")
             if index is None:
                 index = int(rng.integers(len(maps)))
@@ -232,6 +240,7 @@ class EpisodeSource:
         self._worlds.clear()
         self._rollouts.clear()
         self._ladder = None
+        self._map_seq = None
         self._given = {}
         self.world = None
         for world in worlds:
