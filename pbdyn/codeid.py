@@ -273,7 +273,8 @@ def user_identity(module: str, *extra: str) -> str:
     the standard library and of installed packages count by name only (their versions are the installer's)."""
     files: dict[Path, str] = {}
     pbdyn_used: list[str] = []
-    todo = [module, *extra]
+    named = [module, *extra]
+    todo = list(named)
     seen: set[str] = set()
     tops: set[str] = set()
     while todo:
@@ -284,30 +285,32 @@ def user_identity(module: str, *extra: str) -> str:
         if name == "pbdyn" or name.startswith("pbdyn."):
             pbdyn_used.append(name)
             continue
-        found = _user_file(name)
+        top = name.split(".")[0]
+        if top in tops or top in sys.stdlib_module_names:
+            continue
+        found = _user_file(top)                   # a top-level name is found without importing anything
+        if found is None and name in named:       # a plug-in in a namespace package: its own file
+            found = _user_file(name)
+            top = name
         if found is None:
             continue
-        top = name.split(".")[0]
-        if top in tops:
-            continue
-        top_found = _user_file(top) if top != name else found
-        if top_found is not None and top_found[1]:        # inside a package of the user's: all of it
-            tops.add(top)
-            root = top_found[0].parent
-            sources = [p for p in sorted(root.rglob("*")) if p.suffix in (".py",) + SOURCE_SUFFIXES
-                       and "__pycache__" not in p.parts and p.is_file()]
-            if len(sources) > MAX_USER_FILES:
-                raise ValueError(f"package {top!r} ({root}) holds more than {MAX_USER_FILES:,} source files")
-            for p in sources:
-                rel = ".".join((top,) + p.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
-                digest, imports = _file(p, rel, p.name == "__init__.py")
-                files[p] = f"{top}/{p.relative_to(root).as_posix()}\0{digest}"
-                todo += list(imports)
-            continue
+        tops.add(top)
         path, is_package = found
-        digest, imports = _file(path, name, is_package)
-        files[path] = f"{name}\0{digest}"
-        todo += list(imports)
+        if not is_package:                        # a lone module: its file, then the modules it imports
+            digest, imports = _file(path, top, False)
+            files[path] = f"{top}\0{digest}"
+            todo += list(imports)
+            continue
+        root = path.parent                        # a package of the user's: all of it
+        sources = [p for p in sorted(root.rglob("*")) if p.suffix in (".py",) + SOURCE_SUFFIXES
+                   and "__pycache__" not in p.parts and p.is_file()]
+        if len(sources) > MAX_USER_FILES:
+            raise ValueError(f"package {top!r} ({root}) holds more than {MAX_USER_FILES:,} source files")
+        for p in sources:
+            rel = ".".join((top,) + p.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
+            digest, imports = _file(p, rel, p.name == "__init__.py")
+            files[p] = f"{top}/{p.relative_to(root).as_posix()}\0{digest}"
+            todo += list(imports)
     entries = [(v, "") for v in sorted(files.values())]
     entries += _module_entries(pbdyn_closure(pbdyn_used))
     out = _digest(entries)

@@ -82,3 +82,30 @@ def assert_avoids(scenario: Scenario, rollout: Rollout, planner: str, start, goa
     res = fly(scenario, rollout, planner, start, goal)
     assert res.outcome == "success", res
     assert res.min_clearance_m >= 0.0 and res.obstacles_tracked == 1
+
+
+def child_pids(pid: int) -> list[int]:
+    """The pids of ``pid``'s child processes (from /proc)."""
+    from pathlib import Path
+
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(d.name))
+    return out
+
+
+def process_running(pid: int) -> bool:
+    """Whether process ``pid`` exists and is neither a zombie nor dead (from /proc)."""
+    from pathlib import Path
+
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ("Z", "X")

@@ -13,6 +13,7 @@ import pytest
 
 from pbdyn.experiments.store import ResultsStore
 from tests.conftest import ROOT, pbdyn_cmd
+from tests.helpers import child_pids, process_running
 
 MOTION = """
 import math
@@ -256,25 +257,6 @@ def test_a_killed_merge_leaves_temp_files_that_the_next_merge_removes(tmp_path):
     assert _temps(tmp_path, out.name) == [] and out.exists()
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(d.name))
-    return out
-
-
-def _running(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state not in ("Z", "X")
 
 
 def test_workers_exit_when_their_coordinator_is_killed(tmp_path):
@@ -287,17 +269,17 @@ def test_workers_exit_when_their_coordinator_is_killed(tmp_path):
     proc = subprocess.Popen(pbdyn_cmd() + ["batch", str(sc), "--out", str(tmp_path / "k.sqlite"), "--workers", "2",
                                            "--no-metrics"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 90
-    while not (tmp_path / "k.sqlite").exists() or len(_children(proc.pid)) < 3:   # 2 workers + resource tracker
+    while not (tmp_path / "k.sqlite").exists() or len(child_pids(proc.pid)) < 3:   # 2 workers + resource tracker
         assert proc.poll() is None and time.monotonic() < deadline, "the batch ended or never started its workers"
         time.sleep(0.1)
     time.sleep(1.0)
-    kids = _children(proc.pid)
+    kids = child_pids(proc.pid)
     proc.send_signal(signal.SIGKILL)
     proc.wait(10)
     deadline = time.monotonic() + 10
-    while any(_running(k) for k in kids) and time.monotonic() < deadline:
+    while any(process_running(k) for k in kids) and time.monotonic() < deadline:
         time.sleep(0.1)
-    left = [k for k in kids if _running(k)]
+    left = [k for k in kids if process_running(k)]
     for k in left:
         os.kill(k, signal.SIGKILL)
     assert not left, f"{len(left)} of {len(kids)} child processes still ran 10 s after the coordinator's SIGKILL"

@@ -459,3 +459,20 @@ def test_the_calibration_records_its_code_and_says_whether_this_pbdyn_flies_it(t
     assert Anchors(shipped.version, shipped.abilities, code=now).code_status() == "same"
     stale = {**now, PANEL[0].label: ["sha256:0+pbdyn:0+core:0"]}
     assert Anchors(shipped.version, shipped.abilities, code=stale).code_status() == "other"
+
+
+def test_identifying_a_plugin_imports_nothing(checkout, tmp_path):
+    """Its imports are read, not run: a module it names only inside a function stays unloaded."""
+    (tmp_path / "lazy_plan.py").write_text(
+        "from pbdyn.planning.straight_line import StraightLine\n\n\ndef later():\n    import gymnasium.spaces\n"
+        "    import lazy_helper.deep\n\n\nclass Lazy(StraightLine):\n    pass\n")
+    (tmp_path / "lazy_helper").mkdir()
+    (tmp_path / "lazy_helper" / "__init__.py").write_text("raise RuntimeError('imported')\n")
+    (tmp_path / "lazy_helper" / "deep.py").write_text("X = 1\n")
+    code = (f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import lazy_plan; "
+            "from pbdyn.codeid import user_identity; a = user_identity('lazy_plan'); "
+            "print(a, 'gymnasium' in sys.modules, 'lazy_helper' in sys.modules)")
+    fp, gym, helper = _py(checkout, code).split()
+    assert (gym, helper) == ("False", "False")
+    with _Edit(tmp_path / "lazy_helper" / "deep.py", "X = 2\n"):     # the helper package it names counts
+        assert _py(checkout, code).split()[0] != fp

@@ -48,6 +48,17 @@ def test_the_imported_worlds_of_the_2d_suite_no_longer_share_an_id():
 BASE = {"world": {"time_limit": 20.0}, "obstacles": {"count": [5, 8], "maps_per_setup": 2, "root_seed": 3}}
 
 
+def _changed(change: dict) -> dict:
+    """BASE with ``change``: a table's keys updated, a list (static obstacles, planners) replaced."""
+    doc = json.loads(json.dumps(BASE))
+    for table, values in change.items():
+        if isinstance(values, dict):
+            doc.setdefault(table, {}).update(values)
+        else:
+            doc[table] = values
+    return doc
+
+
 @pytest.mark.parametrize("change", [
     {"obstacles": {"root_seed": 4}}, {"world": {"size": [60.0, 60.0]}}, {"world": {"dt": 0.05}},
     {"obstacles": {"radius_jitter": 0.1}}, {"obstacles": {"motion": "rvo"}}, {"obstacles": {"speed": 2.5}},
@@ -55,26 +66,14 @@ BASE = {"world": {"time_limit": 20.0}, "obstacles": {"count": [5, 8], "maps_per_
     {"task": {"candidates": [[4.0, 4.0], [46.0, 46.0]]}}, {"drone": {"radius": 0.5}},
     {"task": {"spawn_clearance": 2.0}}])
 def test_anything_that_changes_the_maps_changes_their_ids(change):
-    doc = json.loads(json.dumps(BASE))
-    for table, values in change.items():
-        if isinstance(values, dict):
-            doc.setdefault(table, {}).update(values)
-        else:
-            doc[table] = values
-    assert not set(_ids(doc)) & set(_ids(BASE))
+    assert not set(_ids(_changed(change))) & set(_ids(BASE))
 
 
 @pytest.mark.parametrize("change", [{"world": {"time_limit": 30.0}}, {"drone": {"v_max": [2.0, 6.0]}},
                                     {"sensor": {"fov_deg": 120.0}},
                                     {"planners": [{"trajectory": "straight_line", "gaze": "fullrange"}]}])
 def test_what_changes_only_the_trials_keeps_the_ids(change):
-    doc = json.loads(json.dumps(BASE))
-    for table, values in change.items():
-        if isinstance(values, dict):
-            doc.setdefault(table, {}).update(values)
-        else:
-            doc[table] = values
-    assert _ids(doc) == _ids(BASE)
+    assert _ids(_changed(change)) == _ids(BASE)
 
 
 def test_an_imported_world_whose_urdf_changed_on_disk_gets_new_ids(tmp_path):

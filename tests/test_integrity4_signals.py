@@ -15,37 +15,18 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import pbdyn_cmd
+from tests.helpers import child_pids, process_running
 
 HERE = Path(__file__).resolve().parent
 
 
-def _children(pid: int) -> list[int]:
-    """The pids of ``pid``'s child processes (from /proc)."""
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(d.name))
-    return out
-
-
-def _running(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state not in ("Z", "X")
 
 
 def _still_running(kids: list[int], within: float) -> list[int]:
     deadline = time.monotonic() + within
-    while any(_running(k) for k in kids) and time.monotonic() < deadline:
+    while any(process_running(k) for k in kids) and time.monotonic() < deadline:
         time.sleep(0.05)
-    return [k for k in kids if _running(k)]
+    return [k for k in kids if process_running(k)]
 
 
 def _start_generate(tmp_path: Path) -> tuple[subprocess.Popen, list[int]]:
@@ -55,11 +36,11 @@ def _start_generate(tmp_path: Path) -> tuple[subprocess.Popen, list[int]]:
                                            "0.01", "--count", "500", "--workers", "2", "--out", "gen.toml"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
-    while len(_children(proc.pid)) < 3:
+    while len(child_pids(proc.pid)) < 3:
         assert proc.poll() is None and time.monotonic() < deadline, "generate ended or never started its workers"
         time.sleep(0.05)
     time.sleep(1.5)                  # the workers are measuring the pilot's candidates
-    return proc, _children(proc.pid)
+    return proc, child_pids(proc.pid)
 
 
 @pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
