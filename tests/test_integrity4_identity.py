@@ -476,3 +476,29 @@ def test_identifying_a_plugin_imports_nothing(checkout, tmp_path):
     assert (gym, helper) == ("False", "False")
     with _Edit(tmp_path / "lazy_helper" / "deep.py", "X = 2\n"):     # the helper package it names counts
         assert _py(checkout, code).split()[0] != fp
+
+
+def test_a_freeze_records_the_fingerprint_its_rows_were_flown_with(tmp_path):
+    """tools/make_suites.py freeze takes each reference's fingerprint from its flight stores, not from the code at
+    hand, and refuses rows flown by two versions of the code."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import make_suites
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    import pbdyn
+    from pbdyn.experiments.runner import BatchOptions, run_batch
+    from pbdyn.planning.registry import pair_fingerprint
+
+    sc = pbdyn.load_scenario({"name": "frz", "world": {"time_limit": 5.0}, "obstacles": {"count": 3},
+                              "planners": [{"trajectory": "straight_line", "gaze": "lookahead"}]})
+    flights = tmp_path / "straight_line" / "flights"
+    flights.mkdir(parents=True)
+    run_batch(sc, flights / "generated.sqlite", BatchOptions(workers=1, metrics=False, limit=2))
+    label = "lookahead+straight_line"
+    assert make_suites._flown_fingerprint(tmp_path / "straight_line", label) == \
+        pair_fingerprint("straight_line", "lookahead")
+    with sqlite3.connect(flights / "generated.sqlite") as c:
+        c.execute("UPDATE trials SET planner_fingerprint = 'pbdyn:0+pbdyn:0+core:0' WHERE rowid = 1")
+    with pytest.raises(SystemExit, match="2 code fingerprints"):
+        make_suites._flown_fingerprint(tmp_path / "straight_line", label)
