@@ -141,8 +141,9 @@ def test_markdown_escapes_what_it_embeds_and_html_stays_escaped(card_dir, tmp_pa
     assert code == 0 and err == "", err
     assert "\x1b" not in out and len(out.splitlines()) == 3
     for md in ((tmp_path / "cmp" / "compare.md").read_text(), card_markdown(card)):
-        assert "<script>" not in md and "](http" not in md and "\n# heading" not in md
-        assert r"evil\|label \<script\>" in md
+        assert "<script>" not in md and "\n# heading" not in md
+        assert r"evil\|label \<script\>" in md and r"\[link\](http" in md    # no "[...](" link survives
+        assert "[link]" not in md.replace(r"\[link\]", "")
     for page in ((tmp_path / "cmp" / "compare.html").read_text(), card_html(card)):
         assert "<script>" not in page and "&lt;script&gt;" in page
 

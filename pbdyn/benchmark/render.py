@@ -9,23 +9,33 @@ from __future__ import annotations
 import html
 import io
 import math
+import re
 
 from pbdyn.benchmark.card import OUTCOMES
 
 NA = "n/a"
 
 
-_MD_SPECIAL = "\\`*_{}[]<>()#+-!|~&"
-"""Characters a Markdown renderer may read as markup (CommonMark's punctuation that matters inline, the table
-pipe, HTML's < > &), each escaped with a backslash by md_escape."""
+_MD_SPECIAL = "\\`*_[]<>|~&"
+"""Characters a Markdown renderer may read as markup anywhere in a line (emphasis, code, links and images -- with
+[ ] escaped, ( ) ! cannot form one -- the table pipe, strike-through, HTML's < > &), each escaped with a
+backslash by md_escape."""
+_MD_LEADING = re.compile(r"^(?:[#+*-]\s|>|=+$|\d{1,9}[.)]\s)")
+"""What is markup only where a line starts (a heading, a list item, a quote, a setext underline, an ordered list):
+md_escape escapes the first character of a text that starts so."""
 
 
 def md_escape(text: object) -> str:
-    """``text`` as literal Markdown: one line (control characters escaped), every markup character backslash-escaped
-    (a pipe cannot end a table cell, a "<" cannot open HTML)."""
+    """``text`` as literal Markdown: one line (control characters escaped), every inline markup character
+    backslash-escaped (a pipe cannot end a table cell, a "<" cannot open HTML, a "[" cannot open a link), and a
+    leading block marker too."""
     from pbdyn.errors import one_line_text
 
-    return "".join("\\" + c if c in _MD_SPECIAL else c for c in one_line_text(str(text)))
+    line = "".join("\\" + c if c in _MD_SPECIAL else c for c in one_line_text(str(text)))
+    if _MD_LEADING.match(line):
+        digits = len(line) - len(line.lstrip("0123456789"))
+        return line[:digits] + "\\" + line[digits:] if digits else "\\" + line
+    return line
 
 
 def _f(x, fmt: str = ".2f") -> str:
