@@ -109,3 +109,18 @@ def process_running(pid: int) -> bool:
     except OSError:
         return False
     return state not in ("Z", "X")
+
+
+def copy_checkout(dest, *, caches: bool = True):
+    """A copy of the checkout (pbdyn/, urdf/, scenarios/, setup.cfg) at ``dest``, for tests that edit or break
+    pbdyn's own files; ``caches``: with its __pycache__ folders (numba's compiled functions)."""
+    import shutil
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    ignore = None if caches else shutil.ignore_patterns("__pycache__")
+    shutil.copytree(root / "pbdyn", dest / "pbdyn", ignore=ignore)
+    for name in ("urdf", "scenarios"):
+        shutil.copytree(root / name, dest / name)
+    shutil.copy2(root / "setup.cfg", dest / "setup.cfg")
+    return dest

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import stat
 import subprocess
 import sys
@@ -19,19 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.helpers import copy_checkout
+
 ROOT = Path(__file__).resolve().parents[1]
 NATIVE = Path("pbdyn") / "planning" / "primitives" / "native" / "_ruckig_batch.so"
 STATUS = "from pbdyn.planning.primitives import native; print(native.status())"
 
 
-def _copy_checkout(dest: Path, *, caches: bool = True) -> Path:
-    """A copy of the checkout at ``dest``; ``caches``: with its __pycache__ folders (numba's compiled functions)."""
-    ignore = None if caches else shutil.ignore_patterns("__pycache__")
-    shutil.copytree(ROOT / "pbdyn", dest / "pbdyn", ignore=ignore)
-    for name in ("urdf", "scenarios"):
-        shutil.copytree(ROOT / name, dest / name)
-    shutil.copy2(ROOT / "setup.cfg", dest / "setup.cfg")
-    return dest
 
 
 def _env(**extra) -> dict:
@@ -55,7 +48,7 @@ def _row(stdout: str) -> dict:
 def checkout(tmp_path_factory):
     """A copy of the checkout holding a good native library (the repository's, else one built into the copy):
     (folder, the library's bytes, {file name: bytes} of the files beside it that the build wrote)."""
-    dest = _copy_checkout(tmp_path_factory.mktemp("checkout"))
+    dest = copy_checkout(tmp_path_factory.mktemp("checkout"))
     assert _python(dest, "-c", "import pbdyn; print(pbdyn.__file__)").stdout.strip() == str(dest / "pbdyn" /
                                                                                           "__init__.py")
     lib = dest / NATIVE
@@ -178,7 +171,7 @@ def test_a_read_only_installation_with_no_writable_home_runs_quietly(tmp_path):
     """No folder numba can cache in beside the modules (each __pycache__ is a file: this holds for root too, who
     ignores permission bits), HOME and XDG_CACHE_HOME under a file, the package read-only: `pbdyn run` works,
     stderr stays empty, and numba caches in a private folder of the temp folder instead."""
-    root = _copy_checkout(tmp_path / "ro", caches=False)
+    root = copy_checkout(tmp_path / "ro", caches=False)
     folders = [root / "pbdyn", *[p for p in (root / "pbdyn").rglob("*") if p.is_dir()]]
     for folder in folders:
         (folder / "__pycache__").write_bytes(b"")

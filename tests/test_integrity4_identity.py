@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import copy_checkout
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SCENARIO = """
@@ -44,17 +46,9 @@ gaze = "lookahead"
 """
 
 
-def _copy_checkout(dest: Path) -> Path:
-    shutil.copytree(ROOT / "pbdyn", dest / "pbdyn")
-    for name in ("urdf", "scenarios"):
-        shutil.copytree(ROOT / name, dest / name)
-    shutil.copy2(ROOT / "setup.cfg", dest / "setup.cfg")
-    return dest
-
-
 @pytest.fixture(scope="module")
 def checkout(tmp_path_factory):
-    dest = _copy_checkout(tmp_path_factory.mktemp("idcheckout"))
+    dest = copy_checkout(tmp_path_factory.mktemp("idcheckout"))
     cache = tmp_path_factory.mktemp("idcache")
     return dest, cache
 

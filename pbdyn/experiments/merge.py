@@ -86,7 +86,7 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         _remove(target)
     with stop_on_signals():        # SIGTERM and SIGINT unwind through the clean-up below
         try:
-            summary = _merge_into(target, scenario, inputs)
+            summary = _merge_into(target, scenario, inputs, next(iter(rules)))
             if not existed:
                 os.replace(target, out_path)
             return summary
@@ -190,11 +190,6 @@ def check_same_code(stores: list[tuple]) -> None:
                               show_value=False)
 
 
-def _common_rule(inputs: list) -> str:
-    """The map id rule of the inputs (merge_stores has checked they share one)."""
-    return _id_rule(Path(inputs[0])) if inputs else "setup-1"
-
-
 def _id_rule(path: Path) -> str:
     """The map id rule a store's rows were made by (meta "map_ids"; none recorded: "setup-1")."""
     st = ResultsStore.open(path, field="out")
@@ -209,13 +204,12 @@ def _remove(path: Path) -> None:
         Path(str(path) + suffix).unlink(missing_ok=True)
 
 
-def _merge_into(target: Path, scenario: str, inputs: list) -> MergeSummary:
+def _merge_into(target: Path, scenario: str, inputs: list, rule: str) -> MergeSummary:
     store = ResultsStore.create(target, field="out")
     conn = store.conn
     try:
         if store.get_meta("scenario") is None:
             store.set_meta("scenario", scenario)
-            rule = _common_rule(inputs)
             if rule != "setup-1":
                 store.set_meta("map_ids", rule)
         before = store.count()

@@ -81,7 +81,7 @@ def check_id_rule(store: ResultsStore, out: Path, field: str = "out") -> None:
     from pbdyn.world.maps import MAP_ID_RULE
 
     rule = store.get_meta("map_ids")
-    if rule == MAP_ID_RULE or (rule is None and store.count() == 0 and not store.maps()):
+    if rule == MAP_ID_RULE or (rule is None and store.is_empty()):
         return
     raise ConfigError(field, f"names its maps by the map id rule {rule or 'setup-1'} (an older pbdyn); this pbdyn "
                       f"names them by {MAP_ID_RULE}, and one store cannot hold both (use a new --out file)", str(out))

@@ -509,3 +509,8 @@ class ResultsStore:
     def count(self) -> int:
         """Number of stored trials."""
         return int(self.conn.execute("SELECT COUNT(*) FROM trials").fetchone()[0])
+
+    @_guarded
+    def is_empty(self) -> bool:
+        """True if the store holds no trial and no map."""
+        return not any(self.conn.execute(f"SELECT 1 FROM {t} LIMIT 1").fetchone() for t in ("trials", "maps"))

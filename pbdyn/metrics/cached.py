@@ -11,7 +11,7 @@ from pathlib import Path
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError
 from pbdyn.files import create_temp
-from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, METRIC_TABLE, NAMES, SPARSE
+from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, INFO, METRIC_TABLE, NAMES, SPARSE
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
 
@@ -26,7 +26,7 @@ def metric_code(name: str, backend: str | None = None) -> str:
     the cache never serves a value computed by other code (and serves the old values again after a revert)."""
     from pbdyn import codeid
 
-    module = next(m.module for m in METRIC_TABLE if m.name == name)
+    module = INFO[name].module
     own = BACKEND_MODULES.get(backend or "")
     return codeid.identity((module,) + ((own,) if own else ()),
                            tuple(m for m in BACKEND_MODULES.values() if m != own))

@@ -34,6 +34,12 @@ keys were written so before this registry, and stay so that no cached rollout ch
 names its parameters only in the keys of scenarios that use it."""
 
 
+def other_tables(motion: str) -> set[str]:
+    """The tables of the models other than ``motion`` (a scenario's settings for models it does not use: left out
+    of what identifies its trials and maps)."""
+    return {m.table for name, m in MODELS.items() if m.table and name != motion}
+
+
 def key_params(obstacles: Any) -> dict:
     """The motion model's part of a rollout key's "obstacles" entry (pbdyn.world.rollout.rollout_key) for a
     scenario's obstacles section (pbdyn.config.ObstacleConfig): KEYED_TABLES as None, then the scenario's model's

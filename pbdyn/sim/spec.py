@@ -14,7 +14,7 @@ from functools import cached_property
 
 from pbdyn.config import PlannerEntry, Scenario, canonical_json, check_v_max, later_fields, warn_stopping
 from pbdyn.errors import ConfigError
-from pbdyn.motion.registry import MODELS
+from pbdyn.motion.registry import other_tables
 from pbdyn.planning.registry import resolve_gaze_planner, resolve_trajectory_planner
 from pbdyn.world.imported.bodies import bodies_fingerprint
 from pbdyn.world.maps import MapSpec, stable_hash64
@@ -75,7 +75,7 @@ def _scenario_part(scenario: Scenario) -> dict:
     sc = scenario.to_dict()
     skip = {"count", "radius", "speed", "maps_per_setup", "grid_order", "structure", "structures", "maps"}
     motion = sc["obstacles"]["motion"]
-    skip |= {m.table for name, m in MODELS.items() if m.table and name != motion}   # other models' tables
+    skip |= other_tables(motion)
     skip |= set(later_fields("obstacles", sc["obstacles"]))       # stores keep resuming across versions
     obstacles = {k: v for k, v in sc["obstacles"].items() if k not in skip}
     drone = {k: v for k, v in sc["drone"].items() if k not in ("urdf", "v_max")}

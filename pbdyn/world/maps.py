@@ -118,7 +118,7 @@ def world_digest(scenario: Scenario, setup: dict | None = None) -> str:
     it names. Not the time limit, planners, sensor or MAV limits: those change the trials on a map, not the map."""
     from dataclasses import asdict
 
-    from pbdyn.motion.registry import MODELS
+    from pbdyn.motion.registry import other_tables
 
     st = structure_of(scenario, setup) if setup is not None else None
     if st is not None:
@@ -128,7 +128,7 @@ def world_digest(scenario: Scenario, setup: dict | None = None) -> str:
     motion = sc["obstacles"]["motion"]
     skip = {"count", "radius", "speed", "structure", "structures", "maps_per_setup", "maps",   # per map: its key
             "grid_order"}                                                                     # and its structure
-    skip |= {m.table for name, m in MODELS.items() if m.table and name != motion}     # other models' tables
+    skip |= other_tables(motion)
     payload = {
         "world": {k: sc["world"][k] for k in ("dims", "size", "dt", "flight_height")},
         "obstacles": {k: v for k, v in sc["obstacles"].items() if k not in skip and v not in (None, [], {})},
