@@ -296,6 +296,202 @@ def fly(name: str, out: Path, planners: list[str], workers: int) -> None:
         fly_suite(suite, entry, folder, workers=workers, progress=True, command=f"tools/make_suites.py fly {name}")
 
 
+def heldout_pairs(candidates) -> list[tuple[int, int]]:
+    """The held-out tasks of a map: every ordered (start, goal) pair of the candidates the reference pairs leave out
+    (pbdyn.analysis.scale.reference_candidates; on the default 3 x 3 grid the four edge midpoints: 12 pairs, no
+    start or goal in common with the suite's tasks). A map's level is measured on these (docs/benchmark.md)."""
+    from pbdyn.analysis.scale import reference_candidates
+
+    used = set(reference_candidates(candidates))
+    rest = [i for i in range(len(candidates)) if i not in used]
+    return [(i, j) for i in rest for j in rest if i != j]
+
+
+def heldout_suite(suite):
+    """``suite`` with every part's pairs replaced by its held-out pairs (the manifest's ``pairs_leveled``, else
+    heldout_pairs of the part's candidates): the tasks its levels are measured on."""
+    import dataclasses
+
+    from pbdyn.config import parse_scenario
+
+    parts = []
+    for p in suite.parts:
+        pairs = p.level_pairs or tuple(heldout_pairs(parse_scenario(p.doc, p.path).task.candidates))
+        if len(pairs) < 2:
+            raise SystemExit(f"{suite.name}: part {p.name} has too few candidates for held-out tasks")
+        parts.append(dataclasses.replace(p, pairs=tuple(pairs)))
+    return dataclasses.replace(suite, parts=tuple(parts))
+
+
+LEVELS_FROM_TEXT = (
+    "levels and difficulties were measured from the reference panel's flights ({panel}; at {speeds} m/s) on held-out "
+    "tasks of each map: the ordered pairs of the start/goal candidates the suite's tasks leave out (on the default "
+    "3 x 3 grid the four edge midpoints: 12 pairs, {per_map} tasks per map), which share no start or goal with the "
+    "suite's tasks; the reference results a card compares against were flown separately on the suite's tasks "
+    "(docs/benchmark.md#levels)")
+
+
+def draft_v2(name: str, source: str) -> Path:
+    """Write the draft suite NAME: the maps and tasks of the frozen v1 suite ``source``, named by content ids, whose
+    levels will be measured on held-out tasks (each part's ``pairs_leveled``: heldout_pairs) -- docs/benchmark.md
+    "Levels"."""
+    from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
+    from pbdyn.benchmark.suite import LEVELS_FROM, SUITE_FORMAT, load_suite
+    from pbdyn.config import parse_scenario
+    from pbdyn.world.maps import enumerate_maps
+
+    src = load_suite(SUITES / source)
+    folder = SUITES / name
+    folder.mkdir(parents=True, exist_ok=True)
+    parts, specs = [], {}
+    for entry in src.doc["parts"]:
+        part = src.part(entry["name"])
+        new = dict(entry)
+        if (src.folder / entry["scenario"]).is_file():      # a generated part: its file moves into the new suite
+            doc = copy.deepcopy(part.doc)
+            doc["name"] = f"{name}.{part.name}"
+            (folder / entry["scenario"]).write_text(_toml(doc, f"pbdyn benchmark suite {name}: generated maps (those "
+                                                               f"of {source}), written by tools/make_suites.py; do "
+                                                               "not edit by hand (the suite's hash covers it)."))
+        sc = parse_scenario(part.doc, part.path)
+        new["pairs_leveled"] = [list(q) for q in heldout_pairs(sc.task.candidates)]
+        parts.append(new)
+        specs[part.name] = enumerate_maps(sc)
+    maps = []
+    for m in src.maps:
+        spec = specs[m["part"]][m["map_index"]]
+        if src.spec_map_id(spec) != m["map_id"]:
+            raise SystemExit(f"{source}: map {m['part']}/{m['map_id']} is not its part's map {m['map_index']}")
+        maps.append({"part": m["part"], "map_index": m["map_index"], "map_id": spec.map_id, "family": m["family"],
+                     "level": None, "calibration_success": m["calibration_success"], "difficulty": None})
+    per_map = len(heldout_pairs(parse_scenario(src.parts[0].doc, src.parts[0].path).task.candidates)) * len(src.speeds)
+    text = LEVELS_FROM_TEXT.format(panel=", ".join(e.label for e in PANEL),
+                                   speeds=", ".join(f"{v:g}" for v in PANEL_SPEEDS), per_map=per_map)
+    manifest = {"format": SUITE_FORMAT, "name": name, "version": "2", "dims": src.dims, "speeds": list(src.speeds),
+                "levels": levels_doc(), "parts": parts, "maps": sorted(maps, key=lambda m: (m["part"], m["map_index"])),
+                LEVELS_FROM: {"tasks": "held-out", "panel": [e.label for e in PANEL], "text": text},
+                "derived_from": {"suite": source, "hash": src.hash}}
+    (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    return folder
+
+
+def _per_map_counts(rows: list[dict], keep=None) -> dict:
+    """(part, map id) -> [successes, tasks] over ``rows`` (those ``keep(row)`` accepts)."""
+    out: dict = {}
+    for r in rows:
+        if keep is not None and not keep(r):
+            continue
+        c = out.setdefault((r["part"], r["map_id"]), [0, 0])
+        c[0] += r["outcome"] == "success"
+        c[1] += 1
+    return out
+
+
+def _level_differences(level: dict, a: dict, b: dict, seed: int, n_boot: int = 2000) -> list[dict]:
+    """Per level (``level``: map -> level), the success of flights ``a`` and ``b`` (map -> [k, n]) pooled over the
+    level's maps, and b - a with a 95% interval from resampling the level's maps."""
+    import numpy as np
+
+    out = []
+    for lv in sorted(set(level.values())):
+        maps = sorted(m for m in level if level[m] == lv)
+        ka, na = np.array([a[m][0] for m in maps], float), np.array([a[m][1] for m in maps], float)
+        kb, nb = np.array([b[m][0] for m in maps], float), np.array([b[m][1] for m in maps], float)
+        rng = np.random.default_rng([seed, lv])
+        w = rng.multinomial(len(maps), np.full(len(maps), 1.0 / len(maps)), size=n_boot).astype(float)
+        d = (w @ kb) / (w @ nb) - (w @ ka) / (w @ na)
+        out.append({"level": lv, "maps": len(maps), "a": ka.sum() / na.sum(), "b": kb.sum() / nb.sum(),
+                    "b_minus_a": kb.sum() / nb.sum() - ka.sum() / na.sum(),
+                    "ci95": [float(np.quantile(d, 0.025)), float(np.quantile(d, 0.975))]})
+    return out
+
+
+def _tilt(rows: list[dict]) -> float:
+    """The slope (per level) of a per-level difference, least squares weighted by the levels' maps."""
+    import numpy as np
+
+    x = np.array([r["level"] for r in rows], float)
+    y = np.array([r["b_minus_a"] for r in rows], float)
+    w = np.array([r["maps"] for r in rows], float)
+    xm, ym = np.average(x, weights=w), np.average(y, weights=w)
+    return float(np.sum(w * (x - xm) * (y - ym)) / np.sum(w * (x - xm) ** 2))
+
+
+def bias(name: str, heldout: Path, json_out: Path | None = None) -> dict:
+    """Measure the selection bias of suite NAME's levels (docs/benchmark.md "Levels"), from its shipped references
+    (the panel's flights on the suite's tasks, S) and the panel's flights on held-out tasks of the same maps (H, in
+    ``heldout``/<trajectory>/, fly-heldout):
+
+    1. per level of the suite: the panel's success on S against H (the levels came from S: selection pulls S
+       below H at the hard levels and above it at the easy ones; H's own tasks are easier or harder on the whole,
+       an offset common to every level);
+    2. a planner of the panel's skill against the references with geometry held equal: the panel's flights on
+       the suite's forward pairs (start index < goal index) act as the references and those on the reverse pairs
+       as another planner of the same skill; levels (a) from the references' own flights, as v1 did, and (b) from
+       the held-out tasks: the difference should be flat in (b).
+    Prints Markdown tables; writes them as JSON to ``json_out`` if given."""
+    from pbdyn.analysis.scale import PANEL
+    from pbdyn.benchmark.run import load_references
+    from pbdyn.benchmark.suite import load_suite
+
+    suite = load_suite(SUITES / name if (SUITES / name).is_dir() else name)
+    refs = load_references(suite)
+    s_rows = [r for e in PANEL for r in refs[e.label]["rows"]]
+    h_rows = [r for rows in heldout_rows(suite, heldout).values() for r in rows]
+    cand = {}
+    from pbdyn.config import parse_scenario
+    for p in suite.parts:
+        cand[p.name] = [tuple(float(x) for x in c) for c in parse_scenario(p.doc, p.path).task.candidates]
+
+    def forward(r):
+        c = cand[r["part"]]
+        return c.index(tuple(r["start"])) < c.index(tuple(r["goal"]))
+
+    S, H = _per_map_counts(s_rows), _per_map_counts(h_rows)
+    F, R = _per_map_counts(s_rows, forward), _per_map_counts(s_rows, lambda r: not forward(r))
+    suite_level = {(m["part"], m["map_id"]): int(m["level"]) for m in suite.maps}
+    rate = lambda c: {m: level_of(k / n) for m, (k, n) in c.items()}     # noqa: E731
+    out = {"suite": name, "hash": suite.hash, "maps": len(suite.maps), "panel": [e.label for e in PANEL],
+           "tasks_per_map": {"suite": S[next(iter(S))][1], "heldout": H[next(iter(H))][1]},
+           "suite_vs_heldout": _level_differences(suite_level, S, H, 1),
+           "same_skill_levels_from_references": _level_differences(rate(F), F, R, 2),
+           "same_skill_levels_from_heldout": _level_differences(rate(H), F, R, 3)}
+    tot = lambda c: sum(k for k, _ in c.values()) / sum(n for _, n in c.values())   # noqa: E731
+    out["overall"] = {"suite": tot(S), "heldout": tot(H), "forward": tot(F), "reverse": tot(R)}
+    for key in ("suite_vs_heldout", "same_skill_levels_from_references", "same_skill_levels_from_heldout"):
+        out[key + "_tilt_per_level"] = _tilt(out[key])
+    heads = {"suite_vs_heldout": ("S (suite tasks)", "H (held-out)"),
+             "same_skill_levels_from_references": ("references (forward pairs)", "same skill (reverse pairs)"),
+             "same_skill_levels_from_heldout": ("references (forward pairs)", "same skill (reverse pairs)")}
+    print(f"{name} ({suite.hash[:12]}): panel success S {out['overall']['suite']:.3f}, H {out['overall']['heldout']:.3f}, "
+          f"forward {out['overall']['forward']:.3f}, reverse {out['overall']['reverse']:.3f}")
+    for key, (ha, hb) in heads.items():
+        print(f"\n{key} (tilt {out[key + '_tilt_per_level']:+.4f} per level)\n")
+        print(f"| level | maps | {ha} | {hb} | difference | 95% interval (maps) |\n|---|---|---|---|---|---|")
+        for r in out[key]:
+            print(f"| {r['level']} | {r['maps']} | {r['a']:.3f} | {r['b']:.3f} | {r['b_minus_a']:+.3f} | "
+                  f"[{r['ci95'][0]:+.3f}, {r['ci95'][1]:+.3f}] |")
+    if json_out is not None:
+        json_out.write_text(json.dumps(out, indent=1) + "\n")
+    return out
+
+
+def fly_heldout(name: str, out: Path, planners: list[str], workers: int) -> None:
+    """Fly the reference panel (or ``planners``) on the held-out tasks of suite NAME's maps into
+    out/heldout/<trajectory>/."""
+    from pbdyn.analysis.scale import PANEL
+    from pbdyn.benchmark.run import _check_marker, fly as fly_suite, planner_entry
+    from pbdyn.benchmark.suite import load_suite
+
+    suite = heldout_suite(load_suite(SUITES / name if (SUITES / name).is_dir() else name))
+    for traj in planners or [e.trajectory for e in PANEL]:
+        entry = planner_entry(traj)
+        folder = out / "heldout" / traj
+        _check_marker(folder, suite, entry)
+        fly_suite(suite, entry, folder, workers=workers, progress=True,
+                  command=f"tools/make_suites.py fly-heldout {name}")
+
+
 def _measure_subset(counts: dict, speeds: list[float]) -> dict:
     """measure() restricted to the panel respondents at ``speeds``: map id -> (success, ci, b, b_ci)."""
     import numpy as np
@@ -321,17 +517,55 @@ def _measure_subset(counts: dict, speeds: list[float]) -> dict:
     return out
 
 
-def freeze(name: str, out: Path) -> None:
-    """Measure, level and freeze suite NAME from the reference flights in ``out`` (module doc)."""
+def _panel_measure(suite, flown_rows: dict) -> dict:
+    """The panel's measurement of every map from its flights (``flown_rows``: panel label -> task rows): map
+    "part/id" -> (success, success ci, difficulty, difficulty ci, tasks per respondent), by the same code as
+    `pbdyn calibrate` (or the respondents at the suite's speeds only)."""
+    from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
+    from pbdyn.experiments.calibrate import load_anchors, measure, panel_counts
+
+    panel_rows = []
+    for e in PANEL:
+        for r in flown_rows[e.label]:
+            panel_rows.append({**r, "map_id": f"{r['part']}/{r['map_id']}", "planner_label": e.label,
+                               "map_index": None})
+    counts = panel_counts(panel_rows)
+    if sorted(suite.speeds) == sorted(PANEL_SPEEDS):
+        return {m.map_id: (m.success, list(m.success_ci), m.difficulty, list(m.difficulty_ci), m.tasks)
+                for m in measure(counts, load_anchors(), dims=suite.dims)}
+    return _measure_subset(counts, list(suite.speeds))
+
+
+def heldout_rows(suite, folder: Path) -> dict:
+    """The panel's task rows on the held-out tasks of ``suite`` (heldout_suite) in ``folder``/<trajectory>/ (the
+    flights of fly-heldout): panel label -> rows; a panel planner not flown in full stops the tool."""
+    from pbdyn.analysis.scale import PANEL
+    from pbdyn.benchmark.run import read_rows
+
+    held = heldout_suite(suite)
+    out = {}
+    for e in PANEL:
+        rows = read_rows(held, folder / e.trajectory, e.label)
+        if len(rows) != held.n_tasks():
+            raise SystemExit(f"{folder / e.trajectory}: {len(rows)} of {held.n_tasks()} held-out tasks flown; "
+                             "fly them first (tools/make_suites.py fly-heldout)")
+        out[e.label] = rows
+    return out
+
+
+def freeze(name: str, out: Path, heldout: Path | None = None) -> None:
+    """Measure, level and freeze suite NAME from the reference flights in ``out`` (module doc); a suite whose
+    manifest holds levels_from takes its levels and difficulties from the panel's held-out flights in ``heldout``
+    (default out/heldout), its reference success from the suite's tasks."""
     import platform
     from datetime import datetime, timezone
 
     import pbdyn
-    from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
+    from pbdyn.analysis.scale import PANEL
     from pbdyn.benchmark.card import machine
     from pbdyn.benchmark.run import REFERENCE_FILE, THESIS_GAZE, read_rows, reference_document
-    from pbdyn.benchmark.suite import REFERENCES_DIGEST, SUITE_FORMAT, load_suite, references_digest
-    from pbdyn.experiments.calibrate import load_anchors, measure, panel_counts
+    from pbdyn.benchmark.suite import LEVELS_FROM, REFERENCES_DIGEST, SUITE_FORMAT, load_suite, references_digest
+    from pbdyn.experiments.calibrate import load_anchors
     from pbdyn.planning.registry import pair_fingerprint
 
     folder = SUITES / name
@@ -347,27 +581,28 @@ def freeze(name: str, out: Path) -> None:
         if flown[label]["meta"]["fingerprint"] != pair_fingerprint(traj, gaze):
             print(f"note: {label} was flown by other code than this checkout's (its rows record "
                   f"{flown[label]['meta']['fingerprint']}); the references record the code that flew them")
-    panel_rows = []
-    for e in PANEL:
-        for r in flown[e.label]["rows"]:
-            panel_rows.append({**r, "map_id": f"{r['part']}/{r['map_id']}", "planner_label": e.label,
-                               "map_index": None})
-    counts = panel_counts(panel_rows)
-    if sorted(suite.speeds) == sorted(PANEL_SPEEDS):
-        res = {m.map_id: (m.success, list(m.success_ci), m.difficulty, list(m.difficulty_ci), m.tasks)
-               for m in measure(counts, load_anchors(), dims=suite.dims)}
-    else:
-        res = _measure_subset(counts, list(suite.speeds))
+    res = _panel_measure(suite, {k: v["rows"] for k, v in flown.items()})
     doc = json.loads((folder / "suite.json").read_text())
+    held = None
+    if LEVELS_FROM in doc:
+        hdir = heldout if heldout is not None else out / "heldout"
+        held = _panel_measure(heldout_suite(suite), heldout_rows(suite, hdir))
+        doc[LEVELS_FROM]["fingerprints"] = {e.label: _flown_fingerprint(hdir / e.trajectory, e.label)
+                                            for e in PANEL}
     for m in doc["maps"]:
-        got = res[f"{m['part']}/{m['map_id']}"][0]
+        key = f"{m['part']}/{m['map_id']}"
+        got = res[key][0]
         if "cut_from" not in doc and abs(got - m["calibration_success"]) > 5e-7:
-            print(f"note: map {m['part']}/{m['map_id']}: measured success {got:.6f}, its source recorded "
+            print(f"note: map {key}: measured success {got:.6f}, its source recorded "
                   f"{m['calibration_success']:.6f}")
-        s, s_ci, b, b_ci, tasks = res[f"{m['part']}/{m['map_id']}"]
-        m.update({"level": level_of(s), "reference_success": round(s, 6),
-                  "reference_success_ci95": [round(x, 6) for x in s_ci], "difficulty": round(b, 6),
-                  "difficulty_ci95": [round(x, 6) for x in b_ci], "tasks": tasks * len(suite.speeds)})
+        s, s_ci, b, b_ci, tasks = res[key]
+        m.update({"reference_success": round(s, 6), "reference_success_ci95": [round(x, 6) for x in s_ci],
+                  "tasks": tasks * len(suite.speeds)})
+        if held is not None:            # the level and difficulty from the held-out flights (module doc)
+            s, s_ci, b, b_ci, tasks = held[key]
+            m.update({"level_success": round(s, 6), "level_success_ci95": [round(x, 6) for x in s_ci],
+                      "level_tasks": tasks * len(suite.speeds)})
+        m.update({"level": level_of(s), "difficulty": round(b, 6), "difficulty_ci95": [round(x, 6) for x in b_ci]})
     doc["maps"] = sorted(doc["maps"], key=lambda m: (m["level"], m["part"], m["map_index"]))
     if "cut_from" in doc:     # a cut keeps only the levels its maps fall in
         doc["levels"] = [lv for lv in doc["levels"] if any(m["level"] == lv["level"] for m in doc["maps"])]
@@ -430,9 +665,22 @@ def main(argv=None) -> int:
     f.add_argument("out", type=Path)
     f.add_argument("--planner", action="append", default=[])
     f.add_argument("--workers", type=int, default=2)
+    fh = sub.add_parser("fly-heldout")
+    fh.add_argument("name")
+    fh.add_argument("out", type=Path)
+    fh.add_argument("--planner", action="append", default=[])
+    fh.add_argument("--workers", type=int, default=2)
     z = sub.add_parser("freeze")
     z.add_argument("name")
     z.add_argument("out", type=Path)
+    z.add_argument("--heldout", type=Path, default=None)
+    d2 = sub.add_parser("draft-v2")
+    d2.add_argument("name")
+    d2.add_argument("source")
+    bi = sub.add_parser("bias")
+    bi.add_argument("name")
+    bi.add_argument("heldout", type=Path)
+    bi.add_argument("--json", type=Path, default=None)
     pl = sub.add_parser("pool")
     pl.add_argument("file", type=Path)
     pl.add_argument("--dims", type=int, default=3)
@@ -447,12 +695,18 @@ def main(argv=None) -> int:
         print(measured(a.file, a.store, a.out))
     elif a.cmd == "draft":
         print(draft(a.name, a.dims, a.extra, a.world))
+    elif a.cmd == "draft-v2":
+        print(draft_v2(a.name, a.source))
+    elif a.cmd == "bias":
+        bias(a.name, a.heldout, a.json)
     elif a.cmd == "draft-mini":
         print(draft_mini(a.name, a.source))
+    elif a.cmd == "fly-heldout":
+        fly_heldout(a.name, a.out, a.planner, a.workers)
     elif a.cmd == "fly":
         fly(a.name, a.out, a.planner, a.workers)
     else:
-        freeze(a.name, a.out)
+        freeze(a.name, a.out, a.heldout)
     return 0
 
 

@@ -9,6 +9,13 @@ suite's tasks of that map, with a 95% interval, and the difficulty in logits wit
 the ordered start/goal pairs ``pairs_flown`` of its manifest entry (default: the reference pairs,
 pbdyn.analysis.scale.reference_pairs) at each of the suite's speeds.
 
+Levels (docs/benchmark.md "Levels"). A v1 suite measured each map's level and difficulty from the reference panel's
+flights on the suite's own tasks, the flights its cards compare against: selection-biased (a map the panel was
+unlucky on lands on a harder level, where any other planner then looks better). A suite whose manifest holds
+``levels_from`` measures them on held-out tasks instead: the ordered pairs ``pairs_leveled`` of each part's entry
+(the start/goal candidates the suite's tasks leave out: no start or goal in common), flown by the panel at the
+suite's speeds; the panel's flights on the suite's tasks are flown separately and are the references.
+
 A suite's identity is its content hash (suite_hash): the sha256 of the manifest and of every part's resolved
 scenario (canonical JSON), printed on every score card; a test fixes the shipped suites' hashes. The manifest records
 the digest of the suite's reference results (``references_sha256``: references_digest of reference.json.gz), which
@@ -36,6 +43,12 @@ SUITE_FORMATS = ("pbdyn-suite/1", SUITE_FORMAT)
 REFERENCES_DIGEST = "references_sha256"
 """The manifest key of the reference results' digest (references_digest)."""
 SUITES_FOLDER = "suites"
+LEVELS_FROM = "levels_from"
+"""The manifest key that says a suite's levels were measured on held-out tasks (module doc)."""
+V1_LEVELS_TEXT = ("levels and difficulties were measured from the reference panel's flights on the suite's own tasks, "
+                  "the same flights this card compares against: selection-biased toward the references at the hard "
+                  "levels (docs/benchmark.md#levels)")
+"""How a suite without ``levels_from`` assigned its levels."""
 
 
 @dataclass(frozen=True)
@@ -47,6 +60,8 @@ class Part:
     path: Path
     doc: dict
     pairs: tuple
+    level_pairs: tuple = ()
+    """The held-out pairs its maps' levels are measured on (``pairs_leveled``; () when the suite has none)."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +113,14 @@ class Suite:
             if m["part"] == part and m["map_id"] == map_id:
                 return int(m["level"])
         raise ConfigError("map", f"is not a map of part {part} of suite {self.name}", map_id)
+
+    @property
+    def levels_text(self) -> str:
+        """How the suite's levels were assigned, in one paragraph (module doc)."""
+        src = self.doc.get(LEVELS_FROM)
+        if isinstance(src, dict) and src.get("text"):
+            return str(src["text"])
+        return V1_LEVELS_TEXT
 
     def n_tasks(self) -> int:
         """Tasks (map x pair x speed) in the suite."""
@@ -163,7 +186,9 @@ def suite_from_doc(doc: dict, folder: Path) -> Suite:
         if pairs is None:
             sc = parse_scenario(part_doc, path)
             pairs = reference_pairs(sc.task.candidates)
-        parts.append(Part(str(entry["name"]), path, part_doc, tuple(tuple(int(i) for i in q) for q in pairs)))
+        leveled = entry.get("pairs_leveled") or ()
+        parts.append(Part(str(entry["name"]), path, part_doc, tuple(tuple(int(i) for i in q) for q in pairs),
+                          tuple(tuple(int(i) for i in q) for q in leveled)))
     return Suite(str(doc["name"]), str(doc["version"]), int(doc["dims"]), tuple(float(v) for v in doc["speeds"]),
                  tuple(doc["levels"]), tuple(doc["maps"]), tuple(parts), doc, folder)
 

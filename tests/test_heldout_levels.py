@@ -1,0 +1,111 @@
+"""Levels measured on held-out tasks (docs/benchmark.md "Levels"): tools/make_suites.py draft-v2, fly-heldout, freeze
+and bias on a two-map cut of the mini suite, flown for real."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+import pbdyn
+from pbdyn.benchmark.suite import LEVELS_FROM, V1_LEVELS_TEXT, load_suite
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def tools():
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import make_suites
+    finally:
+        sys.path.remove(str(ROOT / "tools"))
+    return make_suites
+
+
+@pytest.fixture(scope="module")
+def frozen(tools, tmp_path_factory):
+    """A v1 suite of two maps (the mini suite's easiest and hardest), its v2 draft, both frozen from real flights."""
+    base = tmp_path_factory.mktemp("suites")
+    src = base / "tiny-v1"
+    shutil.copytree(ROOT / "scenarios" / "suites" / "pbdyn-2d-mini", src)
+    doc = json.loads((src / "suite.json").read_text())
+    doc["maps"] = [doc["maps"][0], doc["maps"][-1]]           # its easiest and hardest map
+    doc["name"] = "tiny-v1"
+    (src / "suite.json").write_text(json.dumps(doc))
+    old = tools.SUITES
+    tools.SUITES = base
+    try:
+        flights = base / "flights"
+        v1 = load_suite(src)
+        tools.fly_heldout("tiny-v1", flights, [], workers=1)
+        folder = tools.draft_v2("tiny-v2", "tiny-v1")
+        draft = json.loads((folder / "suite.json").read_text())
+        tools.fly("tiny-v2", flights, [], workers=1)
+        tools.freeze("tiny-v2", flights, flights / "heldout")
+    finally:
+        tools.SUITES = old
+    return {"v1": v1, "v2": load_suite(folder), "draft": draft, "flights": flights, "base": base}
+
+
+def test_draft_v2_keeps_the_maps_and_tasks_and_adds_held_out_pairs(frozen):
+    v1, draft = frozen["v1"], frozen["draft"]
+    assert draft["format"] == "pbdyn-suite/2" and draft[LEVELS_FROM]["tasks"] == "held-out"
+    assert [m["map_index"] for m in draft["maps"]] == sorted(m["map_index"] for m in v1.maps)
+    assert all(m["level"] is None and m["difficulty"] is None for m in draft["maps"])
+    part = draft["parts"][0]
+    assert part["pairs_flown"] == [list(q) for q in v1.parts[0].pairs]       # the suite's tasks are v1's
+    flown = {c for q in part["pairs_flown"] for c in q}
+    leveled = {c for q in part["pairs_leveled"] for c in q}
+    assert leveled == {1, 3, 5, 7} and len(part["pairs_leveled"]) == 12     # the edge midpoints, all ordered pairs
+    assert not flown & leveled                                             # no start or goal in common
+
+
+def test_a_v2_freeze_levels_maps_by_the_held_out_flights_only(frozen, tools):
+    from pbdyn.benchmark.run import load_references, read_rows
+
+    v2 = frozen["v2"]
+    held = tools.heldout_suite(v2)
+    assert held.parts[0].pairs == v2.parts[0].level_pairs
+    panel = {"lookahead+local_primitives": "local_primitives", "fullrange+global_primitives": "global_primitives",
+             "lookahead+mpc": "mpc"}
+    h_rows = [r for label, traj in panel.items()
+              for r in read_rows(held, frozen["flights"] / "heldout" / traj, label)]
+    refs = load_references(v2)
+    s_rows = [r for label in panel for r in refs[label]["rows"]]
+    assert sorted(refs) == sorted(["lookahead+local_primitives", "fullrange+global_primitives", "lookahead+mpc",
+                                   "lookahead+straight_line", "lookahead+local_primitives_minjerk"])
+    for m in v2.maps:
+        mine = [r["outcome"] == "success" for r in h_rows if r["map_id"] == m["map_id"]]
+        theirs = [r["outcome"] == "success" for r in s_rows if r["map_id"] == m["map_id"]]
+        assert len(mine) == 3 * 12 and len(theirs) == 3 * 3
+        assert m["level_success"] == round(sum(mine) / len(mine), 6)
+        assert m["level"] == tools.level_of(sum(mine) / len(mine))
+        assert m["reference_success"] == round(sum(theirs) / len(theirs), 6)
+    assert set(v2.doc[LEVELS_FROM]["fingerprints"]) == set(panel)
+    assert v2.levels_text == v2.doc[LEVELS_FROM]["text"] and frozen["v1"].levels_text == V1_LEVELS_TEXT
+
+
+def test_a_v2_suite_benches_and_its_references_reproduce(frozen, tmp_path):
+    card = pbdyn.bench("straight_line", suite=frozen["v2"].folder, out=tmp_path / "b", workers=1, reproduce=True)
+    assert card["reproduction"]["identical"]
+    assert card["trials"]["flown"] == frozen["v2"].n_tasks() == 6
+    assert "held-out" in json.dumps(card)
+
+
+def test_the_bias_measurement_compares_suite_and_held_out_flights(frozen, tools, capsys):
+    old = tools.SUITES
+    tools.SUITES = frozen["base"]
+    try:
+        out = tools.bias("tiny-v1", frozen["flights"] / "heldout")
+    finally:
+        tools.SUITES = old
+    rows = out["suite_vs_heldout"]
+    assert [r["level"] for r in rows] == [2, 9] and all(r["maps"] == 1 for r in rows)
+    for r in rows:
+        assert r["b_minus_a"] == pytest.approx(r["b"] - r["a"])
+    assert out["tasks_per_map"] == {"suite": 9, "heldout": 36}
+    assert "| level | maps |" in capsys.readouterr().out
