@@ -4,7 +4,10 @@ Two planner pairs that flew the same tasks (same map, start, goal and MAV speed)
 discordant counts (tasks only one of them succeeded on) give the exact McNemar test (a two-sided binomial test of
 the discordant split against 1/2), and the difference of their success rates gets a 95% interval from a paired
 bootstrap that resamples maps (a map's tasks stay together: they share obstacles, so they are not independent).
-Success rates of one planner get Wilson score intervals (trials taken as independent).
+Success rates of one planner get Wilson score intervals (trials taken as independent). Score cards test the
+difference with clustered_paired_test instead (a cluster-robust Wald t-test with maps as clusters, which respects
+that a map's tasks share obstacles) and adjust the p-values of a card's comparisons with holm_adjust; format_p prints
+a p-value to the card's floor (P_FLOOR).
 
 `pbdyn evaluate` reports both (its "paired" and "success_by_group" keys): paired_table compares every two planner
 pairs on the tasks they both flew, success_by_group gives each pair's success per map setup and, for stores flown
@@ -77,6 +80,86 @@ def paired_comparison(a, b, clusters, *, n_boot: int = 2000, seed: int = 0) -> d
         lo, hi = np.quantile(boot, [0.025, 0.975])
     return {**out, "success_a": float(a.mean()), "success_b": float(b.mean()), "difference": float(diff.mean()),
             "difference_ci95": [float(lo), float(hi)], "mcnemar_p": mcnemar_exact(out["a_only"], out["b_only"])}
+
+
+# --------------------------------------------------------------------------------------- the clustered paired test
+P_FLOOR = 1e-6
+"""The smallest p-value a score card prints or stores as a number: below it, "< 1e-6" (format_p)."""
+
+
+def clustered_paired_test(a, b, clusters) -> dict:
+    """The cluster-robust Wald t-test of the success difference of planner A and planner B on the same T tasks
+    (``a``, ``b`` [T] success 0/1 aligned task by task; ``clusters`` [T] each task's map): the paired differences
+    d = a - b are regressed on an intercept, so the estimate is mean(d), with the map-clustered sandwich variance
+    SE^2 = G / (G - 1) * sum_g (sum_{i in g} (d_i - mean d))^2 / T^2 over the G maps, and t = mean(d) / SE is
+    referred to Student's t with G - 1 degrees of freedom (two-sided). This is statsmodels'
+    ``OLS(d, ones).fit(cov_type="cluster", cov_kwds={"groups": maps}, use_t=True)`` (its small-sample factor
+    (T - 1) / (T - K) is 1 with the intercept alone), written with numpy and scipy.
+
+    Returns {"estimate", "se", "t", "df", "p", "maps", "tasks"}. Edge cases: without tasks every number is nan;
+    every difference 0: t = 0 and p = 1 (nothing to test; statsmodels gives nan); one map (and a difference):
+    se, t, p nan (no degree of freedom; statsmodels divides by zero); SE 0 (every map's differences sum to its share
+    of the mean, e.g. every task the same difference): t = +-inf and p = 0 with a nonzero estimate (statsmodels
+    gives an SE of rounding size and a p-value below any floor), t = 0 and p = 1 with a zero one."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError("a and b must be 1-D and aligned task by task")
+    t_n = int(a.size)
+    labels, inverse = np.unique(np.asarray(clusters).astype(str), return_inverse=True)
+    if len(inverse) != t_n:
+        raise ValueError("clusters must name one map per task")
+    g = int(labels.size)
+    nan = math.nan
+    if t_n == 0:
+        return {"estimate": nan, "se": nan, "t": nan, "df": 0, "p": nan, "maps": 0, "tasks": 0}
+    d = a - b
+    est = float(d.mean())
+    if not np.any(d):
+        return {"estimate": 0.0, "se": 0.0, "t": 0.0, "df": g - 1, "p": 1.0, "maps": g, "tasks": t_n}
+    if g < 2:
+        return {"estimate": est, "se": nan, "t": nan, "df": 0, "p": nan, "maps": g, "tasks": t_n}
+    scores = np.bincount(inverse, weights=d - est, minlength=g)        # each map's summed residual
+    se = math.sqrt(g / (g - 1) * float(np.sum(scores ** 2))) / t_n
+    if se <= 1e-12 * max(1.0, abs(est)):                               # rounding of an exact zero
+        se = 0.0
+    from scipy.stats import t as student_t
+
+    if se == 0.0:                      # every map's differences sum to its share of the mean: no spread left
+        t, p = (0.0, 1.0) if est == 0.0 else (math.copysign(math.inf, est), 0.0)
+    else:
+        t = est / se
+        p = float(2.0 * student_t.sf(abs(t), g - 1))
+    return {"estimate": est, "se": se, "t": float(t), "df": g - 1, "p": min(1.0, p), "maps": g, "tasks": t_n}
+
+
+def holm_adjust(pvalues) -> list:
+    """Holm's step-down adjustment of a family of p-values (None or nan: not tested, left out of the family and
+    returned as None): the i-th smallest of the m tested p-values becomes max over j <= i of min(1, (m - j + 1)
+    p_(j)); ties keep their input order."""
+    vals = [None if p is None or (isinstance(p, float) and math.isnan(p)) else float(p) for p in pvalues]
+    tested = sorted((p, i) for i, p in enumerate(vals) if p is not None)
+    m = len(tested)
+    out: list = [None] * len(vals)
+    running = 0.0
+    for j, (p, i) in enumerate(tested):
+        running = max(running, min(1.0, (m - j) * p))
+        out[i] = running
+    return out
+
+
+def format_p(p) -> str:
+    """A p-value as a card prints it: "< 1e-6" below P_FLOOR, else two significant digits ("0.034", "2.3e-5",
+    "1"); "n/a" for None or nan."""
+    if p is None or (isinstance(p, float) and math.isnan(p)):
+        return "n/a"
+    if p < P_FLOOR:
+        return "< 1e-6"
+    text = f"{p:.2g}"
+    if "e" in text:
+        mantissa, exponent = text.split("e")
+        text = f"{mantissa}e{int(exponent)}"
+    return text
 
 
 # --------------------------------------------------------------------------------------------- evaluate's tables
