@@ -579,16 +579,19 @@ def _mutate_urdf(doc: dict, rng: np.random.Generator, urdfs: dict[str, str]) -> 
 
 
 def _card_case(case: Case, rng: np.random.Generator) -> None:
+    from pbdyn.benchmark.card import CARD_SCHEMA
+
     kind = str(rng.choice(CARD_KINDS))
     manifest = (MINI_SUITE / "suite.json").read_bytes()
     data = {"truncated_manifest": manifest[: int(rng.integers(1, len(manifest)))], "manifest": manifest,
             "gzip": (MINI_SUITE / "reference.json.gz").read_bytes()[:4096],
             "random_bytes": rng.bytes(int(rng.integers(1, 2048))), "empty": b"", "json_list": b"[1, 2, 3]",
-            "schema_only": b'{"schema": "pbdyn-card/1"}',
-            "wrong_types": json.dumps({"schema": "pbdyn-card/1", "suite": "x", "planner": 1, "success": [],
+            "schema_only": json.dumps({"schema": CARD_SCHEMA}).encode(),
+            "wrong_types": json.dumps({"schema": CARD_SCHEMA, "suite": "x", "planner": 1, "success": [],
                                        "levels": {"a": None}}).encode(),
-            "deep_nesting": b"[" * 100_000 + b"]" * 100_000, "huge_number": b'{"schema": "pbdyn-card/1", "x": 1e999}',
-            "nul_bytes": b'{"schema": "pbdyn-\x00card/1"}'}.get(kind)
+            "deep_nesting": b"[" * 100_000 + b"]" * 100_000,
+            "huge_number": b'{"schema": "' + CARD_SCHEMA.encode() + b'", "x": 1e999}',
+            "nul_bytes": b'{"schema": "pbdyn-\x00card/2"}'}.get(kind)
     if kind == "folder":
         case.files["cards/notes.txt"] = b"no card here\n"
         target = "{dir}/cards"

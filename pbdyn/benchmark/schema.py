@@ -2,9 +2,9 @@
 
 pbdyn does not depend on the jsonschema package, so this module checks the subset of JSON Schema (draft 2020-12)
 the card's schema uses: type, properties, required, additionalProperties, items, minItems, maxItems, const, enum,
-pattern and minimum (annotations such as description are ignored). A schema that uses any other keyword is refused
-when it is loaded, so the subset cannot silently fall behind the schema. tests/test_bench_inputs.py checks that it
-decides as jsonschema does on real and tampered cards.
+pattern, minimum and maximum (annotations such as description are ignored). A schema that uses any other keyword is
+refused when it is loaded, so the subset cannot silently fall behind the schema. tests/test_input_bounds.py and
+tests/test_card_v2.py check that it decides as jsonschema does on real and tampered cards.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 SCHEMA_FILE = Path(__file__).with_name("card.schema.json")
 KEYWORDS = frozenset({"type", "properties", "required", "additionalProperties", "items", "minItems", "maxItems",
-                      "const", "enum", "pattern", "minimum"})
+                      "const", "enum", "pattern", "minimum", "maximum"})
 """The validating keywords this module implements."""
 ANNOTATIONS = frozenset({"$schema", "$id", "title", "description"})
 """Keywords that do not validate."""
@@ -103,6 +103,8 @@ def errors(value, schema: dict, where: str = "") -> list[str]:
         out.append(f"{here}: must match {schema['pattern']} (got {_short(value)})")
     if "minimum" in schema and _is_type(value, "number") and not value >= schema["minimum"]:
         out.append(f"{here}: must be >= {schema['minimum']} (got {_short(value)})")
+    if "maximum" in schema and _is_type(value, "number") and not value <= schema["maximum"]:
+        out.append(f"{here}: must be <= {schema['maximum']} (got {_short(value)})")
     if isinstance(value, list):
         if "minItems" in schema and len(value) < schema["minItems"]:
             out.append(f"{here}: must have at least {schema['minItems']} items (got {len(value)})")
@@ -129,7 +131,8 @@ def errors(value, schema: dict, where: str = "") -> list[str]:
 
 
 def card_errors(card) -> list[str]:
-    """Every way ``card`` breaks the shipped card schema, plus any non-finite number (cards are strict JSON)."""
+    """Every way ``card`` breaks the shipped card schema (CARD_SCHEMA, pbdyn-card/2: a card of another schema
+    version fails at its "schema" field), plus any non-finite number (cards are strict JSON)."""
     from pbdyn.errors import non_finite_path
 
     out = errors(card, card_schema())
