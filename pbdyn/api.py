@@ -411,7 +411,7 @@ def bench(planner: str, *, gaze: str | None = None, params: Mapping | None = Non
     """`pbdyn bench`: fly ``planner`` (a registry name or "package.module:Class"; gaze: default the thesis pairing)
     on the frozen ``suite`` (a bundled suite name or a suite folder) into the folder ``out`` (resumable) and write its
     score card there (card.json, card.md, card.html; docs/benchmark.md). Returns the card (a dict, schema
-    pbdyn-card/1). ``params``: the trajectory planner's parameters (its trajectory_params table, e.g. a policy for
+    pbdyn-card/2). ``params``: the trajectory planner's parameters (its trajectory_params table, e.g. a policy for
     pbdyn.gym.policy_planner, docs/gym.md). ``reproduce``: also compare the flights with the planner's shipped
     reference results."""
     from pbdyn.experiments.mainguard import check_not_reimported
