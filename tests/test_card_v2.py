@@ -288,7 +288,7 @@ def test_fov_flight_parameters_levels_from_and_code(mini):
     md, page = card_markdown(mini), card_html(mini)
     assert "fullrange+global\\_primitives †" in md and "- **†**: sees 360 degrees" in md
     assert "fullrange+global_primitives †" in page
-    assert "- **levels from**: levels come from" in md and "- **MAV**: radius 1 m" in md
+    assert "- **levels from**: levels and difficulties were measured" in md and "- **MAV**: radius 1 m" in md
 
 
 def test_levels_from_is_the_suites_own_text_when_its_manifest_has_one():

@@ -73,22 +73,16 @@ DOC_DEFAULTS = "docs/design.md#defaults"
 DOC_GAZE = "docs/planners.md#gaze-planners"
 DOC_OUTCOMES = "docs/design.md#outcomes-and-the-record"
 LEVELS_DOC = "docs/benchmark.md#levels"
-LEVELS_FROM_DEFAULT = ("levels come from the reference panel's flights on the suite's own tasks, the same flights "
-                       "this card compares against, hence biased toward the references at the hard end: a map the "
-                       "panel happened to fail on lands on a harder level, where any other planner then looks "
-                       "better than the references (" + LEVELS_DOC + ")")
-"""How the levels of a suite without ``levels_from`` (every suite frozen before held-out levels) were assigned."""
+def _failure_terms() -> tuple:
+    """(term, definition, docs section) of each failure outcome, as the level table heads its columns."""
+    out = []
+    for o in Outcome:
+        if o is Outcome.SUCCESS:
+            continue
+        extra = "; such a task counts as a failure" if o is Outcome.ERROR else ""
+        out.append((o.value.replace("_", " "), f"tasks that ended so: {o.reason}{extra}", DOC_OUTCOMES))
+    return tuple(out)
 
-_FAILURE_TERMS = {
-    "dynamic_collision": ("dynamic collision", "tasks that ended by hitting a moving obstacle"),
-    "static_collision": ("static collision", "tasks that ended by hitting a static obstacle or a wall"),
-    "deadlock": ("deadlock", "tasks that ended after 10 consecutive planning failures at rest (the scenario's "
-                             "deadlock steps)"),
-    "freezing": ("freezing", "tasks that reached the time limit without reaching the goal"),
-    "invalid_plan": ("invalid plan", "tasks that ended because a plan broke the plan contract (speed, acceleration "
-                                     "or continuity)"),
-    "error": ("error", "tasks on which the planner raised or crashed; they count as failures"),
-}
 
 DEFINITIONS = (
     ("summary", "the one line to quote: planner, suite and the first 12 digits of its hash, success with its "
@@ -138,7 +132,7 @@ DEFINITIONS = (
      DOC_SUITES),
     ("reference success range", "the band of the reference panel's mean success that defines the level", DOC_SUITES),
     ("tasks", "tasks flown (map, start, goal, MAV speed)", DOC_CARD),
-    *((term, text, DOC_OUTCOMES) for term, text in _FAILURE_TERMS.values()),
+    *_failure_terms(),
     ("successful tasks", "the tasks the planner succeeded on, over which time to goal and clearance are taken",
      DOC_CARD),
     ("time to goal (s), median [IQR]", "the flight time of the successful tasks (s): median and interquartile "
@@ -461,14 +455,14 @@ def flight_parameters(suite, scenarios: dict | None = None) -> dict:
 
 
 def levels_from(suite) -> dict:
-    """How the suite's levels were assigned: the ``levels_from`` text of its manifest (a suite with held-out levels),
-    else LEVELS_FROM_DEFAULT."""
-    src = suite.doc.get("levels_from")
-    if isinstance(src, dict) and isinstance(src.get("text"), str) and src["text"].strip():
-        return {"text": src["text"], "source": "suite", "doc": LEVELS_DOC}
-    if isinstance(src, str) and src.strip():
-        return {"text": src, "source": "suite", "doc": LEVELS_DOC}
-    return {"text": LEVELS_FROM_DEFAULT, "source": "default", "doc": LEVELS_DOC}
+    """How the suite's levels were assigned (pbdyn.benchmark.suite.Suite.levels_text): the ``levels_from`` text of its
+    manifest for a suite with held-out levels ("source": "suite"), else the statement that its levels come from the
+    reference panel's flights on the suite's own tasks, the flights the card compares against ("default")."""
+    from pbdyn.benchmark.suite import LEVELS_FROM
+
+    src = suite.doc.get(LEVELS_FROM)
+    own = isinstance(src, dict) and bool(src.get("text"))
+    return {"text": suite.levels_text, "source": "suite" if own else "default", "doc": LEVELS_DOC}
 
 
 def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed: int = 0,
