@@ -3,6 +3,7 @@ and bias on a two-map cut of the mini suite, flown for real."""
 
 from __future__ import annotations
 
+import gzip
 import json
 import shutil
 import sys
@@ -11,7 +12,8 @@ from pathlib import Path
 import pytest
 
 import pbdyn
-from pbdyn.benchmark.suite import LEVELS_FROM, V1_LEVELS_TEXT, load_suite
+from pbdyn.benchmark.run import load_references, reference_document
+from pbdyn.benchmark.suite import LEVELS_FROM, V1_LEVELS_TEXT, load_suite, references_digest
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -36,13 +38,21 @@ def frozen(tools, tmp_path_factory):
     doc["maps"] = [doc["maps"][0], doc["maps"][-1]]           # its easiest and hardest map
     doc["name"] = "tiny-v1"
     (src / "suite.json").write_text(json.dumps(doc))
+    mini = load_suite("pbdyn-2d-mini")                    # the mini suite's reference rows of the two maps
+    keep = {m["map_id"] for m in doc["maps"]}
+    refs = {k: {"meta": v["meta"], "rows": [r for r in v["rows"] if r["map_id"] in keep]}
+            for k, v in load_references(mini).items()}
+    ref_doc = reference_document(load_suite(src), refs)
+    (src / "reference.json.gz").write_bytes(gzip.compress(json.dumps(ref_doc).encode(), mtime=0))
+    doc["references_sha256"] = references_digest(ref_doc)
+    (src / "suite.json").write_text(json.dumps(doc))
     old = tools.SUITES
     tools.SUITES = base
     try:
         flights = base / "flights"
         v1 = load_suite(src)
         tools.fly_heldout("tiny-v1", flights, [], workers=1)
-        folder = tools.draft_v2("tiny-v2", "tiny-v1")
+        folder = tools.draft_v2("tiny-v2", src, flights / "heldout")
         draft = json.loads((folder / "suite.json").read_text())
         tools.fly("tiny-v2", flights, [], workers=1)
         tools.freeze("tiny-v2", flights, flights / "heldout")
@@ -51,10 +61,13 @@ def frozen(tools, tmp_path_factory):
     return {"v1": v1, "v2": load_suite(folder), "draft": draft, "flights": flights, "base": base}
 
 
-def test_draft_v2_keeps_the_maps_and_tasks_and_adds_held_out_pairs(frozen):
+def test_draft_v2_chooses_by_held_out_flights_and_keeps_the_tasks(frozen):
     v1, draft = frozen["v1"], frozen["draft"]
     assert draft["format"] == "pbdyn-suite/2" and draft[LEVELS_FROM]["tasks"] == "held-out"
-    assert [m["map_index"] for m in draft["maps"]] == sorted(m["map_index"] for m in v1.maps)
+    assert draft[LEVELS_FROM]["candidates"] == 2 and len(draft["maps"]) == 2      # both candidates (levels < 4 maps)
+    ids = {spec.map_id for p in v1.parts for spec in __import__("pbdyn.world.maps", fromlist=["x"]).enumerate_maps(
+        pbdyn.config.parse_scenario(p.doc, p.path))}
+    assert {m["map_id"] for m in draft["maps"]} <= ids                       # named by content ids
     assert all(m["level"] is None and m["difficulty"] is None for m in draft["maps"])
     part = draft["parts"][0]
     assert part["pairs_flown"] == [list(q) for q in v1.parts[0].pairs]       # the suite's tasks are v1's
@@ -86,6 +99,9 @@ def test_a_v2_freeze_levels_maps_by_the_held_out_flights_only(frozen, tools):
         assert m["level"] == tools.level_of(sum(mine) / len(mine))
         assert m["reference_success"] == round(sum(theirs) / len(theirs), 6)
     assert set(v2.doc[LEVELS_FROM]["fingerprints"]) == set(panel)
+    easy, hard = sorted(v2.maps, key=lambda m: -m["level_success"])
+    assert easy["difficulty"] < hard["difficulty"]            # the difficulty follows the held-out success
+    assert isinstance(v2.doc[LEVELS_FROM]["offset_logits"], float)
     assert v2.levels_text == v2.doc[LEVELS_FROM]["text"] and frozen["v1"].levels_text == V1_LEVELS_TEXT
 
 

@@ -331,46 +331,107 @@ LEVELS_FROM_TEXT = (
     "(docs/benchmark.md#levels)")
 
 
-def draft_v2(name: str, source: str) -> Path:
-    """Write the draft suite NAME: the maps and tasks of the frozen v1 suite ``source``, named by content ids, whose
-    levels will be measured on held-out tasks (each part's ``pairs_leveled``: heldout_pairs) -- docs/benchmark.md
-    "Levels"."""
-    from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
-    from pbdyn.benchmark.suite import LEVELS_FROM, SUITE_FORMAT, load_suite
-    from pbdyn.config import parse_scenario
+MAP_KEYS = ("count", "radius", "speed", "structure", "replicate", "seed")
+"""The keys of a generated map's entry a suite part keeps (its setup values, replicate and seed)."""
+
+
+def candidate_suite(folder: Path, dims: int, extra: list[Path], worlds: list[str]) -> Path:
+    """Write a draft suite of every candidate map into ``folder`` (not a bundled suite; no levels): part "generated"
+    = the calibration set's maps, "extra<i>" = every map of each ``extra`` scenario file (generated maps with
+    explicit seeds: a pool, `pbdyn generate` output), and each imported world of ``worlds`` (bundled scenario names)
+    as a part of its own. fly-heldout flies the panel on its held-out tasks; draft-v2 --candidates chooses from it."""
+    from pbdyn.analysis.scale import PANEL_SPEEDS
+    from pbdyn.config import load_scenario
     from pbdyn.world.maps import enumerate_maps
 
-    src = load_suite(SUITES / source)
+    folder.mkdir(parents=True, exist_ok=True)
+    sources = [("generated", ROOT / CALIBRATION[dims][1])] + [(f"extra{i + 1}", p) for i, p in enumerate(extra)]
+    parts, maps = [], []
+    for part, path in sources:
+        src = tomllib.loads(path.read_text())
+        doc = {"name": f"{folder.name}.{part}", "world": src["world"], "obstacles": {
+            "root_seed": src["obstacles"]["root_seed"],
+            "maps": [{k: e[k] for k in MAP_KEYS if k in e} for e in src["obstacles"]["maps"]]}}
+        (folder / f"{part}.toml").write_text(_toml(doc, f"candidate maps ({path.name}), tools/make_suites.py"))
+        ids = [m.map_id for m in enumerate_maps(load_scenario(path))]
+        specs = enumerate_maps(load_scenario(folder / f"{part}.toml"))
+        if [m.map_id for m in specs] != ids:
+            raise SystemExit(f"{path}: its map ids change in a suite part (world settings differ?)")
+        parts.append({"name": part, "scenario": f"{part}.toml"})
+        maps += [{"part": part, "map_index": m.index, "map_id": m.map_id, "family": e.get("structure", "uniform"),
+                  "level": None, "calibration_success": None, "difficulty": None}
+                 for m, e in zip(specs, doc["obstacles"]["maps"])]
+    for w in worlds:
+        sc = load_scenario(w)
+        part = Path(w).name
+        parts.append({"name": part, "scenario": w})
+        maps.append({"part": part, "map_index": 0, "map_id": enumerate_maps(sc)[0].map_id,
+                     "family": "world:" + part.rstrip("_0123456789"), "level": None, "calibration_success": None,
+                     "difficulty": None})
+    manifest = {"format": "pbdyn-suite/2", "name": folder.name, "version": "candidates", "dims": dims,
+                "speeds": list(PANEL_SPEEDS), "levels": levels_doc(), "parts": parts, "maps": maps}
+    (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    return folder
+
+
+def draft_v2(name: str, candidates, heldout: Path) -> Path:
+    """Write the draft suite NAME, chosen and levelled on held-out tasks (docs/benchmark.md "Levels"): every map of
+    the suite ``candidates`` (a candidate_suite folder, or any suite) gets its level from the panel's flights on
+    its held-out tasks in ``heldout``/<trajectory>/ (fly-heldout), and each level takes up to MAPS_PER_LEVEL maps
+    by the rule of choose(); the suite's tasks stay the candidates' (each part's pairs_flown, default the reference
+    pairs), its maps are named by content ids and each part records its held-out pairs (``pairs_leveled``). No
+    flight on the suite's own tasks enters the choice."""
+    from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
+    from pbdyn.benchmark.suite import LEVELS_FROM, SUITE_FORMAT, load_suite
+    from pbdyn.config import load_scenario, parse_scenario
+    from pbdyn.world.maps import enumerate_maps
+
+    cand = load_suite(candidates)
+    counts = _per_map_counts([r for rows in heldout_rows(cand, heldout).values() for r in rows])
+    specs = {p.name: enumerate_maps(parse_scenario(p.doc, p.path)) for p in cand.parts}
+    pool = []
+    for m in cand.maps:
+        k, n = counts[(m["part"], m["map_id"])]
+        pool.append({"key": f"{m['part']}/{m['map_id']}", "kind": m["family"], "success": k / n,
+                     "level": level_of(k / n), "entry": m, "spec": specs[m["part"]][m["map_index"]]})
+    chosen, used = [], {}
+    for lv in range(1, len(LEVEL_EDGES)):
+        chosen += choose([c for c in pool if c["level"] == lv], MAPS_PER_LEVEL, used)
     folder = SUITES / name
     folder.mkdir(parents=True, exist_ok=True)
-    parts, specs = [], {}
-    for entry in src.doc["parts"]:
-        part = src.part(entry["name"])
-        new = dict(entry)
-        if (src.folder / entry["scenario"]).is_file():      # a generated part: its file moves into the new suite
+    parts, maps = [], []
+    for entry in cand.doc["parts"]:
+        part = cand.part(entry["name"])
+        mine = sorted((c for c in chosen if c["entry"]["part"] == part.name), key=lambda c: c["entry"]["map_index"])
+        if not mine:
+            continue
+        new = {k: v for k, v in entry.items() if k != "pairs_leveled"}
+        if (cand.folder / entry["scenario"]).is_file():     # generated maps: the chosen ones move into the suite
             doc = copy.deepcopy(part.doc)
             doc["name"] = f"{name}.{part.name}"
-            (folder / entry["scenario"]).write_text(_toml(doc, f"pbdyn benchmark suite {name}: generated maps (those "
-                                                               f"of {source}), written by tools/make_suites.py; do "
-                                                               "not edit by hand (the suite's hash covers it)."))
+            doc["obstacles"]["maps"] = [part.doc["obstacles"]["maps"][c["entry"]["map_index"]] for c in mine]
+            (folder / f"{part.name}.toml").write_text(_toml(doc, f"pbdyn benchmark suite {name}: generated maps, "
+                                                                "written by tools/make_suites.py; do not edit by "
+                                                                "hand (the suite's hash covers it)."))
+            new["scenario"] = f"{part.name}.toml"
+            ids = [m.map_id for m in enumerate_maps(load_scenario(folder / new["scenario"]))]
+        else:
+            ids = [c["spec"].map_id for c in mine]
+        if ids != [c["spec"].map_id for c in mine]:
+            raise SystemExit(f"{name}: part {part.name}'s map ids differ from the candidates' (world settings?)")
         sc = parse_scenario(part.doc, part.path)
         new["pairs_leveled"] = [list(q) for q in heldout_pairs(sc.task.candidates)]
         parts.append(new)
-        specs[part.name] = enumerate_maps(sc)
-    maps = []
-    for m in src.maps:
-        spec = specs[m["part"]][m["map_index"]]
-        if src.spec_map_id(spec) != m["map_id"]:
-            raise SystemExit(f"{source}: map {m['part']}/{m['map_id']} is not its part's map {m['map_index']}")
-        maps.append({"part": m["part"], "map_index": m["map_index"], "map_id": spec.map_id, "family": m["family"],
-                     "level": None, "calibration_success": m["calibration_success"], "difficulty": None})
-    per_map = len(heldout_pairs(parse_scenario(src.parts[0].doc, src.parts[0].path).task.candidates)) * len(src.speeds)
+        maps += [{"part": part.name, "map_index": i, "map_id": c["spec"].map_id, "family": c["kind"], "level": None,
+                  "heldout_success": round(c["success"], 6), "difficulty": None} for i, c in enumerate(mine)]
+    per_map = len(parts[0]["pairs_leveled"]) * len(cand.speeds)
     text = LEVELS_FROM_TEXT.format(panel=", ".join(e.label for e in PANEL),
                                    speeds=", ".join(f"{v:g}" for v in PANEL_SPEEDS), per_map=per_map)
-    manifest = {"format": SUITE_FORMAT, "name": name, "version": "2", "dims": src.dims, "speeds": list(src.speeds),
-                "levels": levels_doc(), "parts": parts, "maps": sorted(maps, key=lambda m: (m["part"], m["map_index"])),
-                LEVELS_FROM: {"tasks": "held-out", "panel": [e.label for e in PANEL], "text": text},
-                "derived_from": {"suite": source, "hash": src.hash}}
+    manifest = {"format": SUITE_FORMAT, "name": name, "version": name.rsplit("-v", 1)[-1], "dims": cand.dims,
+                "speeds": list(cand.speeds), "levels": levels_doc(), "parts": parts,
+                "maps": sorted(maps, key=lambda m: (m["part"], m["map_index"])),
+                LEVELS_FROM: {"tasks": "held-out", "panel": [e.label for e in PANEL], "text": text,
+                              "candidates": len(cand.maps)}}
     (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return folder
 
@@ -417,6 +478,32 @@ def _tilt(rows: list[dict]) -> float:
     return float(np.sum(w * (x - xm) * (y - ym)) / np.sum(w * (x - xm) ** 2))
 
 
+def _tilt_interval(level: dict, a: dict, b: dict, seed: int, n_boot: int = 2000) -> list[float]:
+    """A 95% interval of _tilt from resampling the suite's maps (every level's pooled rates recomputed per draw)."""
+    import numpy as np
+
+    maps = sorted(level)
+    lv = np.array([level[m] for m in maps])
+    ka, na = np.array([a[m][0] for m in maps], float), np.array([a[m][1] for m in maps], float)
+    kb, nb = np.array([b[m][0] for m in maps], float), np.array([b[m][1] for m in maps], float)
+    levels = np.unique(lv)
+    onehot = (lv[:, None] == levels[None, :]).astype(float)             # map x level
+    w = np.random.default_rng(seed).multinomial(len(maps), np.full(len(maps), 1.0 / len(maps)),
+                                                size=n_boot).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = (w * kb) @ onehot / ((w * nb) @ onehot) - (w * ka) @ onehot / ((w * na) @ onehot)   # draw x level
+    cnt = w @ onehot
+    slopes = []
+    for i in range(n_boot):
+        ok = cnt[i] > 0
+        x, y, ww = levels[ok].astype(float), d[i, ok], cnt[i, ok]
+        if ok.sum() < 2:
+            continue
+        xm, ym = np.average(x, weights=ww), np.average(y, weights=ww)
+        slopes.append(np.sum(ww * (x - xm) * (y - ym)) / np.sum(ww * (x - xm) ** 2))
+    return [float(np.quantile(slopes, 0.025)), float(np.quantile(slopes, 0.975))]
+
+
 def bias(name: str, heldout: Path, json_out: Path | None = None) -> dict:
     """Measure the selection bias of suite NAME's levels (docs/benchmark.md "Levels"), from its shipped references
     (the panel's flights on the suite's tasks, S) and the panel's flights on held-out tasks of the same maps (H, in
@@ -458,15 +545,19 @@ def bias(name: str, heldout: Path, json_out: Path | None = None) -> dict:
            "same_skill_levels_from_heldout": _level_differences(rate(H), F, R, 3)}
     tot = lambda c: sum(k for k, _ in c.values()) / sum(n for _, n in c.values())   # noqa: E731
     out["overall"] = {"suite": tot(S), "heldout": tot(H), "forward": tot(F), "reverse": tot(R)}
-    for key in ("suite_vs_heldout", "same_skill_levels_from_references", "same_skill_levels_from_heldout"):
+    inputs = {"suite_vs_heldout": (suite_level, S, H), "same_skill_levels_from_references": (rate(F), F, R),
+              "same_skill_levels_from_heldout": (rate(H), F, R)}
+    for i, (key, (lv, a, b)) in enumerate(inputs.items()):
         out[key + "_tilt_per_level"] = _tilt(out[key])
+        out[key + "_tilt_ci95"] = _tilt_interval(lv, a, b, 10 + i)
     heads = {"suite_vs_heldout": ("S (suite tasks)", "H (held-out)"),
              "same_skill_levels_from_references": ("references (forward pairs)", "same skill (reverse pairs)"),
              "same_skill_levels_from_heldout": ("references (forward pairs)", "same skill (reverse pairs)")}
     print(f"{name} ({suite.hash[:12]}): panel success S {out['overall']['suite']:.3f}, H {out['overall']['heldout']:.3f}, "
           f"forward {out['overall']['forward']:.3f}, reverse {out['overall']['reverse']:.3f}")
     for key, (ha, hb) in heads.items():
-        print(f"\n{key} (tilt {out[key + '_tilt_per_level']:+.4f} per level)\n")
+        lo, hi = out[key + "_tilt_ci95"]
+        print(f"\n{key} (tilt {out[key + '_tilt_per_level']:+.4f} per level, 95% interval [{lo:+.4f}, {hi:+.4f}])\n")
         print(f"| level | maps | {ha} | {hb} | difference | 95% interval (maps) |\n|---|---|---|---|---|---|")
         for r in out[key]:
             print(f"| {r['level']} | {r['maps']} | {r['a']:.3f} | {r['b']:.3f} | {r['b_minus_a']:+.3f} | "
@@ -536,6 +627,18 @@ def _panel_measure(suite, flown_rows: dict) -> dict:
     return _measure_subset(counts, list(suite.speeds))
 
 
+def link_offset(suite_measure: dict, heldout_measure: dict) -> float:
+    """The one logit offset that puts difficulties measured on the held-out tasks onto the scale of the suite's
+    tasks: the median over maps of (difficulty on the suite's tasks - difficulty on the held-out ones), over the
+    maps where neither success is 0 or 1 (0 if none). It is common to every map, so it moves no level and no
+    comparison; it keeps a card's ability on the anchored scale of the suite's tasks (docs/benchmark.md "Levels")."""
+    import numpy as np
+
+    d = [suite_measure[k][2] - heldout_measure[k][2] for k in sorted(suite_measure)
+         if 0.0 < suite_measure[k][0] < 1.0 and 0.0 < heldout_measure[k][0] < 1.0]
+    return float(np.median(d)) if d else 0.0
+
+
 def heldout_rows(suite, folder: Path) -> dict:
     """The panel's task rows on the held-out tasks of ``suite`` (heldout_suite) in ``folder``/<trajectory>/ (the
     flights of fly-heldout): panel label -> rows; a panel planner not flown in full stops the tool."""
@@ -589,10 +692,12 @@ def freeze(name: str, out: Path, heldout: Path | None = None) -> None:
         held = _panel_measure(heldout_suite(suite), heldout_rows(suite, hdir))
         doc[LEVELS_FROM]["fingerprints"] = {e.label: _flown_fingerprint(hdir / e.trajectory, e.label)
                                             for e in PANEL}
+        doc[LEVELS_FROM]["offset_logits"] = round(link_offset(res, held), 6)
     for m in doc["maps"]:
         key = f"{m['part']}/{m['map_id']}"
         got = res[key][0]
-        if "cut_from" not in doc and abs(got - m["calibration_success"]) > 5e-7:
+        if "cut_from" not in doc and m.get("calibration_success") is not None \
+                and abs(got - m["calibration_success"]) > 5e-7:
             print(f"note: map {key}: measured success {got:.6f}, its source recorded "
                   f"{m['calibration_success']:.6f}")
         s, s_ci, b, b_ci, tasks = res[key]
@@ -602,6 +707,7 @@ def freeze(name: str, out: Path, heldout: Path | None = None) -> None:
             s, s_ci, b, b_ci, tasks = held[key]
             m.update({"level_success": round(s, 6), "level_success_ci95": [round(x, 6) for x in s_ci],
                       "level_tasks": tasks * len(suite.speeds)})
+            b, b_ci = b + doc[LEVELS_FROM]["offset_logits"], [x + doc[LEVELS_FROM]["offset_logits"] for x in b_ci]
         m.update({"level": level_of(s), "difficulty": round(b, 6), "difficulty_ci95": [round(x, 6) for x in b_ci]})
     doc["maps"] = sorted(doc["maps"], key=lambda m: (m["level"], m["part"], m["map_index"]))
     if "cut_from" in doc:     # a cut keeps only the levels its maps fall in
@@ -676,7 +782,13 @@ def main(argv=None) -> int:
     z.add_argument("--heldout", type=Path, default=None)
     d2 = sub.add_parser("draft-v2")
     d2.add_argument("name")
-    d2.add_argument("source")
+    d2.add_argument("candidates")
+    d2.add_argument("heldout", type=Path)
+    ca = sub.add_parser("candidates")
+    ca.add_argument("folder", type=Path)
+    ca.add_argument("--dims", type=int, default=2)
+    ca.add_argument("--extra", type=Path, action="append", default=[])
+    ca.add_argument("--world", action="append", default=[])
     bi = sub.add_parser("bias")
     bi.add_argument("name")
     bi.add_argument("heldout", type=Path)
@@ -696,7 +808,9 @@ def main(argv=None) -> int:
     elif a.cmd == "draft":
         print(draft(a.name, a.dims, a.extra, a.world))
     elif a.cmd == "draft-v2":
-        print(draft_v2(a.name, a.source))
+        print(draft_v2(a.name, a.candidates, a.heldout))
+    elif a.cmd == "candidates":
+        print(candidate_suite(a.folder, a.dims, a.extra, a.world))
     elif a.cmd == "bias":
         bias(a.name, a.heldout, a.json)
     elif a.cmd == "draft-mini":
