@@ -46,8 +46,9 @@ SUITES_FOLDER = "suites"
 LEVELS_FROM = "levels_from"
 """The manifest key that says a suite's levels were measured on held-out tasks (module doc)."""
 V1_LEVELS_TEXT = ("levels and difficulties were measured from the reference panel's flights on the suite's own tasks, "
-                  "the same flights this card compares against: selection-biased toward the references at the hard "
-                  "levels (docs/benchmark.md#levels)")
+                  "the same flights this card compares against: selection-biased (the references' success is "
+                  "understated at the hard levels and overstated at the easy ones, so a new planner's lead over "
+                  "them grows toward the hard end; docs/benchmark.md#levels)")
 """How a suite without ``levels_from`` assigned its levels."""
 
 
