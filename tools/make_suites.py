@@ -22,6 +22,19 @@ Hard maps beyond the calibration sets' range (the 3D sets reach reference succes
   measured FILE STORE OUT  after `pbdyn batch FILE --store STORE`, write OUT: FILE's maps with each map's measured
                  reference success (the panel's share of successes on its reference tasks), an --extra for draft.
 
+The v2 suites choose and level their maps on held-out tasks (docs/benchmark.md "Levels"):
+
+  candidates FOLDER --dims D [--extra FILE] [--world NAME]  a draft suite of every candidate map (the calibration
+                 set, every map of each extra file, each imported world), not bundled;
+  fly-heldout NAME DIR   fly the reference panel on the held-out tasks of a suite's maps (the start/goal candidates
+                 the suite's tasks leave out) into DIR/heldout/<planner>/;
+  draft-v2 NAME CANDIDATES HELDOUT   level every candidate by the panel's held-out success and choose
+                 MAPS_PER_LEVEL maps per level (choose()); the suite's tasks are the candidates';
+  fly NAME DIR, then freeze NAME DIR --heldout HELDOUT   the references on the suite's tasks; the level and the
+                 difficulty from the held-out flights (plus one link offset common to every map);
+  bias NAME HELDOUT   measure a v1 suite's selection bias: per level, the panel on the suite's tasks against the
+                 held-out ones.
+
 The mini suite is drafted from a full suite (draft-mini NAME FROM): MINI_LEVELS' first map of each of those
 levels that is neither a walls map nor an imported world, MINI_PAIRS pairs, at MINI_SPEED only.
 """
