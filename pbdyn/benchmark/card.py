@@ -128,9 +128,11 @@ DEFINITIONS = (
      DOC_GAZE),
     ("sensor FOV (deg)", "the horizontal field of view the planner's MAV sees with: 360 for FullRange (marked †), "
                          "else the suite's sensor's", DOC_GAZE),
-    ("level", "a difficulty level of the suite (1 = easiest): the band of reference success its maps fall in",
-     DOC_SUITES),
-    ("reference success range", "the band of the reference panel's mean success that defines the level", DOC_SUITES),
+    ("level", "a difficulty level of the suite (1 = easiest): the band of the reference panel's success its maps fall "
+              "in (on held-out tasks in a v2 suite, on the suite's own tasks in a v1 suite: see levels from)",
+     LEVELS_DOC),
+    ("reference success range", "the band of the reference panel's mean success that defines the level (measured "
+                                "as levels from says)", LEVELS_DOC),
     ("tasks", "tasks flown (map, start, goal, MAV speed)", DOC_CARD),
     *_failure_terms(),
     ("successful tasks", "the tasks the planner succeeded on, over which time to goal and clearance are taken",
