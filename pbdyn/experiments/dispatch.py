@@ -64,7 +64,8 @@ class Dispatcher:
                  workers: int, options: BatchOptions):
         self.store, self.scenario, self.items, self.plan, self.files = store, scenario, items, plan, files
         self.pool = WorkerPool(workers, options.scheduler)
-        self.progress = Progress(plan.pending, options.progress)
+        self.progress = (options.progress if isinstance(options.progress, Progress)     # shared by several batches
+                         else Progress(plan.pending, options.progress))
         self.ran = self.errors = self.maps = 0
         self.metric_ids = {m.map_id for m in plan.metric_maps}
         self.trial_map_ids = {m.map_id for m in plan.trial_maps}

@@ -1,4 +1,9 @@
-"""The batch's progress line on stderr (Progress): trials done of the total, trials per second and the ETA."""
+"""The batch's progress line on stderr (Progress): trials done of the total, trials per second and the ETA.
+
+A batch makes its own Progress over its pending trials. A caller that runs several batches as one job (`pbdyn bench`:
+one batch per suite part) makes one Progress over all of them and passes it as BatchOptions.progress, so that one
+line counts every trial of the job with one ETA.
+"""
 
 from __future__ import annotations
 
@@ -8,10 +13,11 @@ import time
 
 class Progress:
     """A progress line on stderr: done/total, trials per second and ETA; per finished trial on a terminal, every
-    5 s otherwise."""
+    5 s otherwise. ``label`` starts the line (the command's name)."""
 
-    def __init__(self, total: int, enabled: bool):
+    def __init__(self, total: int, enabled: bool, label: str = "pbdyn batch"):
         self.total, self.enabled = total, enabled and total > 0
+        self.label = label
         self.done = 0
         self.t0 = time.perf_counter()
         self.tty = sys.stderr.isatty()
@@ -23,13 +29,14 @@ class Progress:
         if not self.enabled:
             return
         now = time.perf_counter()
-        if self.tty or now - self.last >= 5.0 or self.done == self.total:
+        total = max(self.total, self.done)
+        if self.tty or now - self.last >= 5.0 or self.done == total:
             self.last = now
             rate = self.done / max(now - self.t0, 1e-9)
-            eta = (self.total - self.done) / rate if rate > 0 else float("inf")
-            line = f"pbdyn batch: {self.done}/{self.total} trials, {rate:.2f}/s, ETA {_fmt_s(eta)}"
+            eta = (total - self.done) / rate if rate > 0 else float("inf")
+            line = f"{self.label}: {self.done}/{total} trials, {rate:.2f}/s, ETA {_fmt_s(eta)}"
             sys.stderr.write(("\r" + line) if self.tty else line + "\n")
-            if self.tty and self.done == self.total:
+            if self.tty and self.done == total:
                 sys.stderr.write("\n")
             sys.stderr.flush()
 

@@ -56,16 +56,17 @@ class BatchOptions:
     """workers: local processes (default: CPU count); scheduler: a Dask scheduler address ("tcp://host:8786") or
     a dask.distributed Client; limit: fly only the first N trials of the enumeration; extend: accept a scenario
     that adds grid values, planners, MAV speeds or maps to the one in the store; metrics: compute each map's
-    metrics (METRIC_SET); progress: a progress line on stderr; rerun_changed: re-fly stored rows whose planner
-    fingerprint differs from the current code's, and the maps whose world changed (else such rows stop the batch);
-    retry_errors: re-fly stored "error" rows."""
+    metrics (METRIC_SET); progress: a progress line on stderr, or a pbdyn.experiments.progress.Progress that
+    several batches share (one line and one ETA over all of them; pending_trials_of counts each batch's trials);
+    rerun_changed: re-fly stored rows whose planner fingerprint differs from the current code's, and the maps whose
+    world changed (else such rows stop the batch); retry_errors: re-fly stored "error" rows."""
 
     workers: int | None = None
     scheduler: object = None
     limit: int | None = None
     extend: bool = False
     metrics: bool = True
-    progress: bool = True
+    progress: bool | object = True
     rerun_changed: bool = False
     retry_errors: bool = False
     lockstep: int = LOCKSTEP_TRIALS
@@ -117,6 +118,17 @@ def check_planners(scenario: Scenario) -> None:
                           e.trajectory_params, f"planners[{i}].trajectory_params")
             build_planner(resolve_gaze_planner(e.gaze, f"planners[{i}].gaze"), ctx, e.gaze_params,
                           f"planners[{i}].gaze_params")
+
+
+def pending_trials_of(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions()) -> int:
+    """How many trials run_batch(scenario, out, options) would fly now (stored ones are skipped; stored ones flown
+    by other code are counted with rerun_changed), worked out by reading the store only; the ConfigError run_batch
+    would raise for options or a store it refuses. Planners are not built (check_planners)."""
+    _, options = _checked_options(options)
+    out_path = check_store_path(out, "out")
+    trials = enumerate_trials(scenario)
+    total = len(trials) if options.limit is None else min(options.limit, len(trials))
+    return read_plan(out_path, scenario, trials, total, options).pending
 
 
 def run_batch(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions(),
