@@ -405,15 +405,19 @@ def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: 
                       progress=progress)
 
 
-def bench(planner: str, *, gaze: str | None = None, params: Mapping | None = None, suite: str | Path = "pbdyn-2d-v1",
-          out: str | Path, workers: int | None = None, scheduler=None, progress: bool = False,
-          reproduce: bool = False, command: str = "") -> dict:
+def bench(planner: str, *, gaze: str | None = None, params: Mapping | None = None,
+          gaze_params: Mapping | None = None, suite: str | Path = "pbdyn-2d-v1", out: str | Path,
+          workers: int | None = None, scheduler=None, progress: bool = False, reproduce: bool = False,
+          rerun_changed: bool = False, failures: int | None = None, failures_format: str | None = None,
+          command: str = "") -> dict:
     """`pbdyn bench`: fly ``planner`` (a registry name or "package.module:Class"; gaze: default the thesis pairing)
     on the frozen ``suite`` (a bundled suite name or a suite folder) into the folder ``out`` (resumable) and write its
     score card there (card.json, card.md, card.html; docs/benchmark.md). Returns the card (a dict, schema
     pbdyn-card/2). ``params``: the trajectory planner's parameters (its trajectory_params table, e.g. a policy for
-    pbdyn.gym.policy_planner, docs/gym.md). ``reproduce``: also compare the flights with the planner's shipped
-    reference results."""
+    pbdyn.gym.policy_planner, docs/gym.md); ``gaze_params``: the gaze planner's (its gaze_params table).
+    ``reproduce``: also compare the flights with the planner's shipped reference results. ``rerun_changed``: re-fly
+    the flights in ``out`` whose planner code or world changed. ``failures``: K, also write replays of up to K failed
+    tasks per failure mode into out/failures/ (``failures_format``: "gif", the default, or "mp4")."""
     from pbdyn.experiments.mainguard import check_not_reimported
 
     check_not_reimported("bench")
@@ -421,8 +425,9 @@ def bench(planner: str, *, gaze: str | None = None, params: Mapping | None = Non
 
     if scheduler is None:
         workers = _workers(workers)
-    return _bench(planner, gaze=gaze, params=params, suite=suite, out=_path(out, "out"), workers=workers,
-                  scheduler=scheduler, progress=progress, reproduce=reproduce, command=command)
+    return _bench(planner, gaze=gaze, params=params, gaze_params=gaze_params, suite=suite, out=_path(out, "out"),
+                  workers=workers, scheduler=scheduler, progress=progress, reproduce=reproduce,
+                  rerun_changed=rerun_changed, failures=failures, failures_format=failures_format, command=command)
 
 
 def compare_cards(cards, *, out: str | Path | None = None) -> list[dict]:

@@ -81,6 +81,11 @@ def _finite_float(text: str) -> float:
                    f"a finite number within +-{limits.MAX_MAGNITUDE:g} (pbdyn.limits)")
 
 
+def _replays(text: str) -> int:
+    return _parsed(text, int, lambda v: 1 <= v <= limits.MAX_FAILURE_REPLAYS,
+                   f"an integer in [1, {limits.MAX_FAILURE_REPLAYS:,}] (pbdyn.limits)")
+
+
 def _json_object(text: str) -> dict:
     return _parsed(text, json.loads, lambda v: isinstance(v, dict), "a JSON object, e.g. '{\"tracks\": 8}'")
 
@@ -122,6 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--gaze", help="gaze planner (default: the thesis pairing; lookahead for a plug-in)")
     bn.add_argument("--params", type=_json_object, metavar="JSON", help="the trajectory planner's parameters as a "
                     "JSON object (its trajectory_params table; default: none)")
+    bn.add_argument("--gaze-params", type=_json_object, metavar="JSON", help="the gaze planner's parameters as a "
+                    "JSON object (its gaze_params table; default: none)")
     bn.add_argument("--suite", default=None, help="suite name or folder (default pbdyn-2d-v1; --list shows them)")
     bgrp = bn.add_mutually_exclusive_group()
     bgrp.add_argument("--workers", type=_positive_int, help="local worker processes (default: CPU count)")
@@ -130,6 +137,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "compare.md and compare.html)")
     bn.add_argument("--reproduce", action="store_true",
                     help="a built-in planner: compare the flights with its shipped reference results, field by field")
+    bn.add_argument("--rerun-changed", action="store_true", help="re-fly the flights in --out whose planner code or "
+                    "world changed since they were flown (else they stop the bench)")
+    bn.add_argument("--failures", type=_replays, metavar="K", help="after flying, write replays of up to K failed "
+                    "tasks per failure mode into OUT/failures/ (linked from the card)")
+    bn.add_argument("--failures-format", choices=("gif", "mp4"), help="the replays' format: gif (default) or mp4 "
+                    "(needs imageio-ffmpeg)")
     bn.add_argument("--compare", nargs="+", metavar="CARD", help="put score cards (card.json or bench folders) side "
                     "by side instead of flying")
     bn.add_argument("--list", action="store_true", help="list the bundled suites")
@@ -239,7 +252,9 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "parquet": "--parquet", "gui": "--gui", "scenario": "SCENARIO", "results": "RESULTS",
          "target": "--target", "tolerance": "--tolerance", "count": "--count", "family": "--family", "dims": "--dims",
          "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed",
-         "store": "--store", "maps": "--map", "success": "--success", "suite": "--suite", "card": "CARD"}
+         "store": "--store", "maps": "--map", "success": "--success", "suite": "--suite", "card": "CARD",
+         "gaze_params": "--gaze-params", "reproduce": "--reproduce", "rerun_changed": "--rerun-changed",
+         "failures": "--failures", "failures_format": "--failures-format"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
@@ -439,14 +454,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise ConfigError("PLANNER", "is required (or --compare CARD ... / --list)", None, show_value=False)
     if args.out is None:
         raise ConfigError("--out", "is required: the folder of the flights and the card", None, show_value=False)
-    card = api.bench(args.planner, gaze=args.gaze, params=args.params, suite=args.suite or DEFAULT_SUITE,
-                     out=args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.json,
-                     reproduce=args.reproduce, command=_command_line("bench"))
+    if args.failures_format is not None and args.failures is None:
+        raise ConfigError("--failures-format", "needs --failures K (the replays it formats)", args.failures_format)
+    card = api.bench(args.planner, gaze=args.gaze, params=args.params, gaze_params=args.gaze_params,
+                     suite=args.suite or DEFAULT_SUITE, out=args.out, workers=args.workers, scheduler=args.scheduler,
+                     progress=not args.json, reproduce=args.reproduce, rerun_changed=args.rerun_changed,
+                     failures=args.failures, failures_format=args.failures_format, command=_command_line("bench"))
     rp = card.get("reproduction")
     if args.json:
         sys.stdout.write(json.dumps(card, sort_keys=True) + "\n")
     else:
         sys.stdout.write(card["summary"] + "\n" + f"card: {Path(args.out) / 'card.json'} (.md, .html)\n")
+        fr = card.get("failure_replays")
+        if fr is not None:
+            sys.stdout.write(f"failure replays: {len(fr['files'])} in {Path(args.out) / 'failures'} (up to "
+                             f"{fr['requested']} per failure mode)\n")
         if rp is not None:
             sys.stdout.write(f"reproduction of the shipped reference of {rp['reference']}: " +
                              (f"bit for bit on all {rp['tasks']} tasks\n" if rp["identical"] else
@@ -546,12 +568,15 @@ base scenario its --scenario, calibrate's results store its --store)."""
 
 
 def _flag(command: str, field: str) -> str | None:
-    """The option the user typed for the library's ``field`` (``params.<key>``: ``--params.<key>``), or None."""
+    """The option the user typed for the library's ``field`` (``params.<key>``: ``--params.<key>``,
+    ``gaze_params.<key>``: ``--gaze-params.<key>``), or None."""
     own = COMMAND_FLAGS.get(command, {})
     if field in own:
         return own[field]
     if field.startswith("params."):
         return "--" + field
+    if field.startswith("gaze_params."):
+        return "--gaze-params" + field[len("gaze_params"):]
     return FLAGS.get(field)
 
 

@@ -163,6 +163,7 @@ NUMERIC_FLAGS = {
                                         "--workers")},
     ("calibrate", "--map"): ["calibrate", "quickstart"], ("calibrate", "--workers"): ["calibrate", "quickstart"],
     ("bench", "--workers"): ["bench", "straight_line", "--out", "{dir}/bench"],
+    ("bench", "--failures"): ["bench", "straight_line", "--out", "{dir}/bench"],
 }
 """Every numeric flag of every command, with the rest of a command line that is valid."""
 FLAG_VALUES = {"nan": ["nan", "NaN", "-nan"], "inf": ["inf", "-inf", "Infinity"], "negative": ["-1", "-1e300"],

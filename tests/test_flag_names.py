@@ -8,6 +8,9 @@ without a case here fails test_every_option_of_every_command_has_a_case.
 from __future__ import annotations
 
 import argparse
+import ast
+import re
+from pathlib import Path
 
 import pytest
 
@@ -78,6 +81,9 @@ CASES = [
     ("calibrate", "--workers", ["calibrate", "quickstart", "--workers", "0"]),
     ("bench", "--gaze", BENCH + ["--gaze", "nope"]),
     ("bench", "--params", BENCH + ["--params", '{"zz": 1}']),
+    ("bench", "--gaze-params", BENCH + ["--gaze-params", '{"zz": 1}']),
+    ("bench", "--failures", BENCH + ["--failures", "0"]),
+    ("bench", "--failures-format", BENCH + ["--failures-format", "webm"]),
     ("bench", "--suite", BENCH + ["--suite", "nope"]),
     ("bench", "--workers", BENCH + ["--workers", "0"]),
     ("bench", "--scheduler", BENCH + ["--scheduler", "nope"]),
@@ -92,6 +98,23 @@ def _options() -> set[tuple[str, str]]:
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     return {(command, action.option_strings[0]) for command, p in sub.choices.items() for action in p._actions
             if action.option_strings and not set(action.option_strings) & SWITCHES}
+
+
+def flags_of(command: str) -> set[str]:
+    """Every option string of ``command`` (switches included)."""
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {o for action in sub.choices[command]._actions for o in action.option_strings}
+
+
+ADVISED = re.compile(r"(?<![\w-])(--[a-z][a-z-]*)")
+OTHER_COMMAND = re.compile(r"pbdyn [a-z]+ --[a-z][a-z-]*")
+
+
+def foreign_flags(command: str, message: str) -> set[str]:
+    """The flags ``message`` names that ``command`` does not have ("pbdyn OTHER --flag", which names its command,
+    excepted; "--flag.key" names a key of the flag's value)."""
+    return set(ADVISED.findall(OTHER_COMMAND.sub("", message))) - flags_of(command)
 
 
 def test_every_option_of_every_command_has_a_case():
@@ -116,3 +139,56 @@ def test_a_bad_value_names_the_flag_as_typed(files, command, flag, argv):
     assert code == 2 and out == "" and err.count("\n") == 1, (code, err)
     named = (f"{flag}: ", f"{flag}.", f"argument {flag}: ")   # --params.KEY names the key of the flag's JSON
     assert any(err.startswith("pbdyn: error: " + n) for n in named), err
+    assert not foreign_flags(command, err), err          # advice names only flags the command has
+
+
+BENCH_REACHES = ["pbdyn/experiments/runner.py", "pbdyn/experiments/plan.py", "pbdyn/experiments/extend.py",
+                 "pbdyn/experiments/store.py", "pbdyn/experiments/dispatch.py", "pbdyn/experiments/pool.py",
+                 "pbdyn/experiments/cluster.py", "pbdyn/experiments/signals.py", "pbdyn/experiments/mainguard.py",
+                 "pbdyn/experiments/tasks.py", "pbdyn/analysis/replay.py", "pbdyn/benchmark/run.py",
+                 "pbdyn/benchmark/suite.py", "pbdyn/benchmark/failures.py", "pbdyn/benchmark/cost.py",
+                 "pbdyn/planning/registry.py", "pbdyn/errors.py"]
+"""The modules whose ConfigErrors `pbdyn bench` can raise (the batch runner's through bench's terms,
+pbdyn.benchmark.run.bench_error); not shards.py (bench never shards) nor calibrate or generate."""
+
+
+def _message_texts(path: Path):
+    """Every string of ``path`` that is not documentation (a docstring, a string statement) nor a pattern
+    (re.compile), an f-string's constant parts joined with "{}", and whether it is a message of a ConfigError naming
+    SCENARIO (which bench words itself); implicitly joined literals are one."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    docs, scenario = set(), set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):   # docstrings, attribute docs
+            docs.add(id(node.value))
+        if isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "compile":       # re.compile(...)
+            docs.update(id(n) for a in node.args for n in ast.walk(a))
+        if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "ConfigError" \
+                and node.args and isinstance(node.args[0], ast.Constant) and node.args[0].value == "SCENARIO":
+            scenario.update(id(n) for a in node.args[1:] for n in ast.walk(a))
+    parts = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.JoinedStr):
+            parts.update(id(v) for v in node.values)
+            yield "".join(v.value if isinstance(v, ast.Constant) else "{}" for v in node.values), id(node) in scenario
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs | parts:
+            yield node.value, id(node) in scenario
+
+
+def test_every_error_bench_can_reach_advises_only_bench_flags():
+    """Static: every message of the modules `pbdyn bench` runs (their strings, docstrings aside), as bench words it
+    (bench_error), names only flags bench has and never asks for a file where bench takes a folder (--out)."""
+    from pbdyn.benchmark.run import _OUT_FILE
+
+    root = Path(__file__).resolve().parents[1]
+    seen = 0
+    for rel in BENCH_REACHES:
+        for message, of_scenario in _message_texts(root / rel):
+            if of_scenario:                  # bench_error words a store of another scenario itself
+                continue
+            worded = _OUT_FILE.sub("another --out folder", message)
+            assert not foreign_flags("bench", worded), (rel, message)
+            assert "--out file" not in worded, (rel, message)
+            seen += "--" in message
+    assert seen >= 10                        # the walk found the runner's advice
