@@ -82,8 +82,10 @@ def _finite_float(text: str) -> float:
 
 
 def _replays(text: str) -> int:
-    return _parsed(text, int, lambda v: 1 <= v <= limits.MAX_FAILURE_REPLAYS,
-                   f"an integer in [1, {limits.MAX_FAILURE_REPLAYS:,}] (pbdyn.limits)")
+    from pbdyn.benchmark.failures import MAX_FAILURE_REPLAYS
+
+    return _parsed(text, int, lambda v: 1 <= v <= MAX_FAILURE_REPLAYS,
+                   f"an integer in [1, {MAX_FAILURE_REPLAYS:,}] (pbdyn.benchmark.failures)")
 
 
 def _json_object(text: str) -> dict:

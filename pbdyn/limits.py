@@ -34,8 +34,7 @@ and the limit. The limits are generous: every bundled scenario and dataset uses 
   --every and demo's --maps and --pairs; MAX_BOOTSTRAP = 100 000 for evaluate --bootstrap; MAX_INDEX = 2**63 - 1
   for --map, --limit and --seed (the largest integer a results store or a TOML file holds); MAX_MAGNITUDE for
   generate's --target, --tolerance, --radius and --speed; MAX_OBSTACLES for generate's --obstacles; --workers at
-  most pbdyn.experiments.runner.MAX_WORKERS_PER_CPU (4) x the CPU count; MAX_FAILURE_REPLAYS = 1 000 for bench's
-  --failures (replays per failure mode: each re-flies a task and draws every step, ~0.1 CPU-second a step).
+  most pbdyn.experiments.runner.MAX_WORKERS_PER_CPU (4) x the CPU count.
 
 The number of trials a batch would fly (setups x maps_per_setup x ordered start/goal pairs x v_max values x
 planner entries) is not limited: a batch is resumable and may be sharded; ``Scenario.n_trials()`` reports it.
@@ -74,7 +73,6 @@ MAX_GYM_PATCH_CELLS = 2 ** 20
 MAX_FLAG_COUNT = 1_000_000
 MAX_BOOTSTRAP = 100_000
 MAX_INDEX = 2 ** 63 - 1
-MAX_FAILURE_REPLAYS = 1_000
 
 METRICS_HORIZON_S = 44.0
 """Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s). A map's rollout

@@ -125,3 +125,13 @@ def test_the_bias_measurement_compares_suite_and_held_out_flights(frozen, tools,
         assert r["b_minus_a"] == pytest.approx(r["b"] - r["a"])
     assert out["tasks_per_map"] == {"suite": 9, "heldout": 36}
     assert "| level | maps |" in capsys.readouterr().out
+
+
+def test_the_bench_and_its_tools_are_outside_every_flights_code_identity():
+    """A frozen suite's references record the code identity they were flown with; the bench, its card and its
+    replays are not part of it, so improving them leaves every reference 'same' (docs/design.md "Code identity")."""
+    from pbdyn import codeid
+
+    closure = codeid.pbdyn_closure(codeid.CORE_ROOTS)
+    assert "pbdyn.sim.trial" in closure and "pbdyn.limits" in closure
+    assert not [m for m in closure if m.startswith(("pbdyn.benchmark", "pbdyn.analysis", "pbdyn.experiments"))]

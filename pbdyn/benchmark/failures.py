@@ -24,7 +24,6 @@ from pbdyn.benchmark.card import DETERMINISTIC_FIELDS, task_key, task_row
 from pbdyn.benchmark.suite import Suite, flight_scenario
 from pbdyn.config import PlannerEntry
 from pbdyn.errors import ConfigError, PbdynWarning
-from pbdyn.limits import MAX_FAILURE_REPLAYS
 from pbdyn.outcome import FAILURES
 
 FOLDER = "failures"
@@ -32,6 +31,11 @@ INDEX = "replays.json"
 INDEX_FORMAT = "pbdyn-failure-replays/1"
 FORMATS = ("gif", "mp4")
 """Replay formats: an animated GIF (default) or an H.264 MP4 (needs imageio-ffmpeg)."""
+
+MAX_FAILURE_REPLAYS = 1_000
+"""Most replays per failure mode (--failures): each re-flies a task and draws every step, ~1-10 s. It lives here,
+not in pbdyn.limits, which the trial core imports: a bench option must not change the code identity of every
+flight (docs/design.md "Code identity")."""
 
 
 def check_request(failures, failures_format) -> tuple[int | None, str | None]:
