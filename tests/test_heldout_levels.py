@@ -52,10 +52,10 @@ def frozen(tools, tmp_path_factory):
         flights = base / "flights"
         v1 = load_suite(src)
         tools.fly_heldout("tiny-v1", flights, [], workers=1)
-        folder = tools.draft_v2("tiny-v2", src, flights / "heldout")
+        folder = tools.draft_v2("tiny-v2", [src, src], [flights / "heldout"] * 2)   # a map once, whatever its source
         draft = json.loads((folder / "suite.json").read_text())
         tools.fly("tiny-v2", flights, [], workers=1)
-        tools.freeze("tiny-v2", flights, flights / "heldout")
+        tools.freeze("tiny-v2", flights, [flights / "heldout"])
     finally:
         tools.SUITES = old
     return {"v1": v1, "v2": load_suite(folder), "draft": draft, "flights": flights, "base": base}

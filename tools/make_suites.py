@@ -24,13 +24,14 @@ Hard maps beyond the calibration sets' range (the 3D sets reach reference succes
 
 The v2 suites choose and level their maps on held-out tasks (docs/benchmark.md "Levels"):
 
-  candidates FOLDER --dims D [--extra FILE] [--world NAME]  a draft suite of every candidate map (the calibration
-                 set, every map of each extra file, each imported world), not bundled;
+  candidates FOLDER --dims D [--extra FILE] [--world NAME] [--exclude SUITE]  a draft suite of every candidate map
+                 (the calibration set, every map of each extra file, each imported world; less the maps of the
+                 excluded suites, whose held-out flights exist), not bundled;
   fly-heldout NAME DIR   fly the reference panel on the held-out tasks of a suite's maps (the start/goal candidates
                  the suite's tasks leave out) into DIR/heldout/<planner>/;
-  draft-v2 NAME CANDIDATES HELDOUT   level every candidate by the panel's held-out success and choose
+  draft-v2 NAME --candidates C --heldout H ...   level every candidate by the panel's held-out success and choose
                  MAPS_PER_LEVEL maps per level (choose()); the suite's tasks are the candidates';
-  fly NAME DIR, then freeze NAME DIR --heldout HELDOUT   the references on the suite's tasks; the level and the
+  fly NAME DIR, then freeze NAME DIR --heldout H ...   the references on the suite's tasks; the level and the
                  difficulty from the held-out flights (plus one link offset common to every map);
   bias NAME HELDOUT   measure a v1 suite's selection bias: per level, the panel on the suite's tasks against the
                  held-out ones.
@@ -348,35 +349,49 @@ MAP_KEYS = ("count", "radius", "speed", "structure", "replicate", "seed")
 """The keys of a generated map's entry a suite part keeps (its setup values, replicate and seed)."""
 
 
-def candidate_suite(folder: Path, dims: int, extra: list[Path], worlds: list[str]) -> Path:
+def candidate_suite(folder: Path, dims: int, extra: list[Path], worlds: list[str], exclude=()) -> Path:
     """Write a draft suite of every candidate map into ``folder`` (not a bundled suite; no levels): part "generated"
     = the calibration set's maps, "extra<i>" = every map of each ``extra`` scenario file (generated maps with
     explicit seeds: a pool, `pbdyn generate` output), and each imported world of ``worlds`` (bundled scenario names)
-    as a part of its own. fly-heldout flies the panel on its held-out tasks; draft-v2 --candidates chooses from it."""
+    as a part of its own, less the maps of the suites ``exclude`` (their held-out flights exist already: draft-v2
+    takes several candidate suites). fly-heldout flies the panel on its held-out tasks; draft-v2 chooses from it."""
     from pbdyn.analysis.scale import PANEL_SPEEDS
     from pbdyn.config import load_scenario
     from pbdyn.world.maps import enumerate_maps
 
+    from pbdyn.benchmark.suite import load_suite
+    from pbdyn.config import parse_scenario
+
+    skip = set()
+    for name in exclude:
+        ex = load_suite(SUITES / name if (SUITES / name).is_dir() else name)
+        specs = {p.name: enumerate_maps(parse_scenario(p.doc, p.path)) for p in ex.parts}
+        skip |= {specs[m["part"]][m["map_index"]].map_id for m in ex.maps}
     folder.mkdir(parents=True, exist_ok=True)
     sources = [("generated", ROOT / CALIBRATION[dims][1])] + [(f"extra{i + 1}", p) for i, p in enumerate(extra)]
     parts, maps = [], []
     for part, path in sources:
         src = tomllib.loads(path.read_text())
-        doc = {"name": f"{folder.name}.{part}", "world": src["world"], "obstacles": {
-            "root_seed": src["obstacles"]["root_seed"],
-            "maps": [{k: e[k] for k in MAP_KEYS if k in e} for e in src["obstacles"]["maps"]]}}
-        (folder / f"{part}.toml").write_text(_toml(doc, f"candidate maps ({path.name}), tools/make_suites.py"))
         ids = [m.map_id for m in enumerate_maps(load_scenario(path))]
+        entries = [{k: e[k] for k in MAP_KEYS if k in e} for e, mid in zip(src["obstacles"]["maps"], ids)
+                   if mid not in skip]
+        if not entries:
+            continue
+        doc = {"name": f"{folder.name}.{part}", "world": src["world"], "obstacles": {
+            "root_seed": src["obstacles"]["root_seed"], "maps": entries}}
+        (folder / f"{part}.toml").write_text(_toml(doc, f"candidate maps ({path.name}), tools/make_suites.py"))
         specs = enumerate_maps(load_scenario(folder / f"{part}.toml"))
-        if [m.map_id for m in specs] != ids:
-            raise SystemExit(f"{path}: its map ids change in a suite part (world settings differ?)")
+        if [m.map_id for m in specs] != [mid for mid in ids if mid not in skip]:
+            raise SystemExit(f"{path}: its map ids change in a suite part (world settings or seeds differ?)")
         parts.append({"name": part, "scenario": f"{part}.toml"})
         maps += [{"part": part, "map_index": m.index, "map_id": m.map_id, "family": e.get("structure", "uniform"),
                   "level": None, "calibration_success": None, "difficulty": None}
-                 for m, e in zip(specs, doc["obstacles"]["maps"])]
+                 for m, e in zip(specs, entries)]
     for w in worlds:
         sc = load_scenario(w)
         part = Path(w).name
+        if enumerate_maps(sc)[0].map_id in skip:
+            continue
         parts.append({"name": part, "scenario": w})
         maps.append({"part": part, "map_index": 0, "map_id": enumerate_maps(sc)[0].map_id,
                      "family": "world:" + part.rstrip("_0123456789"), "level": None, "calibration_success": None,
@@ -387,56 +402,75 @@ def candidate_suite(folder: Path, dims: int, extra: list[Path], worlds: list[str
     return folder
 
 
-def draft_v2(name: str, candidates, heldout: Path) -> Path:
+def draft_v2(name: str, candidates, heldout) -> Path:
     """Write the draft suite NAME, chosen and levelled on held-out tasks (docs/benchmark.md "Levels"): every map of
     the suite ``candidates`` (a candidate_suite folder, or any suite) gets its level from the panel's flights on
     its held-out tasks in ``heldout``/<trajectory>/ (fly-heldout), and each level takes up to MAPS_PER_LEVEL maps
     by the rule of choose(); the suite's tasks stay the candidates' (each part's pairs_flown, default the reference
     pairs), its maps are named by content ids and each part records its held-out pairs (``pairs_leveled``). No
-    flight on the suite's own tasks enters the choice."""
+    flight on the suite's own tasks enters the choice. ``candidates`` and ``heldout`` may be lists (pairwise: each
+    candidate suite with its flights' folder; a part of one name is one part of the draft)."""
     from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
     from pbdyn.benchmark.suite import LEVELS_FROM, SUITE_FORMAT, load_suite
     from pbdyn.config import load_scenario, parse_scenario
     from pbdyn.world.maps import enumerate_maps
 
-    cand = load_suite(candidates)
-    counts = _per_map_counts([r for rows in heldout_rows(cand, heldout).values() for r in rows])
-    specs = {p.name: enumerate_maps(parse_scenario(p.doc, p.path)) for p in cand.parts}
-    pool = []
-    for m in cand.maps:
-        k, n = counts[(m["part"], m["map_id"])]
-        pool.append({"key": f"{m['part']}/{m['map_id']}", "kind": m["family"], "success": k / n,
-                     "level": level_of(k / n), "entry": m, "spec": specs[m["part"]][m["map_index"]]})
+    sources = [load_suite(c) for c in (candidates if isinstance(candidates, (list, tuple)) else [candidates])]
+    folders = heldout if isinstance(heldout, (list, tuple)) else [heldout]
+    if len(folders) != len(sources):
+        raise SystemExit("draft-v2: give one held-out folder per candidate suite")
+    pool, seen = [], set()
+    for cand, folder in zip(sources, folders):
+        counts = _per_map_counts([r for rows in heldout_rows(cand, folder).values() for r in rows])
+        specs = {p.name: enumerate_maps(parse_scenario(p.doc, p.path)) for p in cand.parts}
+        for m in cand.maps:
+            spec = specs[m["part"]][m["map_index"]]
+            if spec.map_id in seen:
+                continue
+            seen.add(spec.map_id)
+            k, n = counts[(m["part"], m["map_id"])]
+            pool.append({"key": f"{m['part']}/{spec.map_id}", "kind": m["family"], "success": k / n,
+                         "level": level_of(k / n), "entry": m, "spec": spec, "part": cand.part(m["part"]),
+                         "part_entry": next(e for e in cand.doc["parts"] if e["name"] == m["part"]),
+                         "source": cand})
     chosen, used = [], {}
     for lv in range(1, len(LEVEL_EDGES)):
         chosen += choose([c for c in pool if c["level"] == lv], MAPS_PER_LEVEL, used)
     folder = SUITES / name
     folder.mkdir(parents=True, exist_ok=True)
     parts, maps = [], []
-    for entry in cand.doc["parts"]:
-        part = cand.part(entry["name"])
-        mine = sorted((c for c in chosen if c["entry"]["part"] == part.name), key=lambda c: c["entry"]["map_index"])
+    names = list(dict.fromkeys(c["part"].name for c in pool))      # the parts in the candidates' order
+    for pname in names:
+        mine = [c for c in chosen if c["part"].name == pname]
         if not mine:
             continue
-        new = {k: v for k, v in entry.items() if k != "pairs_leveled"}
-        if (cand.folder / entry["scenario"]).is_file():     # generated maps: the chosen ones move into the suite
-            doc = copy.deepcopy(part.doc)
-            doc["name"] = f"{name}.{part.name}"
-            doc["obstacles"]["maps"] = [part.doc["obstacles"]["maps"][c["entry"]["map_index"]] for c in mine]
-            (folder / f"{part.name}.toml").write_text(_toml(doc, f"pbdyn benchmark suite {name}: generated maps, "
-                                                                "written by tools/make_suites.py; do not edit by "
-                                                                "hand (the suite's hash covers it)."))
-            new["scenario"] = f"{part.name}.toml"
+        mine.sort(key=lambda c: (sources.index(c["source"]), c["entry"]["map_index"]))
+        first = mine[0]
+        new = {k: v for k, v in first["part_entry"].items() if k != "pairs_leveled"}
+        if (first["source"].folder / first["part_entry"]["scenario"]).is_file():   # generated maps move in
+            doc = copy.deepcopy(first["part"].doc)
+            doc["name"] = f"{name}.{pname}"
+            doc["obstacles"]["maps"] = [{k: v for k, v in c["part"].doc["obstacles"]["maps"][c["entry"]["map_index"]]
+                                         .items() if k != "measured"} for c in mine]
+            for c in mine:
+                if c["part"].doc["world"] != doc["world"] or \
+                        c["part"].doc["obstacles"]["root_seed"] != doc["obstacles"]["root_seed"]:
+                    raise SystemExit(f"{name}: candidates of part {pname} come from different worlds or seeds")
+            (folder / f"{pname}.toml").write_text(_toml(doc, f"pbdyn benchmark suite {name}: generated maps, "
+                                                             "written by tools/make_suites.py; do not edit by "
+                                                             "hand (the suite's hash covers it)."))
+            new["scenario"] = f"{pname}.toml"
             ids = [m.map_id for m in enumerate_maps(load_scenario(folder / new["scenario"]))]
         else:
             ids = [c["spec"].map_id for c in mine]
         if ids != [c["spec"].map_id for c in mine]:
-            raise SystemExit(f"{name}: part {part.name}'s map ids differ from the candidates' (world settings?)")
-        sc = parse_scenario(part.doc, part.path)
+            raise SystemExit(f"{name}: part {pname}'s map ids differ from the candidates' (world settings?)")
+        sc = parse_scenario(first["part"].doc, first["part"].path)
         new["pairs_leveled"] = [list(q) for q in heldout_pairs(sc.task.candidates)]
         parts.append(new)
-        maps += [{"part": part.name, "map_index": i, "map_id": c["spec"].map_id, "family": c["kind"], "level": None,
+        maps += [{"part": pname, "map_index": i, "map_id": c["spec"].map_id, "family": c["kind"], "level": None,
                   "heldout_success": round(c["success"], 6), "difficulty": None} for i, c in enumerate(mine)]
+    cand = sources[0]
     per_map = len(parts[0]["pairs_leveled"]) * len(cand.speeds)
     text = LEVELS_FROM_TEXT.format(panel=", ".join(e.label for e in PANEL),
                                    speeds=", ".join(f"{v:g}" for v in PANEL_SPEEDS), per_map=per_map)
@@ -444,7 +478,7 @@ def draft_v2(name: str, candidates, heldout: Path) -> Path:
                 "speeds": list(cand.speeds), "levels": levels_doc(), "parts": parts,
                 "maps": sorted(maps, key=lambda m: (m["part"], m["map_index"])),
                 LEVELS_FROM: {"tasks": "held-out", "panel": [e.label for e in PANEL], "text": text,
-                              "candidates": len(cand.maps)}}
+                              "candidates": len(pool)}}
     (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return folder
 
@@ -652,18 +686,22 @@ def link_offset(suite_measure: dict, heldout_measure: dict) -> float:
     return float(np.median(d)) if d else 0.0
 
 
-def heldout_rows(suite, folder: Path) -> dict:
+def heldout_rows(suite, folder) -> dict:
     """The panel's task rows on the held-out tasks of ``suite`` (heldout_suite) in ``folder``/<trajectory>/ (the
     flights of fly-heldout): panel label -> rows; a panel planner not flown in full stops the tool."""
     from pbdyn.analysis.scale import PANEL
+    from pbdyn.benchmark.card import task_key
     from pbdyn.benchmark.run import read_rows
 
     held = heldout_suite(suite)
+    folders = folder if isinstance(folder, (list, tuple)) else [folder]
     out = {}
     for e in PANEL:
-        rows = read_rows(held, folder / e.trajectory, e.label)
+        rows = list({task_key(r): r for f in folders for r in read_rows(held, Path(f) / e.trajectory, e.label)}
+                    .values())
         if len(rows) != held.n_tasks():
-            raise SystemExit(f"{folder / e.trajectory}: {len(rows)} of {held.n_tasks()} held-out tasks flown; "
+            raise SystemExit(f"{', '.join(str(f) for f in folders)} ({e.trajectory}): {len(rows)} of "
+                             f"{held.n_tasks()} held-out tasks flown; "
                              "fly them first (tools/make_suites.py fly-heldout)")
         out[e.label] = rows
     return out
@@ -701,9 +739,9 @@ def freeze(name: str, out: Path, heldout: Path | None = None) -> None:
     doc = json.loads((folder / "suite.json").read_text())
     held = None
     if LEVELS_FROM in doc:
-        hdir = heldout if heldout is not None else out / "heldout"
-        held = _panel_measure(heldout_suite(suite), heldout_rows(suite, hdir))
-        doc[LEVELS_FROM]["fingerprints"] = {e.label: _flown_fingerprint(hdir / e.trajectory, e.label)
+        hdirs = list(heldout) if isinstance(heldout, (list, tuple)) else [heldout or out / "heldout"]
+        held = _panel_measure(heldout_suite(suite), heldout_rows(suite, hdirs))
+        doc[LEVELS_FROM]["fingerprints"] = {e.label: _flown_fingerprint([h / e.trajectory for h in hdirs], e.label)
                                             for e in PANEL}
         doc[LEVELS_FROM]["offset_logits"] = round(link_offset(res, held), 6)
     for m in doc["maps"]:
@@ -744,12 +782,14 @@ def freeze(name: str, out: Path, heldout: Path | None = None) -> None:
         f"{lv['level']}:{sum(m['level'] == lv['level'] for m in doc['maps'])}" for lv in doc["levels"]))
 
 
-def _flown_fingerprint(folder: Path, label: str) -> str:
-    """The one code fingerprint the rows of ``label`` in a bench folder's flight stores were flown with."""
+def _flown_fingerprint(folder, label: str) -> str:
+    """The one code fingerprint the rows of ``label`` in a bench folder's flight stores (or several folders')
+    were flown with."""
     from pbdyn.experiments.store import ResultsStore
 
     fps = set()
-    for path in sorted((folder / "flights").glob("*.sqlite")):
+    folders = folder if isinstance(folder, list) else [folder]
+    for path in sorted(p for f in folders for p in (Path(f) / "flights").glob("*.sqlite")):
         st = ResultsStore.open(path)
         try:
             fps |= {fp for lab, fp, _ in st.fingerprint_counts() if lab == label}
@@ -792,16 +832,17 @@ def main(argv=None) -> int:
     z = sub.add_parser("freeze")
     z.add_argument("name")
     z.add_argument("out", type=Path)
-    z.add_argument("--heldout", type=Path, default=None)
+    z.add_argument("--heldout", type=Path, action="append", default=None)
     d2 = sub.add_parser("draft-v2")
     d2.add_argument("name")
-    d2.add_argument("candidates")
-    d2.add_argument("heldout", type=Path)
+    d2.add_argument("--candidates", action="append", required=True)
+    d2.add_argument("--heldout", type=Path, action="append", required=True)
     ca = sub.add_parser("candidates")
     ca.add_argument("folder", type=Path)
     ca.add_argument("--dims", type=int, default=2)
     ca.add_argument("--extra", type=Path, action="append", default=[])
     ca.add_argument("--world", action="append", default=[])
+    ca.add_argument("--exclude", action="append", default=[])
     bi = sub.add_parser("bias")
     bi.add_argument("name")
     bi.add_argument("heldout", type=Path)
@@ -823,7 +864,7 @@ def main(argv=None) -> int:
     elif a.cmd == "draft-v2":
         print(draft_v2(a.name, a.candidates, a.heldout))
     elif a.cmd == "candidates":
-        print(candidate_suite(a.folder, a.dims, a.extra, a.world))
+        print(candidate_suite(a.folder, a.dims, a.extra, a.world, a.exclude))
     elif a.cmd == "bias":
         bias(a.name, a.heldout, a.json)
     elif a.cmd == "draft-mini":
