@@ -551,18 +551,90 @@ def _tilt_interval(level: dict, a: dict, b: dict, seed: int, n_boot: int = 2000)
     return [float(np.quantile(slopes, 0.025)), float(np.quantile(slopes, 0.975))]
 
 
-def bias(name: str, heldout: Path, json_out: Path | None = None) -> dict:
+SPLITS = 50
+"""Random halvings of the suite's tasks the same-skill check averages over (bias)."""
+
+
+def _tilt_draws(levels, ka, na, kb, nb, w):
+    """The tilt (per level, least squares weighted by maps) of b's success minus a's over the levels, for every
+    map-weight draw and split at once: ``levels``, ``ka``, ``na``, ``kb``, ``nb`` (splits x maps), ``w`` (draws x
+    maps) -> (draws x splits)."""
+    import numpy as np
+
+    lv = np.arange(1, len(LEVEL_EDGES))
+    onehot = (levels[..., None] == lv).astype(float)                    # split x map x level
+    sums = [np.einsum("dm,sml,sm->dsl", w, onehot, v) for v in (ka, na, kb, nb)]
+    cnt = np.einsum("dm,sml->dsl", w, onehot)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        y = np.where(cnt > 0, sums[2] / sums[3] - sums[0] / sums[1], 0.0)
+    sw = cnt.sum(-1, keepdims=True)
+    xm = (cnt * lv).sum(-1, keepdims=True) / sw
+    ym = (cnt * y).sum(-1, keepdims=True) / sw
+    return (cnt * (lv - xm) * (y - ym)).sum(-1) / (cnt * (lv - xm) ** 2).sum(-1)
+
+
+def _same_skill(s_rows: list[dict], level_h: dict, seed: int, n_boot: int = 2000) -> dict:
+    """A planner of the panel's skill against the references: each map's unordered start/goal pairs are halved at
+    random (SPLITS times); the panel's flights on one half play the references, those on the other half a planner
+    of exactly the panel's skill (the halves are exchangeable). The tilt of its lead over the references across the
+    levels, with the levels (a) from the references' own half (as v1 assigned them) and (b) from the held-out
+    flights (``level_h``: map -> level), averaged over the splits, with a 95% interval from resampling maps."""
+    import numpy as np
+
+    from pbdyn.world.maps import stable_hash64
+
+    maps = sorted(level_h)
+    pair = lambda r: tuple(sorted((tuple(r["start"]), tuple(r["goal"]))))      # noqa: E731
+    per = {m: {} for m in maps}
+    for r in s_rows:
+        c = per[(r["part"], r["map_id"])].setdefault(pair(r), [0, 0])
+        c[0] += r["outcome"] == "success"
+        c[1] += 1
+    shape = (SPLITS, len(maps))
+    ka, na, kb, nb = (np.zeros(shape) for _ in range(4))
+    for j, m in enumerate(maps):
+        pairs = sorted(per[m])
+        k = np.array([per[m][q][0] for q in pairs], float)
+        n = np.array([per[m][q][1] for q in pairs], float)
+        rng = np.random.default_rng([seed, stable_hash64(f"{m[0]}/{m[1]}")])
+        for sp in range(SPLITS):
+            half = np.zeros(len(pairs), bool)
+            half[rng.permutation(len(pairs))[:len(pairs) // 2]] = True
+            ka[sp, j], na[sp, j], kb[sp, j], nb[sp, j] = k[half].sum(), n[half].sum(), k[~half].sum(), n[~half].sum()
+    own = np.vectorize(level_of)(ka / na)
+    held = np.broadcast_to(np.array([level_h[m] for m in maps]), shape)
+    w = np.vstack([np.ones(len(maps)), np.random.default_rng(seed).multinomial(
+        len(maps), np.full(len(maps), 1.0 / len(maps)), size=n_boot)]).astype(float)
+    out = {}
+    for key, lv in (("levels_from_references", own), ("levels_from_heldout", held)):
+        t = np.nanmean(_tilt_draws(lv, ka, na, kb, nb, w), axis=1)           # draw (0: the data) -> mean over splits
+        out[key] = {"tilt_per_level": float(t[0]),
+                    "ci95": [float(np.nanquantile(t[1:], 0.025)), float(np.nanquantile(t[1:], 0.975))]}
+        per_level = []
+        for L in range(1, len(LEVEL_EDGES)):
+            sel = lv == L
+            if not sel.any():
+                continue
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = (np.where(sel, kb, 0).sum(1) / np.where(sel, nb, 0).sum(1)
+                     - np.where(sel, ka, 0).sum(1) / np.where(sel, na, 0).sum(1))
+            per_level.append({"level": L, "maps_mean": float(sel.sum(1).mean()),
+                              "b_minus_a_mean": float(np.nanmean(d))})
+        out[key]["levels"] = per_level
+    out["splits"] = SPLITS
+    return out
+
+
+def bias(name: str, heldout, json_out: Path | None = None) -> dict:
     """Measure the selection bias of suite NAME's levels (docs/benchmark.md "Levels"), from its shipped references
     (the panel's flights on the suite's tasks, S) and the panel's flights on held-out tasks of the same maps (H, in
     ``heldout``/<trajectory>/, fly-heldout):
 
     1. per level of the suite: the panel's success on S against H (the levels came from S: selection pulls S
        below H at the hard levels and above it at the easy ones; H's own tasks are easier or harder on the whole,
-       an offset common to every level);
-    2. a planner of the panel's skill against the references with geometry held equal: the panel's flights on
-       the suite's forward pairs (start index < goal index) act as the references and those on the reverse pairs
-       as another planner of the same skill; levels (a) from the references' own flights, as v1 did, and (b) from
-       the held-out tasks: the difference should be flat in (b).
+       an offset common to every level), and the tilt of the difference across the levels;
+    2. a planner of the panel's skill against the references (_same_skill: random halves of the suite's tasks),
+       with levels from the references' own flights, as v1 did, and from the held-out flights.
     Prints Markdown tables; writes them as JSON to ``json_out`` if given."""
     from pbdyn.analysis.scale import PANEL
     from pbdyn.benchmark.run import load_references
@@ -572,43 +644,30 @@ def bias(name: str, heldout: Path, json_out: Path | None = None) -> dict:
     refs = load_references(suite)
     s_rows = [r for e in PANEL for r in refs[e.label]["rows"]]
     h_rows = [r for rows in heldout_rows(suite, heldout).values() for r in rows]
-    cand = {}
-    from pbdyn.config import parse_scenario
-    for p in suite.parts:
-        cand[p.name] = [tuple(float(x) for x in c) for c in parse_scenario(p.doc, p.path).task.candidates]
-
-    def forward(r):
-        c = cand[r["part"]]
-        return c.index(tuple(r["start"])) < c.index(tuple(r["goal"]))
-
     S, H = _per_map_counts(s_rows), _per_map_counts(h_rows)
-    F, R = _per_map_counts(s_rows, forward), _per_map_counts(s_rows, lambda r: not forward(r))
     suite_level = {(m["part"], m["map_id"]): int(m["level"]) for m in suite.maps}
-    rate = lambda c: {m: level_of(k / n) for m, (k, n) in c.items()}     # noqa: E731
     out = {"suite": name, "hash": suite.hash, "maps": len(suite.maps), "panel": [e.label for e in PANEL],
            "tasks_per_map": {"suite": S[next(iter(S))][1], "heldout": H[next(iter(H))][1]},
-           "suite_vs_heldout": _level_differences(suite_level, S, H, 1),
-           "same_skill_levels_from_references": _level_differences(rate(F), F, R, 2),
-           "same_skill_levels_from_heldout": _level_differences(rate(H), F, R, 3)}
+           "suite_vs_heldout": _level_differences(suite_level, S, H, 1)}
     tot = lambda c: sum(k for k, _ in c.values()) / sum(n for _, n in c.values())   # noqa: E731
-    out["overall"] = {"suite": tot(S), "heldout": tot(H), "forward": tot(F), "reverse": tot(R)}
-    inputs = {"suite_vs_heldout": (suite_level, S, H), "same_skill_levels_from_references": (rate(F), F, R),
-              "same_skill_levels_from_heldout": (rate(H), F, R)}
-    for i, (key, (lv, a, b)) in enumerate(inputs.items()):
-        out[key + "_tilt_per_level"] = _tilt(out[key])
-        out[key + "_tilt_ci95"] = _tilt_interval(lv, a, b, 10 + i)
-    heads = {"suite_vs_heldout": ("S (suite tasks)", "H (held-out)"),
-             "same_skill_levels_from_references": ("references (forward pairs)", "same skill (reverse pairs)"),
-             "same_skill_levels_from_heldout": ("references (forward pairs)", "same skill (reverse pairs)")}
-    print(f"{name} ({suite.hash[:12]}): panel success S {out['overall']['suite']:.3f}, H {out['overall']['heldout']:.3f}, "
-          f"forward {out['overall']['forward']:.3f}, reverse {out['overall']['reverse']:.3f}")
-    for key, (ha, hb) in heads.items():
-        lo, hi = out[key + "_tilt_ci95"]
-        print(f"\n{key} (tilt {out[key + '_tilt_per_level']:+.4f} per level, 95% interval [{lo:+.4f}, {hi:+.4f}])\n")
-        print(f"| level | maps | {ha} | {hb} | difference | 95% interval (maps) |\n|---|---|---|---|---|---|")
-        for r in out[key]:
-            print(f"| {r['level']} | {r['maps']} | {r['a']:.3f} | {r['b']:.3f} | {r['b_minus_a']:+.3f} | "
-                  f"[{r['ci95'][0]:+.3f}, {r['ci95'][1]:+.3f}] |")
+    out["overall"] = {"suite": tot(S), "heldout": tot(H)}
+    out["suite_vs_heldout_tilt_per_level"] = _tilt(out["suite_vs_heldout"])
+    out["suite_vs_heldout_tilt_ci95"] = _tilt_interval(suite_level, S, H, 10)
+    out["same_skill"] = _same_skill(s_rows, {m: level_of(k / n) for m, (k, n) in H.items()}, 11)
+    print(f"{name} ({suite.hash[:12]}): panel success on the suite's tasks {out['overall']['suite']:.3f}, "
+          f"held out {out['overall']['heldout']:.3f}")
+    lo, hi = out["suite_vs_heldout_tilt_ci95"]
+    print(f"\nsuite vs held-out (tilt {out['suite_vs_heldout_tilt_per_level']:+.4f} per level, 95% interval "
+          f"[{lo:+.4f}, {hi:+.4f}])\n")
+    print("| level | maps | suite's tasks | held-out tasks | difference | 95% interval (maps) |\n|---|---|---|---|---|---|")
+    for r in out["suite_vs_heldout"]:
+        print(f"| {r['level']} | {r['maps']} | {r['a']:.3f} | {r['b']:.3f} | {r['b_minus_a']:+.3f} | "
+              f"[{r['ci95'][0]:+.3f}, {r['ci95'][1]:+.3f}] |")
+    for key in ("levels_from_references", "levels_from_heldout"):
+        ss = out["same_skill"][key]
+        print(f"\nsame skill, {key}: tilt {ss['tilt_per_level']:+.4f} per level [{ss['ci95'][0]:+.4f}, "
+              f"{ss['ci95'][1]:+.4f}]; per level " + " ".join(f"{r['level']}:{r['b_minus_a_mean']:+.3f}"
+                                                               for r in ss["levels"]))
     if json_out is not None:
         json_out.write_text(json.dumps(out, indent=1) + "\n")
     return out
