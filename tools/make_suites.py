@@ -570,7 +570,8 @@ def _tilt_draws(levels, ka, na, kb, nb, w):
     sw = cnt.sum(-1, keepdims=True)
     xm = (cnt * lv).sum(-1, keepdims=True) / sw
     ym = (cnt * y).sum(-1, keepdims=True) / sw
-    return (cnt * (lv - xm) * (y - ym)).sum(-1) / (cnt * (lv - xm) ** 2).sum(-1)
+    num, den = (cnt * (lv - xm) * (y - ym)).sum(-1), (cnt * (lv - xm) ** 2).sum(-1)
+    return np.divide(num, den, out=np.full(num.shape, np.nan), where=den > 0)   # one level only: no tilt
 
 
 def _same_skill(s_rows: list[dict], level_h: dict, seed: int, n_boot: int = 2000) -> dict:
@@ -607,9 +608,13 @@ def _same_skill(s_rows: list[dict], level_h: dict, seed: int, n_boot: int = 2000
         len(maps), np.full(len(maps), 1.0 / len(maps)), size=n_boot)]).astype(float)
     out = {}
     for key, lv in (("levels_from_references", own), ("levels_from_heldout", held)):
-        t = np.nanmean(_tilt_draws(lv, ka, na, kb, nb, w), axis=1)           # draw (0: the data) -> mean over splits
+        t = _tilt_draws(lv, ka, na, kb, nb, w)
+        ok = np.isfinite(t)
+        t = np.divide(np.where(ok, t, 0.0).sum(1), ok.sum(1), out=np.full(len(t), np.nan),
+                      where=ok.sum(1) > 0)                                 # draw (0: the data) -> mean over splits
+        boot = t[1:][np.isfinite(t[1:])]
         out[key] = {"tilt_per_level": float(t[0]),
-                    "ci95": [float(np.nanquantile(t[1:], 0.025)), float(np.nanquantile(t[1:], 0.975))]}
+                    "ci95": [float(np.quantile(boot, q)) for q in (0.025, 0.975)] if boot.size else [None, None]}
         per_level = []
         for L in range(1, len(LEVEL_EDGES)):
             sel = lv == L
