@@ -117,7 +117,7 @@ DEFINITIONS = (
                       "(and whether its work tree had uncommitted changes), and per reference whether this pbdyn "
                       "flies the code it was flown with (same / other / not recorded)", DOC_CODE),
     ("cost", "what the bench cost: its wall time (s), the CPU time of its processes (s) and how many runs (starts "
-             "of pbdyn bench, a resumed bench counting each) it took", DOC_CARD),
+             "of pbdyn bench that flew or drew something; a fully resumed one adds none) it took", DOC_CARD),
     ("reproduction", "with --reproduce: whether the flights reproduce the planner's shipped reference rows field "
                      "by field (everything but wall times)", DOC_REFERENCES),
     ("note", "what a reader of a card of an older suite version should know", DOC_CARD),
