@@ -406,7 +406,7 @@ def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: 
 
 
 def bench(planner: str, *, gaze: str | None = None, params: Mapping | None = None,
-          gaze_params: Mapping | None = None, suite: str | Path = "pbdyn-2d-v1", out: str | Path,
+          gaze_params: Mapping | None = None, suite: str | Path = "pbdyn-2d-v2", out: str | Path,
           workers: int | None = None, scheduler=None, progress: bool = False, reproduce: bool = False,
           rerun_changed: bool = False, failures: int | None = None, failures_format: str | None = None,
           command: str = "") -> dict:

@@ -131,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "JSON object (its trajectory_params table; default: none)")
     bn.add_argument("--gaze-params", type=_json_object, metavar="JSON", help="the gaze planner's parameters as a "
                     "JSON object (its gaze_params table; default: none)")
-    bn.add_argument("--suite", default=None, help="suite name or folder (default pbdyn-2d-v1; --list shows them)")
+    bn.add_argument("--suite", default=None, help="suite name or folder (default pbdyn-2d-v2; --list shows them)")
     bgrp = bn.add_mutually_exclusive_group()
     bgrp.add_argument("--workers", type=_positive_int, help="local worker processes (default: CPU count)")
     bgrp.add_argument("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786")

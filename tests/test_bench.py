@@ -28,6 +28,7 @@ SUITE_HASHES = {
     "pbdyn-2d-mini": "1ebf60b5ddf4865644a88b0182b6863b73f1e92794ace2bf3d8fec2f9ce7a8bb",
     "pbdyn-2d-v1": "cdf42b856533c2df2cbd1f907d54fe566ddc189d67ed1eff18343eb28e83613a",
     "pbdyn-3d-v1": "46f419e083d62c1363216616c8da9570453f2aaae48a681f64781e1552ec315f",
+    "pbdyn-2d-v2": "68e9b4cf09384fc6221876bf279f53f4780f3ed867087f9c2e5c68a6443c71fe",
 }
 """The shipped suites' identities: a changed hash means the suite changed, which a frozen suite never does (a new
 suite gets a new name or version)."""
@@ -265,7 +266,8 @@ def test_the_api_benches_and_returns_the_card(api_card):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("suite,planner", [("pbdyn-2d-v1", "local_primitives"), ("pbdyn-2d-v1", "mpc"),
-                                           ("pbdyn-3d-v1", "local_primitives")])
+                                           ("pbdyn-3d-v1", "local_primitives"), ("pbdyn-2d-v2", "local_primitives"),
+                                           ("pbdyn-2d-v2", "straight_line")])
 def test_reference_results_of_the_full_suites_reproduce_bit_for_bit(suite, planner, tmp_path):
     res = _bench([planner, "--suite", suite, "--out", str(tmp_path / planner), "--reproduce"], timeout=5400)
     assert res.returncode == 0, res.stdout + res.stderr

@@ -37,7 +37,7 @@ THESIS_GAZE = {"local_primitives": "lookahead", "global_primitives": "fullrange"
                "straight_line": "lookahead", "local_primitives_minjerk": "lookahead"}
 """The gaze each built-in trajectory planner flies with by default (the thesis' pairings: FullRange with the global
 planner, LookAhead with the local ones)."""
-DEFAULT_SUITE = "pbdyn-2d-v1"
+DEFAULT_SUITE = "pbdyn-2d-v2"
 MARKER = "bench.json"
 
 
