@@ -584,8 +584,8 @@ def test_a_version_1_card_is_refused_in_one_line_and_version_2_cards_compare(ful
 
 
 # ------------------------------------------------------------------------------------------------ determinism
-def test_the_card_is_deterministic_and_fast_on_the_2100_task_suite(full):
-    card, seconds = full
+def test_the_card_is_deterministic_on_the_2100_task_suite(full):
+    card, _ = full
     again, _ = _card("pbdyn-2d-v1")
 
     def stable(c):
@@ -596,5 +596,5 @@ def test_the_card_is_deterministic_and_fast_on_the_2100_task_suite(full):
         return c
 
     assert stable(card) == stable(again)
-    assert card["trials"]["flown"] == 2100
-    assert seconds < 8.0, seconds          # measured ~1.4 s on 2 busy cores (imports included)
+    assert card["trials"]["flown"] == 2100   # its cost (~1.4 s on 2 cores) is measured, not asserted: a timed unit
+                                             # test fails on a loaded machine
