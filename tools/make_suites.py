@@ -514,41 +514,18 @@ def _level_differences(level: dict, a: dict, b: dict, seed: int, n_boot: int = 2
     return out
 
 
-def _tilt(rows: list[dict]) -> float:
-    """The slope (per level) of a per-level difference, least squares weighted by the levels' maps."""
-    import numpy as np
-
-    x = np.array([r["level"] for r in rows], float)
-    y = np.array([r["b_minus_a"] for r in rows], float)
-    w = np.array([r["maps"] for r in rows], float)
-    xm, ym = np.average(x, weights=w), np.average(y, weights=w)
-    return float(np.sum(w * (x - xm) * (y - ym)) / np.sum(w * (x - xm) ** 2))
-
-
-def _tilt_interval(level: dict, a: dict, b: dict, seed: int, n_boot: int = 2000) -> list[float]:
-    """A 95% interval of _tilt from resampling the suite's maps (every level's pooled rates recomputed per draw)."""
+def _tilt_interval(level: dict, a: dict, b: dict, seed: int, n_boot: int = 2000) -> tuple[float, list[float]]:
+    """The tilt of b's success minus a's across the levels (``level``: map -> level; a, b: map -> [k, n]; _tilt_draws)
+    and its 95% interval from resampling the suite's maps."""
     import numpy as np
 
     maps = sorted(level)
-    lv = np.array([level[m] for m in maps])
-    ka, na = np.array([a[m][0] for m in maps], float), np.array([a[m][1] for m in maps], float)
-    kb, nb = np.array([b[m][0] for m in maps], float), np.array([b[m][1] for m in maps], float)
-    levels = np.unique(lv)
-    onehot = (lv[:, None] == levels[None, :]).astype(float)             # map x level
-    w = np.random.default_rng(seed).multinomial(len(maps), np.full(len(maps), 1.0 / len(maps)),
-                                                size=n_boot).astype(float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = (w * kb) @ onehot / ((w * nb) @ onehot) - (w * ka) @ onehot / ((w * na) @ onehot)   # draw x level
-    cnt = w @ onehot
-    slopes = []
-    for i in range(n_boot):
-        ok = cnt[i] > 0
-        x, y, ww = levels[ok].astype(float), d[i, ok], cnt[i, ok]
-        if ok.sum() < 2:
-            continue
-        xm, ym = np.average(x, weights=ww), np.average(y, weights=ww)
-        slopes.append(np.sum(ww * (x - xm) * (y - ym)) / np.sum(ww * (x - xm) ** 2))
-    return [float(np.quantile(slopes, 0.025)), float(np.quantile(slopes, 0.975))]
+    col = lambda c, i: np.array([[c[m][i] for m in maps]], float)      # noqa: E731  (one split x maps)
+    w = np.vstack([np.ones(len(maps)), np.random.default_rng(seed).multinomial(
+        len(maps), np.full(len(maps), 1.0 / len(maps)), size=n_boot)]).astype(float)
+    t = _tilt_draws(np.array([[level[m] for m in maps]]), col(a, 0), col(a, 1), col(b, 0), col(b, 1), w)[:, 0]
+    boot = t[1:][np.isfinite(t[1:])]
+    return float(t[0]), [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))]
 
 
 SPLITS = 50
@@ -656,8 +633,7 @@ def bias(name: str, heldout, json_out: Path | None = None) -> dict:
            "suite_vs_heldout": _level_differences(suite_level, S, H, 1)}
     tot = lambda c: sum(k for k, _ in c.values()) / sum(n for _, n in c.values())   # noqa: E731
     out["overall"] = {"suite": tot(S), "heldout": tot(H)}
-    out["suite_vs_heldout_tilt_per_level"] = _tilt(out["suite_vs_heldout"])
-    out["suite_vs_heldout_tilt_ci95"] = _tilt_interval(suite_level, S, H, 10)
+    out["suite_vs_heldout_tilt_per_level"], out["suite_vs_heldout_tilt_ci95"] = _tilt_interval(suite_level, S, H, 10)
     out["same_skill"] = _same_skill(s_rows, {m: level_of(k / n) for m, (k, n) in H.items()}, 11)
     print(f"{name} ({suite.hash[:12]}): panel success on the suite's tasks {out['overall']['suite']:.3f}, "
           f"held out {out['overall']['heldout']:.3f}")
