@@ -7,8 +7,10 @@ tests/data/house_digests.json holds, per case, the sha256 of what the code at th
 - cards: every shipped reference planner's card on pbdyn-2d-v2 and pbdyn-3d-v1, made from its shipped rows against
   the suite's references (card.json, card.md and card.html, with a fixed
   date, machine and code provenance, which name the checkout and change with any edit);
-- gym: two seeded episodes of each registered environment under seeded random actions (observations, rewards, ends
-  and the info of every step), and 80 steps of each native vector environment with 3 sub-environments.
+- gym: two seeded episodes of each registered environment under seeded random actions, and 80 steps of each native
+  vector environment with 3 sub-environments: the observations, rewards and ends ("gym/", "vector/") and, apart,
+  the infos ("gym-info/", "vector-info/": the house round gave both kinds the same info keys, so these were
+  recorded again after that change).
 
 Regenerate only for an intended behaviour change: python -m tests.house_fixture
 """
@@ -77,53 +79,55 @@ def _cards(suite, refs, make_card, clean, card_markdown, card_html) -> dict[str,
     return out
 
 
-def gym_episode_digest(env_id: str) -> str:
-    """sha256 of two seeded episodes of ``env_id`` under seeded random actions, every step's info included."""
+def gym_episode_digest(env_id: str) -> tuple[str, str]:
+    """sha256 of two seeded episodes of ``env_id`` under seeded random actions: (observations, rewards and ends;
+    every step's info)."""
     import gymnasium
 
     import pbdyn.gym  # noqa: F401  (registers the ids)
 
     env = gymnasium.make(env_id, disable_env_checker=True)
-    h = hashlib.sha256()
+    h, hi = hashlib.sha256(), hashlib.sha256()
     rng = np.random.default_rng(11)
     try:
         for seed in (5, 6):
             obs, info = env.reset(seed=seed)
             h.update(np.asarray(obs).tobytes())
-            _digest_info(h, info)
+            _digest_info(hi, info)
             done = False
             while not done:
                 obs, r, term, trunc, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
                 h.update(np.asarray(obs).tobytes() + np.float64(r).tobytes() + bytes([term, trunc]))
-                _digest_info(h, info)
+                _digest_info(hi, info)
                 done = term or trunc
     finally:
         env.close()
-    return h.hexdigest()
+    return h.hexdigest(), hi.hexdigest()
 
 
-def vector_digest(env_id: str, steps: int = 80, num_envs: int = 3) -> str:
-    """sha256 of ``steps`` steps of ``env_id``'s native vector environment with ``num_envs`` sub-environments."""
+def vector_digest(env_id: str, steps: int = 80, num_envs: int = 3) -> tuple[str, str]:
+    """sha256 of ``steps`` steps of ``env_id``'s native vector environment with ``num_envs`` sub-environments:
+    (observations, rewards and ends; the infos)."""
     import gymnasium
 
     import pbdyn.gym  # noqa: F401
 
     env = gymnasium.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
-    h = hashlib.sha256()
+    h, hi = hashlib.sha256(), hashlib.sha256()
     rng = np.random.default_rng(13)
     try:
         obs, info = env.reset(seed=21)
         h.update(np.asarray(obs).tobytes())
-        _digest_info(h, info)
+        _digest_info(hi, info)
         for _ in range(steps):
             act = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
             obs, r, term, trunc, info = env.step(act)
             h.update(np.asarray(obs).tobytes() + np.asarray(r, dtype=np.float64).tobytes()
                      + np.asarray(term).tobytes() + np.asarray(trunc).tobytes())
-            _digest_info(h, info)
+            _digest_info(hi, info)
     finally:
         env.close()
-    return h.hexdigest()
+    return h.hexdigest(), hi.hexdigest()
 
 
 def record() -> dict[str, str]:
@@ -134,12 +138,12 @@ def record() -> dict[str, str]:
     for s in CARD_SUITES:
         out.update(card_digests(s))
     for env_id in ENV_IDS:
-        out[f"gym/{env_id}"] = gym_episode_digest(env_id)
-        out[f"vector/{env_id}"] = vector_digest(env_id)
+        out[f"gym/{env_id}"], out[f"gym-info/{env_id}"] = gym_episode_digest(env_id)
+        out[f"vector/{env_id}"], out[f"vector-info/{env_id}"] = vector_digest(env_id)
     return out
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, sys.argv[1] if len(sys.argv) > 1 else str(ROOT))   # (a snapshot of older code)
     FIXTURE.write_text(json.dumps(record(), indent=1, sort_keys=True) + "\n")
     print(FIXTURE)
