@@ -435,7 +435,8 @@ def compare_cards(cards, *, out: str | Path | None = None) -> list[dict]:
     folder), write compare.md and compare.html there. Returns the cards. Cards of different suite versions are
     refused (their numbers are not comparable)."""
     from pbdyn.benchmark.render import compare_html, compare_markdown
-    from pbdyn.benchmark.run import _write_atomic, read_card
+    from pbdyn.benchmark.run import read_card
+    from pbdyn.files import atomic_write_text
 
     if isinstance(cards, (str, Path)) or not cards:
         raise ConfigError("card", "give one or more card files", cards)
@@ -451,8 +452,8 @@ def compare_cards(cards, *, out: str | Path | None = None) -> list[dict]:
 
         folder = check_writable_folder("out", _path(out, "out"))
         folder.mkdir(parents=True, exist_ok=True)
-        _write_atomic(folder / "compare.md", compare_markdown(docs))
-        _write_atomic(folder / "compare.html", compare_html(docs))
+        atomic_write_text(folder / "compare.md", compare_markdown(docs))
+        atomic_write_text(folder / "compare.html", compare_html(docs))
     return docs
 
 

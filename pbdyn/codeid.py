@@ -34,7 +34,7 @@ import sysconfig
 import threading
 from pathlib import Path
 
-from pbdyn.files import atomic_write, cache_dir
+from pbdyn.files import atomic_write_text, cache_dir
 
 IDENTITY_CHARS = 16
 """Hex digits of an identity (64 bits: two different versions of the code never meet under one identity)."""
@@ -98,8 +98,7 @@ def save_record() -> None:
         doc = {p: [e[0], e[1], e[2], list(e[3])] for p, e in _files.items() if p.startswith(str(PACKAGE_DIR))}
         _dirty = False
     try:
-        atomic_write(_record_path(), lambda tmp: Path(tmp).write_text(json.dumps(doc, sort_keys=True)),
-                     make_parents=True)
+        atomic_write_text(_record_path(), json.dumps(doc, sort_keys=True), make_parents=True)
     except OSError:
         pass
 

@@ -60,6 +60,11 @@ def atomic_write(path: str | Path, write: Callable[[str], None], *, make_parents
     return path
 
 
+def atomic_write_text(path: str | Path, text: str, *, make_parents: bool = False) -> Path:
+    """atomic_write of ``text`` (UTF-8)."""
+    return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), make_parents=make_parents)
+
+
 def cache_dir() -> Path:
     """pbdyn's cache folder (rollouts, metrics, the native library's check): $PBDYN_CACHE, else
     $XDG_CACHE_HOME/pbdyn, else ~/.cache/pbdyn."""

@@ -13,7 +13,7 @@ import html
 import json
 from pathlib import Path
 
-from pbdyn.files import atomic_write
+from pbdyn.files import atomic_write_text
 
 FIGURE_CAPTIONS = {
     "metric_": "Success rate of every map against its difficulty by one metric, per planner pair (dots: maps; "
@@ -174,4 +174,4 @@ def render_html(report: dict, table_text: str, figures: list[Path], *, stores: l
 
 def write_html(out: str | Path, page: str) -> Path:
     """Write ``page`` to ``out`` atomically (pbdyn.files.atomic_write), creating its folder as --plots does."""
-    return atomic_write(out, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"), make_parents=True)
+    return atomic_write_text(out, page, make_parents=True)

@@ -92,8 +92,8 @@ class Meter:
                  "flown": int(flown), "replays": int(replays),
                  "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat()}
         self.runs = [*self.runs, entry]
-        from pbdyn.files import atomic_write
+        from pbdyn.files import atomic_write_text
 
-        text = json.dumps({"format": LEDGER_FORMAT, "runs": self.runs}, indent=1, sort_keys=True) + "\n"
-        atomic_write(self.out / LEDGER, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+        atomic_write_text(self.out / LEDGER, json.dumps({"format": LEDGER_FORMAT, "runs": self.runs}, indent=1,
+                                                        sort_keys=True) + "\n")
         return self.runs

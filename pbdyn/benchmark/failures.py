@@ -96,10 +96,10 @@ def _read_index(folder: Path) -> dict:
 
 
 def _write_index(folder: Path, files: dict) -> None:
-    from pbdyn.files import atomic_write
+    from pbdyn.files import atomic_write_text
 
-    text = json.dumps({"format": INDEX_FORMAT, "files": files}, indent=1, sort_keys=True) + "\n"
-    atomic_write(folder / INDEX, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    atomic_write_text(folder / INDEX, json.dumps({"format": INDEX_FORMAT, "files": files}, indent=1, sort_keys=True)
+                      + "\n")
 
 
 class _Trials:

@@ -30,6 +30,7 @@ from pbdyn.benchmark.card import DETERMINISTIC_FIELDS, TASK_FIELDS, make_card, t
 from pbdyn.benchmark.suite import Suite, flight_scenario, load_suite, read_versioned_json
 from pbdyn.config import PlannerEntry
 from pbdyn.errors import ConfigError, check_writable_folder
+from pbdyn.files import atomic_write_text
 
 REFERENCE_FILE = "reference.json.gz"
 REFERENCE_FORMAT = "pbdyn-reference/1"
@@ -143,7 +144,7 @@ def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
         raise ConfigError("out", "exists and is not an empty folder or a bench folder; use another --out folder",
                           str(out))
     out.mkdir(parents=True, exist_ok=True)
-    _write_atomic(marker, json.dumps(mine, indent=1, sort_keys=True) + "\n")
+    atomic_write_text(marker, json.dumps(mine, indent=1, sort_keys=True) + "\n")
 
 
 class Flights:
@@ -397,9 +398,9 @@ def bench(planner: str, *, gaze: str | None = None, params=None, gaze_params=Non
         card["failure_replays"] = replays
     card["cost"] = totals(runs)
     card = clean(card)
-    _write_atomic(out / "card.json", json.dumps(card, indent=1, sort_keys=True, allow_nan=False) + "\n")
-    _write_atomic(out / "card.md", card_markdown(card))
-    _write_atomic(out / "card.html", card_html(card))
+    atomic_write_text(out / "card.json", json.dumps(card, indent=1, sort_keys=True, allow_nan=False) + "\n")
+    atomic_write_text(out / "card.md", card_markdown(card))
+    atomic_write_text(out / "card.html", card_html(card))
     return card
 
 
@@ -458,12 +459,6 @@ def read_card(path) -> dict:
 
 MAX_CARD_BYTES = 64 << 20
 """Largest card.json read (a card of the largest suite is well under 1 MiB)."""
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    from pbdyn.files import atomic_write
-
-    atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
 def clean(value):

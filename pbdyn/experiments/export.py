@@ -136,17 +136,11 @@ def trials_frame(store: ResultsStore | str | Path):
     return pd.DataFrame(data)
 
 
-def _atomic(path: Path, write) -> None:
-    """Write ``path`` through a temporary file in its folder (pbdyn.files.atomic_write): a failed export leaves no
-    partial file."""
-    atomic_write(path, write, make_parents=True)
-
-
 def export_csv(store: ResultsStore, path: str | Path) -> int:
     """Write trials_frame(store) to a CSV file (header = column names; empty cells for missing values); returns
-    the number of rows. Written atomically."""
+    the number of rows. Written atomically (pbdyn.files.atomic_write: a failed export leaves no partial file)."""
     df = trials_frame(store)
-    _atomic(Path(path), lambda tmp: df.to_csv(tmp, index=False))
+    atomic_write(path, lambda tmp: df.to_csv(tmp, index=False), make_parents=True)
     return len(df)
 
 
@@ -157,5 +151,5 @@ def export_parquet(store: ResultsStore, path: str | Path) -> int:
     except ImportError:  # pragma: no cover - pyarrow is a dependency
         raise ConfigError("parquet", "needs pyarrow (pip install pyarrow)", str(path)) from None
     df = trials_frame(store)
-    _atomic(Path(path), lambda tmp: df.to_parquet(tmp, index=False, engine="pyarrow"))
+    atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False, engine="pyarrow"), make_parents=True)
     return len(df)

@@ -572,8 +572,7 @@ def write_scenario(path: str | Path, doc: dict, header: str = "") -> Path:
     """Write a scenario document as TOML (atomically, the user's umask), after checking that it loads."""
     import tomli_w
 
-    from pbdyn.files import atomic_write
+    from pbdyn.files import atomic_write_text
 
     parse_scenario(doc)
-    text = "".join(f"# {line}\n" for line in header.splitlines()) + tomli_w.dumps(doc)
-    return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    return atomic_write_text(path, "".join(f"# {line}\n" for line in header.splitlines()) + tomli_w.dumps(doc))

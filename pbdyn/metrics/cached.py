@@ -4,13 +4,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import time
-from pathlib import Path
 
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError
-from pbdyn.files import create_temp
+from pbdyn.files import atomic_write_text
 from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, INFO, METRIC_TABLE, NAMES, SPARSE
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
@@ -53,18 +51,6 @@ def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
         if name not in out:
             out.append(name)
     return out
-
-
-def _write_json_atomic(path: Path, doc: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = create_temp(path.parent, ".metric-", ".json")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(doc, fh, sort_keys=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 BACKENDS = ("analytic", "bullet", "mesh")
@@ -144,7 +130,7 @@ def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend:
         doc["wall_time_s"] = time.perf_counter() - t0
         if use_cache:
             try:
-                _write_json_atomic(path, doc)
+                atomic_write_text(path, json.dumps(doc, sort_keys=True), make_parents=True)
             except OSError:
                 pass
         doc["cached"] = False

@@ -8,14 +8,13 @@ once when the trial has ended normally (not when it raised).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
-from pbdyn.files import create_temp
+from pbdyn.files import atomic_write
 from pbdyn.sim.state import SENSE_SPLITS
 from pbdyn.world.shapes import still_body_outlines
 
@@ -175,13 +174,8 @@ def save_trace(trace: TraceObserver, path, p, v, a, yaw, outcome, extra: dict | 
         "final_p": p, "final_v": v, "final_a": a, "final_yaw": np.array(yaw), "outcome": np.array(outcome.value),
         **(extra or {}),
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = create_temp(path.parent, ".trace-", ".npz")
-    try:
-        with os.fdopen(fd, "wb") as fh:
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+    atomic_write(path, write, make_parents=True)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import numpy as np
 from pbdyn import limits
 from pbdyn.config import LATER_FIELDS, Scenario, canonical_json, later_fields, rollout_span_s
 from pbdyn.errors import ConfigError, HorizonError
-from pbdyn.files import cache_dir, create_temp
+from pbdyn.files import atomic_write, cache_dir
 from pbdyn.motion.registry import MODELS, key_params
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported.bodies import (WorldBodies, bodies_fingerprint, build_world_bodies, check_candidates,
@@ -105,17 +104,12 @@ class Rollout:
         }
 
     def save(self, path: str | Path) -> None:
-        """Write the rollout to an .npz file atomically (temp file + os.replace)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = create_temp(path.parent, ".rollout-", ".npz")
-        try:
-            with os.fdopen(fd, "wb") as fh:
+        """Write the rollout to an .npz file atomically (pbdyn.files.atomic_write)."""
+        def write(tmp: str) -> None:
+            with open(tmp, "wb") as fh:
                 np.savez(fh, **self.to_arrays())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+
+        atomic_write(path, write, make_parents=True)
 
     @classmethod
     def load(cls, path: str | Path) -> "Rollout":

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pbdyn.files import atomic_write_text
 from pbdyn.planning.primitives.compiled.ruckig_sampling import PROFILE_WIDTH, profile_row
 
 _P = ctypes.c_void_p
@@ -49,10 +50,7 @@ def checksum_path(path: Path) -> Path:
 
 def write_checksum(path: Path) -> None:
     """Record the sha256 of the library at ``path`` beside it (atomically; sha256sum's format)."""
-    record = checksum_path(path)
-    tmp = record.with_name(record.name + ".tmp")
-    tmp.write_text(f"{hashlib.sha256(path.read_bytes()).hexdigest()}  {path.name}\n")
-    os.replace(tmp, record)
+    atomic_write_text(checksum_path(path), f"{hashlib.sha256(path.read_bytes()).hexdigest()}  {path.name}\n")
 
 
 def integrity_problem(path: Path) -> str | None:
@@ -268,12 +266,10 @@ def agreement_stamp(library_sha256: str, ruckig_version: str) -> Path | None:
 
 def _write_stamp(stamp: Path, library_sha256: str, ruckig_version: str) -> None:
     """Leave the stamp (atomically); quietly nothing where the cache cannot be written (every process probes)."""
-    from pbdyn.files import atomic_write
-
     text = (f"{LIBRARY.name} sha256 {library_sha256} agrees with ruckig {ruckig_version} (numpy {np.__version__}, "
             f"Python {platform.python_version()}) on {PROBE_N} x 2 probe inputs\n")
     try:
-        atomic_write(stamp, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), make_parents=True)
+        atomic_write_text(stamp, text, make_parents=True)
     except OSError:
         pass
 

@@ -21,6 +21,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
+from pbdyn.files import atomic_write
 from pbdyn.planning.primitives.native import LIBRARY, write_checksum
 
 HERE = Path(__file__).resolve().parent
@@ -95,14 +96,10 @@ def build(sdist: Path | None = None, output: Path = LIBRARY) -> Path:
             first = next((ln for ln in done.stderr.splitlines() if "error" in ln), done.stderr.strip()[:200])
             raise BuildError(f"{Path(cxx).name} failed: {first}")
         probe(staged)
-        final_tmp = output.with_name(output.name + ".tmp")
         try:
-            output.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(staged, final_tmp)
-            os.replace(final_tmp, output)
+            atomic_write(output, lambda tmp: shutil.copyfile(staged, tmp), make_parents=True)
             write_checksum(output)
         except OSError as exc:
-            final_tmp.unlink(missing_ok=True)
             raise BuildError(f"cannot write {output} ({exc.strerror})") from exc
     return output
 
