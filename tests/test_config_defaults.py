@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from pbdyn import config as C
+from pbdyn.config.model import _defaults
 from pbdyn.motion.rvo import RVOParams
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,7 +149,7 @@ def test_readme_default_matches_the_dataclass(key):
     section, name = key
     cell = ROWS[key]
     cls = SECTIONS[section]
-    fd = C._defaults(cls).get(name, dataclasses.MISSING)
+    fd = _defaults(cls).get(name, dataclasses.MISSING)
     where = f"README default of {'.'.join(filter(None, key))} ({cls.__name__}.{name} = {fd!r})"
     if key in COMPUTED:
         assert cell == COMPUTED[key], f"{where}: {cell!r}, expected {COMPUTED[key]!r}"
@@ -179,15 +180,15 @@ def test_readme_default_matches_the_dataclass(key):
 
 def test_array_section_defaults():
     assert ROWS[("static_obstacles", "*")].startswith("none |") and C.parse_scenario({}).static_obstacles == ()
-    d = C._defaults(C.PlannerEntry)
+    d = _defaults(C.PlannerEntry)
     assert ROWS[("planners", "*")].startswith(f"one entry: `{d['trajectory']}` + `{d['gaze']}` |")
     assert C.parse_scenario({}).planners == (C.PlannerEntry(),)
     assert f'`kind = "{C.StaticObstacleConfig.DEFAULT_KIND}"`' in ROWS[("static_obstacles", "*")]
 
 
 def test_parsers_write_no_default_of_their_own():
-    """The validators' default argument is never a literal in pbdyn/config.py: it comes from the dataclasses."""
-    tree = ast.parse((ROOT / "pbdyn" / "config.py").read_text(encoding="utf-8"))
+    """The validators' default argument is never a literal in pbdyn/config/parser.py: it comes from the dataclasses."""
+    tree = ast.parse((ROOT / "pbdyn" / "config" / "parser.py").read_text(encoding="utf-8"))
     bad = []
     for node in ast.walk(tree):
         if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
@@ -195,5 +196,5 @@ def test_parsers_write_no_default_of_their_own():
             continue
         arg = node.args[3]
         if isinstance(arg, (ast.List, ast.Tuple)) or isinstance(arg, ast.Constant) and arg.value is not None:
-            bad.append(f"pbdyn/config.py:{node.lineno}: {ast.unparse(node)}")
+            bad.append(f"pbdyn/config/parser.py:{node.lineno}: {ast.unparse(node)}")
     assert not bad, "literal defaults in the parsers (use the dataclass field's default):\n" + "\n".join(bad)

@@ -5,4 +5,5 @@ its obstacles through their motion model (pbdyn.motion) into a cached Rollout; i
 loading and scaling, imported bodies and their scripted motions; motions.py holds the example motion functions);
 shapes.py the signed-distance fields of the bodies' real shapes; geometry.py the generated static bodies;
 bullet.py the PyBullet world of a trial or metric run, pybullet_client.py PyBullet itself (import, clients, display).
+draws.py holds the random draws (values, spreads, headings) that maps.py and structure.py spawn from.
 """

@@ -21,9 +21,10 @@ from functools import cached_property
 
 import numpy as np
 
-from pbdyn.config import Range, Scenario, _json_default, canonical_json, map_seed, stable_hash64
+from pbdyn.config import Range, Scenario, canonical_json, map_seed, stable_hash64
 from pbdyn.errors import ConfigError
 from pbdyn.motion.rvo import candidate_directions
+from pbdyn.world.draws import draw_values, random_unit_vectors
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.structure import (cluster_centres, draw_radii_speeds, proposals, structure_of,
                                    wall_bodies)
@@ -172,7 +173,7 @@ class MapSequence(Sequence):
 
     @staticmethod
     def _setup(keys, combo) -> dict:
-        return {k: _json_default(v) if isinstance(v, Range) else v for k, v in zip(keys, combo)}
+        return {k: v.to_json() if isinstance(v, Range) else v for k, v in zip(keys, combo)}
 
     def setup(self, s: int) -> dict:
         """The setup values of setup number ``s`` (mixed radix, first grid field slowest)."""
@@ -233,25 +234,6 @@ def static_bodies(scenario: Scenario, spec: MapSpec | None = None) -> tuple[Stat
     return out
 
 
-def _draw(value, rng: np.random.Generator, n: int, jitter: float) -> np.ndarray:
-    if isinstance(value, dict):
-        return rng.uniform(value["min"], value["max"], n)
-    if jitter > 0:
-        return rng.uniform(value - jitter, value + jitter, n)
-    return np.full(n, float(value))
-
-
-def random_unit_vectors(rng: np.random.Generator, n: int, dims: int) -> np.ndarray:
-    """n uniformly random unit vectors [n, d] (2D: uniform heading; 3D: uniform on the sphere)."""
-    if dims == 2:
-        th = rng.uniform(0.0, 2.0 * np.pi, n)
-        return np.stack([np.cos(th), np.sin(th)], axis=1)
-    v = rng.standard_normal((n, dims))
-    norm = np.linalg.norm(v, axis=1, keepdims=True)
-    norm[norm == 0] = 1.0
-    return v / norm
-
-
 def _admissible(pts: np.ndarray, ok: np.ndarray, placed: np.ndarray, placed_r: np.ndarray, r: float,
                 cands: np.ndarray, gap: float, centre_rule: bool, bodies) -> np.ndarray:
     """``ok`` [P] narrowed to the proposed centres pts [P, d] of an obstacle of radius r that overlap no placed
@@ -291,8 +273,8 @@ def spawn_obstacles(scenario: Scenario, spec: MapSpec,
     dims = scenario.world.dims
     size = np.asarray(scenario.world.size, dtype=float)
     n = int(spec.setup["count"])
-    radii = _draw(spec.setup["radius"], rng, n, scenario.obstacles.radius_jitter)
-    speeds = _draw(spec.setup["speed"], rng, n, 0.0)
+    radii = draw_values(spec.setup["radius"], rng, n, scenario.obstacles.radius_jitter)
+    speeds = draw_values(spec.setup["speed"], rng, n, 0.0)
     dirs = random_unit_vectors(rng, n, dims)     # drawn in both modes: the centres below stay the same
     if scenario.obstacles.headings == "even":     # the thesis program's headings (ObstacleConfig)
         dirs = -candidate_directions(dims, n)
@@ -403,7 +385,7 @@ def _spawn_structured(scenario: Scenario, spec: MapSpec, st, keep_out) -> tuple[
     dims = scenario.world.dims
     size = np.asarray(scenario.world.size, dtype=float)
     n = int(spec.setup["count"])
-    radii, speeds = draw_radii_speeds(scenario, spec, st, rng, n, _draw)
+    radii, speeds = draw_radii_speeds(scenario, spec, st, rng, n)
     dirs = random_unit_vectors(rng, n, dims)
     if (st.headings or scenario.obstacles.headings) == "even":
         dirs = -candidate_directions(dims, n)

@@ -13,8 +13,9 @@ import math
 
 import numpy as np
 
-from pbdyn.config import Scenario, StructureConfig
+from pbdyn.config import Scenario, StructureConfig, stable_hash64
 from pbdyn.errors import ConfigError
+from pbdyn.world.draws import draw_values, gamma_values
 from pbdyn.world.geometry import StaticBody
 
 WALL_STREAM = 1
@@ -24,26 +25,14 @@ MIN_GAMMA_FRACTION = 0.05
 """Gamma-distributed radii are floored at this fraction of their mean (a radius must stay > 0)."""
 
 
-
 def structure_of(scenario: Scenario, setup: dict) -> StructureConfig | None:
     """The StructureConfig of a map's setup (None for maps without one)."""
     name = setup.get("structure")
     return None if name is None else scenario.obstacles.structure_of(name)
 
 
-def gamma_values(rng: np.random.Generator, mean: float, cv: float, n: int, floor: float = 0.0) -> np.ndarray:
-    """n gamma draws with the given mean and coefficient of variation (shape 1/cv^2, scale mean cv^2), at least
-    ``floor``; all equal to ``mean`` for cv = 0."""
-    if cv <= 0 or mean <= 0:
-        return np.full(n, float(mean))
-    k = 1.0 / (cv * cv)
-    return np.maximum(rng.gamma(k, mean / k, n), floor)
-
-
 def wall_rng(spec) -> np.random.Generator:
     """The walls' Generator: SeedSequence([root_seed, key hash, WALL_STREAM])."""
-    from pbdyn.world.maps import stable_hash64
-
     return np.random.default_rng(np.random.SeedSequence([spec.root_seed, stable_hash64(spec.key), WALL_STREAM]))
 
 
@@ -119,21 +108,21 @@ def wall_bodies(scenario: Scenario, spec, st: StructureConfig) -> tuple[StaticBo
     return tuple(out)
 
 
-def draw_radii_speeds(scenario: Scenario, spec, st: StructureConfig, rng, n: int, draw) -> tuple:
-    """(radii [n], speeds [n]) of a structured map: gamma spreads where set, else the scenario's rule ``draw``
-    (pbdyn.world.maps._draw); then round(static_fraction n) obstacles, chosen at random, stop."""
+def draw_radii_speeds(scenario: Scenario, spec, st: StructureConfig, rng, n: int) -> tuple:
+    """(radii [n], speeds [n]) of a structured map: gamma spreads where set, else the scenario's rule
+    (pbdyn.world.draws.draw_values); then round(static_fraction n) obstacles, chosen at random, stop."""
     if st.radius_spread > 0:
         r = spec.setup["radius"]
         mean = 0.5 * (r["min"] + r["max"]) if isinstance(r, dict) else float(r)
         radii = gamma_values(rng, mean, st.radius_spread, n, MIN_GAMMA_FRACTION * mean)
     else:
-        radii = draw(spec.setup["radius"], rng, n, scenario.obstacles.radius_jitter)
+        radii = draw_values(spec.setup["radius"], rng, n, scenario.obstacles.radius_jitter)
     if st.speed_spread > 0:
         v = spec.setup["speed"]
         mean = 0.5 * (v["min"] + v["max"]) if isinstance(v, dict) else float(v)
         speeds = gamma_values(rng, mean, st.speed_spread, n)
     else:
-        speeds = draw(spec.setup["speed"], rng, n, 0.0)
+        speeds = draw_values(spec.setup["speed"], rng, n, 0.0)
     k = int(round(st.static_fraction * n))
     if k:
         speeds = speeds.copy()
