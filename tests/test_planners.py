@@ -1,6 +1,7 @@
 """Trajectory planners, gaze planners, the shared trajectory check and the registry, on synthetic Views."""
 
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -10,13 +11,13 @@ from pbdyn.errors import ConfigError
 from pbdyn.perception.grid import FREE, OCCUPIED, OccupancyGrid
 from pbdyn.planning import registry
 from pbdyn.planning.checks import WALL_MARGIN_CAP, first_conflict, trajectory_clear, within_limits
-from pbdyn.planning.gaze.rules import FullRange, LookAhead
-from pbdyn.planning.gaze.yaw import wrap_angle
+from pbdyn.planning.gaze.rules import FullRange, LookAhead, LookGoal
 from pbdyn.planning.primitives.local import LocalPrimitives
 from pbdyn.planning.protocols import GazePlanner, PlannerContext, TrajectoryPlanner
 from pbdyn.planning.straight_line import StraightLine
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, Tracks, View
+from pbdyn.world.geometry import wrap_angle
 from tests.helpers import make_tracks
 
 DT = 0.1
@@ -359,10 +360,28 @@ def test_lookahead_fallbacks_when_hovering():
 
 
 def test_wrap_angle_range():
-    assert wrap_angle(math.pi) == pytest.approx(math.pi)
-    assert wrap_angle(-math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(math.pi) == -math.pi and wrap_angle(-math.pi) == -math.pi
     assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
     assert wrap_angle(-6.0) == pytest.approx(-6.0 + 2 * math.pi)
+    assert np.array_equal(wrap_angle(np.array([math.pi, 0.5, -7.0])), [wrap_angle(math.pi), 0.5, wrap_angle(-7.0)])
+
+
+def test_the_gaze_rules_wrap_into_minus_pi_pi_as_they_did_bit_for_bit():
+    """The rule gaze planners' heading error, 0.0 - wrap_angle(yaw - heading), is the (-pi, pi] wrap they had
+    (pi - (pi - x) mod 2 pi) bit for bit: signed zeros and the boundaries too."""
+    def before(x):
+        return math.pi - (math.pi - x) % (2.0 * math.pi)
+
+    edges = [0.0, -0.0, math.pi, -math.pi, 2 * math.pi, math.nextafter(math.pi, 0), math.nextafter(-math.pi, 0),
+             math.nextafter(math.pi, 4), 5e-324, 1e16, math.atan2(0.0, -1.0), math.atan2(-0.0, -1.0)]
+    rng = np.random.default_rng(3)
+    pairs = [(h, y) for h in edges for y in edges] + list(zip(rng.uniform(-4, 4, 20_000), rng.uniform(-4, 4, 20_000)))
+    for h, y in pairs:
+        h, y = float(h), float(y)
+        assert struct.pack("<d", 0.0 - wrap_angle(y - h)) == struct.pack("<d", before(h - y)), (h, y)
+    ctx = _context()
+    behind = LookGoal(ctx).yaw_rate(_view(ctx, [25, 25], [20, 25], yaw=0.0), None)
+    assert behind == ctx.limits.yaw_rate                   # the goal exactly behind: counter-clockwise
 
 
 def test_fullrange_has_360_fov_and_no_yaw_control():

@@ -599,7 +599,7 @@ def code_provenance(planner: dict, references: dict) -> dict:
     identified code by content, fingerprints "builtin:..."); "statement" says it in one line. Nothing is refused: a
     reader decides (``pbdyn bench --reproduce`` re-flies a reference)."""
     from pbdyn import codeid
-    from pbdyn.planning.registry import pair_fingerprint
+    from pbdyn.planning.registry import recorded_fingerprint
 
     status = {}
     for label in sorted(references):
@@ -608,10 +608,7 @@ def code_provenance(planner: dict, references: dict) -> dict:
         if "+core:" not in fp:
             status[label] = "not recorded"
             continue
-        try:
-            now = pair_fingerprint(meta.get("trajectory"), meta.get("gaze"))
-        except Exception:  # a reference planner this pbdyn cannot resolve: not the same code
-            now = ""
+        now = recorded_fingerprint(meta.get("trajectory"), meta.get("gaze"))   # "": not the same code
         status[label] = "same" if now == fp else "other"
     counts = {k: sum(v == k for v in status.values()) for k in ("same", "other", "not recorded")}
     if not status:

@@ -299,24 +299,17 @@ def close_worker_world() -> None:
 
 def error_row(task: TrialTask, message: str) -> dict:
     """The result row of a trial that raised: outcome "error" with the message, the task's identifying fields."""
+    from pbdyn.planning.registry import recorded_fingerprint
+
     s = task.spec
     m = s.map_spec
+    fp = recorded_fingerprint(s.planner.trajectory, s.planner.gaze)   # "": the batch flags the row's code
     return {"gaze": s.planner.gaze, "planner": s.planner.trajectory, "map_index": m.index,
             "map_id": m.map_id, "map_seed": m.seed, "map_key": m.key, "mav_speed": s.v_max,
             "obstacle_count": int(m.setup.get("count", 0)), "obstacle_radius": m.setup.get("radius"),
             "obstacle_speed": m.setup.get("speed"), "start": list(s.start), "goal": list(s.goal),
             "outcome": Outcome.ERROR.value, "reason": message, "planner_label": s.planner.label,
-            "scenario": s.scenario.name, "config_hash": task.key, "planner_fingerprint": _fingerprint(s.planner)}
-
-
-def _fingerprint(entry: PlannerEntry) -> str:
-    """The entry's planner fingerprint as this worker's code gives it ("" if it cannot be computed)."""
-    from pbdyn.planning.registry import pair_fingerprint
-
-    try:
-        return pair_fingerprint(entry.trajectory, entry.gaze)
-    except Exception:  # an error row is still written; its empty fingerprint makes `pbdyn batch` flag it
-        return ""
+            "scenario": s.scenario.name, "config_hash": task.key, "planner_fingerprint": fp}
 
 
 def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dict, str | None]:

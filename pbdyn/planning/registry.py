@@ -178,3 +178,12 @@ def pair_fingerprint(trajectory: str, gaze: str) -> str:
     from pbdyn import codeid
 
     return f"{planner_fingerprint(trajectory)}+{planner_fingerprint(gaze)}+core:{codeid.core_identity()}"
+
+
+def recorded_fingerprint(trajectory: str, gaze: str) -> str:
+    """pair_fingerprint as a row records it: "" where the pair's code cannot be identified (e.g. a planner class
+    defined inside a function, which cannot be imported by its name)."""
+    try:
+        return pair_fingerprint(trajectory, gaze)
+    except Exception:
+        return ""

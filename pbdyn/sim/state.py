@@ -27,6 +27,7 @@ from pbdyn.outcome import Outcome
 from pbdyn.sim.spec import TrialSpec
 from pbdyn.sim.start import TrialStart, trial_start
 from pbdyn.world.bullet import PyBulletWorld
+from pbdyn.world.geometry import wrap_angle
 from pbdyn.world.rollout import Rollout
 
 
@@ -87,11 +88,6 @@ def nominal_radius(spec: TrialSpec, rollout: Rollout) -> float:
     if isinstance(r, (int, float)) and not isinstance(r, bool):
         return float(r)
     return float(np.mean(rollout.radii)) if rollout.n_obstacles else 0.0
-
-
-def wrap_angle(angle: float) -> float:
-    """The angle in [-pi, pi) (rad)."""
-    return float((angle + math.pi) % (2.0 * math.pi) - math.pi)
 
 
 class TrialState:
@@ -243,7 +239,7 @@ class TrialState:
         lim = self.limits.yaw_rate
         rate = min(max(float(action.yaw_rate), -lim), lim)
         p1, v1, a1 = action.position, action.velocity, action.acceleration
-        yaw1 = wrap_angle(self.yaw + rate * self.dt)
+        yaw1 = float(wrap_angle(self.yaw + rate * self.dt))
         hit, clearance = self.check(self.k, self.position, p1, dynamic)  # (7)
         self.collision_wall_s = time.perf_counter() - c5
         self.min_clearance = min(self.min_clearance, clearance)

@@ -18,7 +18,7 @@ import numpy as np
 
 from pbdyn import usercode
 from pbdyn.outcome import Outcome
-from pbdyn.planning.registry import pair_fingerprint
+from pbdyn.planning.registry import recorded_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
 from pbdyn.sim.batch import TrialBatch
 from pbdyn.sim.observers import SPLITS, ProfileObserver, StepRecord, TraceObserver
@@ -280,7 +280,8 @@ def _result(spec: TrialSpec, rollout: Rollout, env: TrialState, agent: Agent, gr
         outcome=env.outcome.value, final_state=agent.state, reason=_reason(env),
         min_clearance_m=float(env.min_clearance), planning_failures=agent.total_failures, steps=env.steps,
         planner_label=spec.planner.label, scenario=sc.name, map_key=ms.key, config_hash=spec.config_hash,
-        planner_fingerprint=_fingerprint(spec), profile=sc.profile, start_delay_s=round(env.start.time_s, 10),
+        planner_fingerprint=recorded_fingerprint(spec.planner.trajectory, spec.planner.gaze), profile=sc.profile,
+        start_delay_s=round(env.start.time_s, 10),
         max_speed_mps=env.max_speed, max_accel_mps2=env.max_accel,
         limits_exceeded=limits_exceeded(env.max_speed, env.max_accel, env.limits.v_max, env.limits.a_max),
         **task_metrics(spec, env.rollout, env.start.time_s), path_length_m=round(env.path_length, 10),
@@ -360,10 +361,3 @@ def _reason(env: TrialState) -> str:
             f"s: began at the clearest moment, t = {env.start.time_s:g} s)")
 
 
-def _fingerprint(spec: TrialSpec) -> str:
-    """The planner pair's code fingerprint (pbdyn.planning.registry.pair_fingerprint); "" for a planner that
-    cannot be imported by its name (e.g. a class defined inside a function)."""
-    try:
-        return pair_fingerprint(spec.planner.trajectory, spec.planner.gaze)
-    except Exception:
-        return ""

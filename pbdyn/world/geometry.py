@@ -1,10 +1,17 @@
-"""Static geometry shared by rollouts, the PyBullet world and collision queries."""
+"""Geometry shared by rollouts, the PyBullet world and collision queries (static bodies), the MAV's state and the
+gaze planners (angle wrapping)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+
+def wrap_angle(angle):
+    """``angle`` (rad; a float or an array) wrapped into [-pi, pi): (angle + pi) mod 2 pi - pi."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass(frozen=True)

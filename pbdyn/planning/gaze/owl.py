@@ -46,11 +46,12 @@ from pbdyn.planning.gaze.yaw import heading, rate_candidates, tie_break_order
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
+from pbdyn.world.geometry import wrap_angle
 
 
 def _angle_between(yaws: np.ndarray, heading: np.ndarray | float) -> np.ndarray:
     """|wrap(heading - yaws)| (rad, in [0, pi]), broadcast."""
-    return np.abs((np.asarray(heading) - yaws + math.pi) % (2.0 * math.pi) - math.pi)
+    return np.abs(wrap_angle(np.asarray(heading) - yaws))
 
 
 def _check(name: str, value, *, positive: bool) -> float:

@@ -9,20 +9,22 @@ import numpy as np
 
 from pbdyn.perception.grid import UNKNOWN
 from pbdyn.planning import params
-from pbdyn.planning.gaze.yaw import clip_rate, heading, wrap_angle
+from pbdyn.planning.gaze.yaw import clip_rate, heading
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import View
+from pbdyn.world.geometry import wrap_angle
 
 
 class LookAhead:
     """Yaw toward the MAV's velocity (registry name "lookahead"; thesis eq. 4-1, 4-2).
 
-    rate = clip(wrap(heading - yaw) * gain, +-yaw_rate limit), so the MAV turns the shortest way and reaches the
-    heading in one step whenever the limit allows (default gain 1 / dt). The heading is that of the velocity; when
-    |v| < 1e-6 m/s, that of the plan's velocity at the next step, else the direction to the plan's last point, else
-    the direction to the goal; with none of them the rate is 0. ``at_rest = "hold"`` (the thesis program, its
-    PROGRAM_PARAMS): rate 0 whenever |v| < 1e-6 m/s.
+    rate = clip(wrap(heading - yaw) * gain, +-yaw_rate limit) with wrap into (-pi, pi] (-wrap_angle(yaw - heading),
+    pbdyn.world.geometry), so the MAV turns the shortest way (counter-clockwise when the heading is exactly behind)
+    and reaches the heading in one step whenever the limit allows (default gain 1 / dt). The heading is that of the
+    velocity; when |v| < 1e-6 m/s, that of the plan's velocity at the next step, else the direction to the plan's
+    last point, else the direction to the goal; with none of them the rate is 0. ``at_rest = "hold"`` (the thesis
+    program, its PROGRAM_PARAMS): rate 0 whenever |v| < 1e-6 m/s.
     """
 
     PROGRAM_PARAMS: dict = {"at_rest": "hold"}
@@ -56,7 +58,7 @@ class LookAhead:
         h = self.targetheading(view, trajectory)
         if h is None:
             return 0.0
-        return clip_rate(wrap_angle(h - view.yaw) * self.gain, self.limit)
+        return clip_rate((0.0 - wrap_angle(view.yaw - h)) * self.gain, self.limit)   # 0.0 - x: never -0.0
 
 
 class FullRange:

@@ -1,5 +1,6 @@
-"""Yaw arithmetic the gaze planners share (rad, rad/s): angle wrapping, headings, rate clipping, and the candidate
-rates and tie-break order of the sampled gaze planners (pbdyn.planning.gaze.finean, pbdyn.planning.gaze.owl)."""
+"""Yaw arithmetic the gaze planners share (rad, rad/s): headings, rate clipping, and the candidate rates and
+tie-break order of the sampled gaze planners (pbdyn.planning.gaze.finean, pbdyn.planning.gaze.owl). Angles are
+wrapped by pbdyn.world.geometry.wrap_angle."""
 
 from __future__ import annotations
 
@@ -11,11 +12,6 @@ from pbdyn.limits import MAX_PLAN_COUNT
 from pbdyn.planning import params
 
 _EPS = 1e-6
-
-
-def wrap_angle(x: float) -> float:
-    """Angle x (rad) wrapped into (-pi, pi]."""
-    return math.pi - (math.pi - x) % (2.0 * math.pi)
 
 
 def heading(vec: np.ndarray) -> float | None:
