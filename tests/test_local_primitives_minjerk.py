@@ -412,32 +412,35 @@ def test_parameters_are_validated():
 # ---------------------------------------------------------------- real trials
 
 def _fly_program(sc, rollout, start, goal, planner_cls=LocalPrimitivesMinJerk, v_max=None, gaze=None):
-    """One trial under the thesis_program rules (plans checked for form and continuity only; the planner's
-    context has physical False): (outcome, min clearance, peak plan speeds, peak plan accelerations), the peaks
-    per step over each returned plan (the agent clips the executed v and a to the limits)."""
-    from pbdyn.sim.agent import Agent, planner_context
-    from pbdyn.sim.batch import TrialBatch
+    """One trial under the thesis_program rules (the one switch: plans checked for form and continuity only, the
+    planner's context has physical False, the guard checks the form only): (outcome, min clearance, peak plan
+    speeds, peak plan accelerations), the peaks per step over each returned plan (the agent clips the executed v
+    and a to the limits)."""
+    from pbdyn.sim.agent import planner_context
     from pbdyn.sim.spec import make_trial_spec
+    from pbdyn.sim.trial import run_trial
 
     spec = make_trial_spec(sc, first_map(sc), planner="local_primitives_minjerk", gaze=gaze, start=start, goal=goal,
                            v_max=v_max)
     planner = planner_cls(replace(planner_context(spec), physical=False))
-    agent = Agent(spec, planner, None, physical=False)
-    # the thesis' rules executed as its program did: the core's guard checks the form only (docs/profiles.md)
-    batch = TrialBatch([spec], rollout, fov_deg=[agent.fov_deg], profile="thesis_program")
-    env = batch.states[0]
-    speeds, accs = [], []
-    try:
-        batch.start()
-        while not env.done:
-            decision = agent.act(env.view(agent.trajectory))
-            assert decision.violation is None and decision.plan_ok
-            speeds.append(np.linalg.norm(agent.trajectory.v, axis=1).max())
-            accs.append(np.linalg.norm(agent.trajectory.a, axis=1).max())
-            batch.step({0: decision.action})
-    finally:
-        batch.close()
-    return env.outcome.value, env.min_clearance, np.array(speeds), np.array(accs)
+    peaks = _PlanPeaks()
+    result = run_trial(spec, rollout, trajectory_planner=planner, observers=[peaks], execution="thesis_program")
+    return result.outcome, result.min_clearance_m, np.array(peaks.speeds), np.array(peaks.accs)
+
+
+class _PlanPeaks:
+    """Observer: each step's peak speed and acceleration over the plan in execution (every plan valid)."""
+
+    def __init__(self):
+        self.speeds, self.accs = [], []
+
+    def on_step(self, state, agent, decision, record):
+        assert decision.violation is None and decision.plan_ok and not agent.physical
+        self.speeds.append(np.linalg.norm(agent.trajectory.v, axis=1).max())
+        self.accs.append(np.linalg.norm(agent.trajectory.a, axis=1).max())
+
+    def on_end(self, state, agent):
+        pass
 
 
 def test_real_trials_succeed_in_open_space_under_the_thesis_program():

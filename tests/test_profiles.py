@@ -303,7 +303,7 @@ def test_thesis_program_gives_built_in_planners_their_program_parameters():
         agent = Agent(make_trial_spec(sc, get_map(sc, 0), start=(4.0, 4.0), goal=(46.0, 4.0)))
         assert agent.gaze.at_rest == ("hold" if profile == "thesis_program" else "plan")
         from pbdyn.sim.batch import TrialBatch
-        with TrialBatch([agent.spec], build_rollout(sc, get_map(sc, 0)), fov_deg=[agent.fov_deg]) as batch:
+        with TrialBatch([agent.spec], build_rollout(sc, get_map(sc, 0)), agents=[agent]) as batch:
             batch.start()                             # at rest facing +y; the goal lies along +x
             d = agent.act(batch.view(0, agent.trajectory))
         assert (d.action.yaw_rate == 0.0) == (profile == "thesis_program")
@@ -349,13 +349,12 @@ def test_program_brake_and_pixel_positions():
     spec = make_trial_spec(sc, get_map(sc, 0), planner="local_primitives_minjerk", gaze="lookahead",
                            start=(4.0, 4.0), goal=(46.0, 46.0))
     agent = Agent(spec)
-    batch = TrialBatch([spec], build_rollout(sc, get_map(sc, 0)), fov_deg=[agent.fov_deg])
+    batch = TrialBatch([spec], build_rollout(sc, get_map(sc, 0)), agents=[agent])
     batch.start()
     env = batch.states[0]
     off_grid = 0
     for _ in range(30):
-        d = agent.act(env.view(agent.trajectory))
-        batch.step({0: d.action})
+        batch.step()                              # the agent decides inside the core's step
         pix = env.position * 10.0
         np.testing.assert_array_equal(pix, np.round(pix))
         off_grid += int(np.any(np.abs(agent.trajectory.p[1] * 10.0 - np.round(agent.trajectory.p[1] * 10.0)) > 1e-6))

@@ -5,7 +5,6 @@ filter; the MPC's quadratically drifting obstacle prediction; and closed-loop tr
 from __future__ import annotations
 
 import tomllib
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,11 +18,9 @@ from pbdyn.planning.primitives.global_astar import (GlobalPrimitives, program_ac
 from pbdyn.planning.mpc.planner import MPC
 from pbdyn.planning.protocols import PlannerContext
 from pbdyn.planning.view import MAVLimits, Tracks, View
-from pbdyn.sim.agent import Agent, planner_context
 from pbdyn.sim.contract import check_plan
-from pbdyn.sim.batch import TrialBatch
 from pbdyn.outcome import Outcome
-from pbdyn.sim.trial import make_trial_spec
+from pbdyn.sim.trial import make_trial_spec, run_trial
 from pbdyn.world.maps import enumerate_maps
 from pbdyn.world.rollout import build_rollout
 from tests.helpers import make_tracks
@@ -163,30 +160,32 @@ def test_mpc_program_prediction_is_quadratic_in_the_step():
 
 def _fly_program(trajectory: str, start, goal):
     """One quickstart trial (map 0, 10 obstacles) of ``trajectory`` with its PROGRAM_PARAMS in the scenario's
-    trajectory_params, built with PlannerContext.physical = False and an Agent that checks continuity only."""
+    trajectory_params, flown under the thesis_program rules (run_trial's one switch: the planner built with
+    PlannerContext.physical = False, an Agent that checks continuity only, a guard that checks the form only)."""
     cls = registry.resolve_trajectory_planner(trajectory)
     doc = tomllib.loads(QUICKSTART.read_text())
     doc["planners"] = [{"trajectory": trajectory, "gaze": "fullrange", "trajectory_params": dict(cls.PROGRAM_PARAMS)}]
     sc = parse_scenario(doc)
     map_spec = enumerate_maps(sc)[0]
     spec = make_trial_spec(sc, map_spec, start=start, goal=goal)
-    planner = registry.build_planner(cls, replace(planner_context(spec), physical=False),
-                                     dict(spec.planner.trajectory_params), "planners[0].trajectory_params")
-    agent = Agent(spec, planner, physical=False)
-    # executed as the program did: the core's guard checks the form only (docs/profiles.md)
-    batch = TrialBatch([spec], build_rollout(sc, map_spec), fov_deg=[agent.fov_deg], profile="thesis_program")
-    env = batch.states[0]
-    planned = 0
-    try:
-        batch.start()
-        while not env.done:
-            decision = agent.act(env.view(agent.trajectory))
-            assert decision.violation is None, decision.violation
-            planned += decision.planned
-            batch.step({0: decision.action})
-        return env.outcome, env.steps, planned, planner
-    finally:
-        batch.close()
+    watch = _Planned()
+    result = run_trial(spec, build_rollout(sc, map_spec), observers=[watch], execution="thesis_program")
+    return Outcome(result.outcome), result.steps, watch.planned, watch.planner
+
+
+class _Planned:
+    """Observer: the plans asked for (every one valid) and the agent's planner."""
+
+    planned, planner = 0, None
+
+    def on_step(self, state, agent, decision, record):
+        assert decision.violation is None, decision.violation
+        assert not agent.physical and not agent.context.physical
+        self.planned += decision.planned
+        self.planner = agent.planner
+
+    def on_end(self, state, agent):
+        pass
 
 
 @pytest.mark.parametrize("trajectory", ["global_primitives", "mpc"])

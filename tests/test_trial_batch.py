@@ -5,6 +5,7 @@ move the MAV outside its limits; the acceleration action is integrated within th
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
 import math
@@ -19,10 +20,9 @@ from pbdyn.errors import ConfigError
 from pbdyn.outcome import Outcome
 from pbdyn.planning.primitives.local import LocalPrimitives
 from pbdyn.sim.batch import TrialBatch
-from pbdyn.sim.guard import Accel, breach, integrate
+from pbdyn.sim.guard import Accel, Action, breach, integrate
 from pbdyn.sim.observers import SPLITS, TraceObserver
 from pbdyn.sim.spec import make_trial_spec, with_planner_objects
-from pbdyn.sim.state import Action
 from pbdyn.sim.trial import _Log, _share_rest, fly, make_world, run_trial
 from pbdyn.world.maps import get_map
 from pbdyn.world.rollout import get_rollout
@@ -154,8 +154,10 @@ def test_a_teleport_to_the_goal_ends_the_trial_as_invalid_plan():
     with _open_batch() as batch:
         st = batch.states[0]
         goal = st.goal.copy()
-        ended = batch.step({0: Action(goal, np.zeros(2), np.zeros(2), 0.0)})
-        assert ended == [0] and batch.refused == [0] and batch.done
+        report = batch.step({0: Action(goal, np.zeros(2), np.zeros(2), 0.0)})
+        assert report.ended == (0,) and report.refused == (0,) and not report.errors and batch.done
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            report.ended = ()
         assert st.outcome is Outcome.INVALID_PLAN and st.steps == 0 and st.max_speed == 0.0
         assert st.reason.startswith("next state broke position_step:") and "a_max dt^2/4" in st.reason
         np.testing.assert_array_equal(st.position, [4.0, 4.0])
@@ -234,10 +236,31 @@ def test_step_needs_one_action_per_running_trial_and_the_gui_one_trial():
     with _open_batch(n=2) as batch:
         with pytest.raises(ValueError, match="missing \\[1\\]"):
             batch.step({0: Accel(np.zeros(2))})
-        with pytest.raises(ValueError, match="not running \\[5\\]"):
+        with pytest.raises(ValueError, match="not wanted \\[5\\]"):
             batch.step({0: Accel(np.zeros(2)), 1: Accel(np.zeros(2)), 5: Accel(np.zeros(2))})
         batch.step({0: Accel(np.zeros(2)), 1: Accel(np.array([1.0, 1.0]))})
         assert batch.running == [0, 1] and batch.states[0].k == 1
     ro, specs = _quickstart_specs(2)
     with pytest.raises(ValueError, match="one trial"):
         TrialBatch(specs, ro, gui=True)
+
+
+def test_one_switch_sets_the_agent_and_the_guard_and_a_bad_one_is_refused():
+    """run_trial's execution="thesis_program" on a physical scenario: the agent executes on the program's 0.1 m
+    pixels and the guard lets those steps through (the two rules agree: no invalid_plan); a bad value is one line."""
+    ro, specs = _quickstart_specs(1)
+    pixels = []
+
+    class OnPixels:
+        def on_step(self, state, agent, decision, record):
+            assert not agent.physical
+            pixels.append(np.array_equal(state.position * 10.0, np.round(state.position * 10.0)))
+
+        def on_end(self, state, agent):
+            pass
+
+    r = run_trial(specs[0], ro, observers=[OnPixels()], execution="thesis_program")
+    assert r.outcome != "invalid_plan" and len(pixels) == r.steps and all(pixels)
+    assert not run_trial(specs[0], ro).limits_exceeded
+    with pytest.raises(ValueError, match="execution must be one of physical, thesis_program"):
+        run_trial(specs[0], ro, execution="program")

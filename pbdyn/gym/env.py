@@ -71,10 +71,10 @@ class _CoreEnv(gymnasium.Env):
         spec = episode.spec
         rollout = self.episodes.rollout(spec)
         world = self.episodes.world_for(spec, rollout)
-        self._start(episode, rollout, world)
+        report = self._start(episode, rollout, world)
         st = self.batch.states[0]
-        if 0 in self.batch.errors:
-            raise self.batch.errors[0]
+        if 0 in report.errors:
+            raise report.errors[0]
         self._dist = vector_norm(st.position - st.goal)
         return observe(st, self.tracks, self.rays, self.patch), self._info(st, None)
 
@@ -84,9 +84,9 @@ class _CoreEnv(gymnasium.Env):
             raise RuntimeError("step() before reset() or after the episode ended; call reset()")
         st = self.batch.states[0]
         accel0 = st.acceleration
-        self._act(self._checked(action))
-        if 0 in self.batch.errors:
-            raise self.batch.errors[0]
+        report = self._act(self._checked(action))
+        if 0 in report.errors:
+            raise report.errors[0]
         dist = vector_norm(st.position - st.goal)
         outcome = st.outcome
         reward, terms = step_reward(self.reward_config, self._dist, dist, accel0, st.acceleration,
@@ -140,14 +140,13 @@ class AvoidEnv(_CoreEnv):
                          keep_worlds=keep_worlds)
         self.action_space = spaces.Box(-1.0, 1.0, (self.dims + 1,), np.float32)
 
-    def _start(self, episode: Episode, rollout, world) -> None:
+    def _start(self, episode: Episode, rollout, world):
         self.episode = episode
         self.batch = TrialBatch([episode.spec], rollout, world=world)
-        self.batch.start()
+        return self.batch.start()
 
-    def _act(self, a: np.ndarray) -> None:
-        st = self.batch.states[0]
-        self.batch.step({0: command(a, st.limits)})
+    def _act(self, a: np.ndarray):
+        return self.batch.step({0: command(a, self.batch.states[0].limits)})
 
 
 class PolicyYaw:
@@ -181,20 +180,14 @@ class GazeEnv(_CoreEnv):
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         self.agent: Agent | None = None
 
-    def _start(self, episode: Episode, rollout, world) -> None:
+    def _start(self, episode: Episode, rollout, world):
         spec = gaze_spec(episode.spec, self.planner)
         self.episode = replace(episode, spec=spec)
         self.gaze = PolicyYaw()
         self.agent = Agent(spec, None, self.gaze)
-        self.batch = TrialBatch([spec], rollout, world=world, fov_deg=[self.agent.fov_deg])
-        self.batch.start()
+        self.batch = TrialBatch([spec], rollout, world=world, agents=[self.agent])
+        return self.batch.start()
 
-    def _act(self, a: np.ndarray) -> None:
-        st = self.batch.states[0]
-        self.gaze.rate = float(a[0]) * st.limits.yaw_rate
-        decision = self.agent.act(st.view(self.agent.trajectory))
-        if decision.violation is not None:
-            self.batch.end(0, Outcome.INVALID_PLAN, decision.violation.reason)
-            self.batch.step({})
-        else:
-            self.batch.step({0: decision.action})
+    def _act(self, a: np.ndarray):
+        self.gaze.rate = float(a[0]) * self.batch.states[0].limits.yaw_rate
+        return self.batch.step()

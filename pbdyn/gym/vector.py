@@ -127,9 +127,9 @@ class _VectorCore(VectorEnv):
                 moves.setdefault(id(epoch), (epoch, {}))[1][b] = move
         for epoch in self.epochs:                           # every map steps once (joined trials begin there)
             got = moves.get(id(epoch))
-            epoch.batch.step(got[1] if got else {})
-            if epoch.batch.errors:
-                raise next(iter(epoch.batch.errors.values()))
+            report = epoch.batch.step(got[1] if got else {})
+            if report.errors:
+                raise next(iter(report.errors.values()))
         obs = np.zeros(self.observation_space.shape, np.float32)
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
@@ -171,13 +171,14 @@ class _VectorCore(VectorEnv):
         """The trial spec a drawn task (AvoidEnv's spec) is flown as."""
         return spec
 
-    def _joined(self, i: int, spec) -> float | None:
-        """Sub-environment i begins an episode of ``spec``; the trial's field of view (deg; None: the scenario's)."""
+    def _joined(self, i: int, spec):
+        """Sub-environment i begins an episode of ``spec``: the Agent that decides its steps (None: the policy's
+        actions)."""
         return None
 
     def _move(self, i: int, batch: TrialBatch, b: int, action: np.ndarray):
-        """The batch action of sub-environment i (trial b of ``batch``) for its clipped ``action``, or None when the
-        trial ended here (batch.end)."""
+        """The batch action of sub-environment i (trial b of ``batch``) for its clipped ``action``, or None when
+        the trial's agent decides (the policy's action has been handed to it)."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------------------------------------ parts
@@ -233,7 +234,7 @@ class _VectorCore(VectorEnv):
             if gap >= task.start_clearance:
                 break
         best = self._spec_of(best)
-        return epoch.batch.add(best, at, fov_deg=self._joined(i, best))
+        return epoch.batch.add(best, at, agent=self._joined(i, best))
 
     def _drop_finished_epochs(self) -> None:
         """Close the worlds of older maps whose episodes have all ended."""
@@ -282,20 +283,14 @@ class GazeVectorEnv(_VectorCore):
     def _spec_of(self, spec):
         return gaze_spec(spec, self.planner)
 
-    def _joined(self, i: int, spec) -> float | None:
+    def _joined(self, i: int, spec):
         gaze = PolicyYaw()
         self.agents[i] = (Agent(spec, None, gaze), gaze)
-        return self.agents[i][0].fov_deg
+        return self.agents[i][0]
 
     def _move(self, i: int, batch: TrialBatch, b: int, action: np.ndarray):
-        agent, gaze = self.agents[i]
-        st = batch.states[b]
-        gaze.rate = float(action[0]) * st.limits.yaw_rate
-        decision = agent.act(st.view(agent.trajectory))
-        if decision.violation is not None:
-            batch.end(b, Outcome.INVALID_PLAN, decision.violation.reason)
-            return None
-        return decision.action
+        self.agents[i][1].rate = float(action[0]) * batch.states[b].limits.yaw_rate
+        return None
 
 
 def _start_gap(rollout, start, mav_radius: float, at: int, window: int) -> float:

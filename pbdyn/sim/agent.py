@@ -21,7 +21,8 @@ from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve
 from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import MAVLimits, View
 from pbdyn.sim.contract import PlanViolation, check_plan, plan_violations
-from pbdyn.sim.state import Action, vector_norm
+from pbdyn.sim.guard import Action
+from pbdyn.sim.state import vector_norm
 from pbdyn.sim.spec import TrialSpec
 from pbdyn import usercode
 from pbdyn.usercode import UserCodeTimeout, quiet_user_code, time_budget, user_stdout
@@ -54,12 +55,14 @@ def _project(x: np.ndarray, limit: float) -> np.ndarray:
     return x * (limit / n) if n > limit else x
 
 
-def planner_context(spec: TrialSpec) -> PlannerContext:
-    """The fixed facts a trial's planners are constructed with."""
+def planner_context(spec: TrialSpec, physical: bool | None = None) -> PlannerContext:
+    """The fixed facts a trial's planners are constructed with (``physical``: the execution rules, default the
+    scenario's profile)."""
     sc = spec.scenario
     limits = MAVLimits(sc.drone.radius, spec.v_max, sc.drone.a_max, sc.drone.yaw_rate_limit)
     return PlannerContext(sc.world.dims, sc.world.dt, limits, np.zeros(sc.world.dims),
-                          np.asarray(sc.world.size, dtype=float), spec.seed, sc.physical)
+                          np.asarray(sc.world.size, dtype=float), spec.seed,
+                          sc.physical if physical is None else bool(physical))
 
 
 def profile_params(cls: type, params: dict, physical: bool) -> dict:
@@ -69,11 +72,12 @@ def profile_params(cls: type, params: dict, physical: bool) -> dict:
     return {**program, **params} if program else params
 
 
-def build_planners(spec: TrialSpec, trajectory=None, gaze=None):
+def build_planners(spec: TrialSpec, trajectory=None, gaze=None, physical: bool | None = None):
     """(context, trajectory planner, gaze planner) of a trial. ``trajectory``/``gaze``: a planner class (built
     with the context and the entry's params) or an instance (used as it is) instead of the spec's named ones.
-    Under the thesis_program profile built-in planners get their PROGRAM_PARAMS (profile_params)."""
-    ctx = planner_context(spec)
+    Under the thesis_program rules (``physical`` False; default: the scenario's profile) built-in planners get
+    their PROGRAM_PARAMS (profile_params)."""
+    ctx = planner_context(spec, physical)
     idx = next((i for i, e in enumerate(spec.scenario.planners) if e == spec.planner), 0)
     objs = []
     for kind, given, name, params, resolve in (
@@ -111,16 +115,18 @@ class Agent:
     planning state ("PLANNING" or "EXECUTING"). ``physical`` (default: the scenario's profile): True enforces the
     MAV's limits on every plan and on the executed state; False (thesis_program) checks only a plan's form and
     continuity and executes its samples as the thesis' program did: the position rounded to its 0.1 m pixels,
-    velocity and acceleration as planned; and it brakes as the program did (program_brake). ``violations``: every broken
-    check of the plan that ended the trial (empty while plans are valid)."""
+    velocity and acceleration as planned; and it brakes as the program did (program_brake). The same switch builds
+    its planners under those rules (planner_context, profile_params) and, in a TrialBatch, sets the rules the guard
+    executes its trial by. ``violations``: every broken check of the plan that ended the trial (empty while plans
+    are valid)."""
 
     def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool | None = None):
         self.spec = spec
+        self.physical = spec.scenario.physical if physical is None else bool(physical)
         with quiet_user_code():  # plug-ins' prints while they are built go to stderr (Python and C level)
-            self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze)
+            self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze, self.physical)
         self.limits = self.context.limits
         self._plugin = any(not type(x).__module__.startswith("pbdyn.") for x in (self.planner, self.gaze))
-        self.physical = spec.scenario.physical if physical is None else bool(physical)
         self.fov_deg = getattr(self.gaze, "fov_deg", None)
         self.trajectory: Trajectory | None = None
         self.state = "PLANNING"

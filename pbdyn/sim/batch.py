@@ -8,8 +8,10 @@ the map sees the same obstacle poses at the same rollout step; they are posed on
 MAVs' ray fans are culled and cast in one Bullet batch (PyBulletWorld.cast_fans_many), the Kalman trackers of one
 model step together (pbdyn.perception.tracker.TrackerBank), and the swept checks of the moves against the same
 obstacles run in one evaluation (collision.swept_dynamic_many). A single trial takes the same path with one member
-(then the unshared calls, which give the same floats). The decisions (4)-(5) come from outside: an agent per trial
-(pbdyn.sim.trial.fly), a Gymnasium policy, a test.
+(then the unshared calls, which give the same floats). The decisions (4)-(5) come from an agent given with the trial
+(pbdyn.sim.agent.Agent: the batch asks it each step, and a plan that breaks the plan contract ends the trial) or,
+for a trial without one, from the caller's action each step (a Gymnasium policy, a test). Observers attached to a
+trial (``watch``) see each of its steps and its end, whoever drives it.
 
 Time: a trial starts at the tick of its start step k0 (the start rule, pbdyn.sim.start), so at tick T every running
 trial senses rollout step T (T + 1 with sensor.obstacles_at = "next"). A trial whose setup, sensing or checks raise
@@ -19,86 +21,113 @@ ends alone (``errors``); the others fly on.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
 from pbdyn.outcome import Outcome
 from pbdyn.perception.perceive import Detections, PendingScan
 from pbdyn.perception.tracker import TrackerBank, TrackIdError
-from pbdyn.sim.guard import Accel, breach, integrate
+from pbdyn.sim.guard import Accel, Action, breach, integrate
+from pbdyn.sim.observers import StepRecord
 from pbdyn.sim.spec import TrialSpec
-from pbdyn.sim.state import Action, TrialState, check_dynamic_many, make_world
+from pbdyn.sim.state import TrialState, check_dynamic_many, make_world
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
+
+
+@dataclass(frozen=True)
+class StepReport:
+    """What one start() or step() of a TrialBatch did. ``ended``: the trials that ended in it (those ended by end()
+    or by their agent's broken plan first, then in stepping order); ``refused``: those of them the guard ended
+    without a move (invalid_plan); ``errors``: trial index -> the exception that ended that trial in it (a setup,
+    an agent, sensing, a check or an observer that raised; such a trial is not in ``ended``: its row is an error);
+    ``splits``: trial index -> the wall-time splits (s, pbdyn.sim.observers.SPLITS order) of each trial that moved."""
+
+    ended: tuple[int, ...] = ()
+    refused: tuple[int, ...] = ()
+    errors: Mapping[int, BaseException] = field(default_factory=lambda: MappingProxyType({}))
+    splits: Mapping[int, tuple[float, ...]] = field(default_factory=lambda: MappingProxyType({}))
 
 
 class TrialBatch:
     """Trials ``specs`` (of one map and scenario; any mix of planner pairs, MAV speeds and start/goal pairs) on
     ``rollout``, in ``world`` (make_world of that map; lent, left open) or in a world of their own (closed by
-    close(); ``gui`` shows it). ``fov_deg``: per trial, the sensor's field of view (deg; None: the scenario's), as a
-    gaze planner may set it. ``profile``: the execution rules of the guard ("physical" or "thesis_program"; default:
-    the scenario's profile; pbdyn.sim.guard).
+    close(); ``gui`` shows it). ``agents``: per trial, the pbdyn.sim.agent.Agent that decides its steps (None: the
+    caller gives its actions); an agent also sets its trial's sensor field of view (its gaze planner's) and the
+    rules the guard executes by (its ``physical``: the one switch, pbdyn.sim.guard); a trial without one follows
+    its scenario's profile. ``start_steps``: per trial, the rollout step it begins at (None: the start rule's).
 
-    Use: ``start()``; then, while not ``done``: for every index in ``running``, read ``states[i]`` (or ``view(i)``)
-    and give it an Action or Accel (or ``end(i, ...)`` it), then ``step(actions)``. After ``step``, ``ended`` lists
-    the trials that ended in it and ``refused`` those the guard ended there, without a move. ``errors`` maps the
-    index of a trial that raised to its exception (its state, if any, is left as it was)."""
+    Use: ``start()``; then, while not ``done``: read ``states[i]`` (or ``view(i)``) of the ``running`` trials and
+    call ``step(actions)`` with an Action or Accel for each running trial without an agent (or ``end(i, ...)`` it).
+    Both return a StepReport (ended, refused, errors, splits)."""
 
     def __init__(self, specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None,
-                 fov_deg: Sequence[float | None] | None = None, gui: bool = False, profile: str | None = None,
+                 agents: Sequence | None = None, gui: bool = False,
                  start_steps: Sequence[int | None] | None = None, capacity: int | None = None):
         specs = list(specs)
         if not specs and world is None:
             raise ValueError("a TrialBatch needs a trial or a world (trials added later: add())")
         if gui and len(specs) > 1:
             raise ValueError("the GUI shows one trial: a batch with gui=True must hold one trial")
-        fov = list(fov_deg) if fov_deg is not None else [None] * len(specs)
+        agents = list(agents) if agents is not None else [None] * len(specs)
         starts = list(start_steps) if start_steps is not None else [None] * len(specs)
-        if len(fov) != len(specs) or len(starts) != len(specs):
-            raise ValueError(f"fov_deg and start_steps need one entry for each of the {len(specs)} trials")
+        if len(agents) != len(specs) or len(starts) != len(specs):
+            raise ValueError(f"agents and start_steps need one entry for each of the {len(specs)} trials")
         self.specs = specs
         self.rollout = rollout
-        self.errors: dict[int, BaseException] = {}
+        self._errors: dict[int, BaseException] = {}
         self.owns_world = world is None
         self.world = make_world(specs[0], rollout, gui=gui) if world is None else world
         self.states: list[TrialState | None] = []
         self.setup_s: list[float] = []
+        self._agents: list = []
+        self._physical: list[bool] = []
+        self._observers: dict[int, list] = {}
         try:
             for i, spec in enumerate(specs):
                 t0 = time.perf_counter()
                 try:
-                    self.states.append(TrialState(spec, rollout, self.world, fov_deg=fov[i], start_step=starts[i]))
+                    self._admit(spec, starts[i], agents[i])
                 except Exception as exc:
                     self.states.append(None)
-                    self.errors[i] = exc
+                    self._agents.append(None)
+                    self._physical.append(True)
+                    self._errors[i] = exc
                 self.setup_s.append(time.perf_counter() - t0)
         except BaseException:
             self.close()
             raise
-        self._profile = profile
-        self._physical = [s.scenario.physical if profile is None else profile == "physical" for s in specs]
         capacity = len(specs) if capacity is None else capacity
         self._banks = _Banks(capacity) if capacity > 1 else None
         self.running: list[int] = []
         self.waiting: list[int] = []
-        self.ended: list[int] = []
         self._ended_early: list[int] = []
-        self.refused: list[int] = []
         self.tick = 0
         self.sensed_at = 0.0          # perf_counter() when the last step's sensing of the next tick began
 
+    def _admit(self, spec: TrialSpec, start_step: int | None, agent) -> None:
+        """Append a trial's state, agent and guard rules (its agent's, else its scenario's)."""
+        fov = None if agent is None else agent.fov_deg
+        self.states.append(TrialState(spec, self.rollout, self.world, fov_deg=fov, start_step=start_step))
+        self._agents.append(agent)
+        self._physical.append(spec.scenario.physical if agent is None else agent.physical)
+
     # ------------------------------------------------------------------------------------------------ episode
-    def start(self) -> None:
+    def start(self) -> StepReport:
         """Start the batch: the trials whose start step is the earliest begin and sense (steps (1)-(3) at t_0);
-        the others begin at the tick of their own start step."""
+        the others begin at the tick of their own start step. The report's errors: the trials that failed to set
+        up or to begin."""
         ok = [i for i, s in enumerate(self.states) if s is not None]
         self.waiting = sorted(ok, key=lambda i: (self.states[i].k0, i))
         self.running = []
-        self.ended = []
         self._ended_early = []
         self.tick = self.states[self.waiting[0]].k0 if self.waiting else 0
         self._begin_tick()
+        errors, self._errors = self._errors, {}
+        return StepReport(errors=MappingProxyType(errors))
 
     @property
     def done(self) -> bool:
@@ -116,25 +145,21 @@ class TrialBatch:
         self.running.remove(i)
         self._ended_early.append(i)
 
-    def fail(self, i: int, exc: BaseException) -> None:
-        """Record that trial ``i`` raised ``exc``: it leaves the batch (an "error" row for batch workers)."""
-        self.errors[i] = exc
-        if i in self.running:
-            self.running.remove(i)
-        if i in self.waiting:
-            self.waiting.remove(i)
+    def watch(self, i: int, observers) -> None:
+        """Attach ``observers`` (pbdyn.sim.observers.Observer) to trial ``i``: each sees every step it moves in and
+        its end (not an end by an exception)."""
+        self._observers.setdefault(i, []).extend(observers)
 
-    def add(self, spec: TrialSpec, start_step: int, *, fov_deg: float | None = None) -> int:
+    def add(self, spec: TrialSpec, start_step: int, *, agent=None) -> int:
         """Add a trial of the batch's map that begins at rollout step ``start_step`` (>= the next tick: it begins
-        and senses with the others when the batch reaches that tick); returns its index. A vector environment's
-        next episodes join a running batch so."""
+        and senses with the others when the batch reaches that tick), decided by ``agent`` (or by the caller's
+        actions); returns its index. A vector environment's next episodes join a running batch so."""
         if start_step <= self.tick:
             raise ValueError(f"a trial added at tick {self.tick} must start at a later tick (got {start_step})")
         i = len(self.states)
+        self._admit(spec, start_step, agent)
         self.specs.append(spec)
-        self.states.append(TrialState(spec, self.rollout, self.world, fov_deg=fov_deg, start_step=start_step))
         self.setup_s.append(0.0)
-        self._physical.append(spec.scenario.physical if self._profile is None else self._profile == "physical")
         at = len(self.waiting)
         while at and self.states[self.waiting[at - 1]].k0 > start_step:
             at -= 1
@@ -147,56 +172,116 @@ class TrialBatch:
         if self._banks is not None:
             self._banks.release(i)
 
-    def step(self, actions: dict) -> list[int]:
-        """Steps (6)-(7) for every running trial with its action (an Action, or an Accel integrated within the limits),
-        then the next tick's sensing. An action the guard refuses ends its trial as invalid_plan (pbdyn.sim.guard).
-        Returns the trials that ended in this step (also ``ended``). Every running trial needs an action."""
-        running = self.running
-        if len(actions) != len(running) or not all(i in actions for i in running):
-            missing = [i for i in self.running if i not in actions]
-            extra = sorted(set(actions) - set(self.running))
-            raise ValueError(f"step() needs one action per running trial: missing {missing}, not running {extra}")
+    def step(self, actions: Mapping | None = None) -> StepReport:
+        """One step of every running trial: a trial with an agent decides (steps (4)-(5); a plan that breaks the
+        plan contract ends it as invalid_plan), every other running trial takes its action in ``actions`` (an
+        Action, or an Accel integrated within the limits); the guard checks each next state and refuses a breach
+        (invalid_plan, pbdyn.sim.guard); the trials move and are checked ((6)-(7)); the next tick's trials begin and
+        every running trial senses ((1)-(3)); observers see the steps and the ends. Returns the StepReport."""
+        actions = {} if actions is None else actions
         ended, self._ended_early = self._ended_early, []
-        if self.refused:
-            self.refused = []
-        moves = []
+        errors, self._errors = self._errors, {}
+        agents, states = self._agents, self.states
+        decisions: dict = {}
+        for i in list(self.running):                      # (4)-(5): the agents decide
+            agent = agents[i]
+            if agent is None:
+                continue
+            st = states[i]
+            try:
+                decision = agent.act(st.view(agent.trajectory))
+            except Exception as exc:
+                errors[i] = exc
+                self.running.remove(i)
+                continue
+            if decision.violation is not None:
+                st.end(Outcome.INVALID_PLAN, decision.violation.reason)
+                self.running.remove(i)
+                ended.append(i)
+            else:
+                decisions[i] = decision
+        running = self.running
+        if len(actions) + len(decisions) != len(running) or not all(i in actions or i in decisions for i in running):
+            missing = [i for i in running if i not in actions and i not in decisions]
+            extra = sorted(set(actions) - set(running) | set(actions) & set(decisions))
+            raise ValueError(f"step() needs one action per running trial without an agent: missing {missing}, "
+                             f"not wanted {extra}")
+        refused, moves = [], []
         for i in running:
-            st = self.states[i]
-            act = actions[i]
+            st = states[i]
+            decision = decisions.get(i)
+            act = actions[i] if decision is None else decision.action
             try:
                 if isinstance(act, Accel):
                     act = integrate(act, st.position, st.velocity, st.limits, st.dt)
                 why = breach(act, st.position, st.velocity, st.limits, st.dt, self._physical[i]) \
                     if isinstance(act, Action) else f"next state broke form (an Action or an Accel, got {act!r})"
             except Exception as exc:
-                self.errors[i] = exc
+                errors[i] = exc
                 continue
             if why is not None:
                 st.end(Outcome.INVALID_PLAN, why)
                 st.collision_wall_s = 0.0
-                self.refused = self.refused + [i]
+                refused.append(i)
                 ended.append(i)
                 continue
             moves.append((i, act))
         contacts = self._dynamic_contacts(moves) if len(moves) > 1 else None
-        still = []
+        still, splits, records = [], {}, []
         for i, act in moves:
-            st = self.states[i]
+            st = states[i]
             contact = contacts.get(i) if contacts else None
+            before = self._before(i, st) if i in self._observers else None
             try:
-                st.move(act, None if contact is None else contact[0])
+                st._move(act, None if contact is None else contact[0])
             except Exception as exc:
-                self.errors[i] = exc
+                errors[i] = exc
                 continue
             if contact is not None:
                 st.collision_wall_s += contact[1]
+            decision = decisions.get(i)
+            splits[i] = (*st.sense_timings, *((decision.planning_wall_s, decision.gaze_wall_s) if decision
+                                               else (0.0, 0.0)), st.collision_wall_s)
+            if before is not None:
+                records.append((i, act, decision, before))
             (ended if st.outcome is not None else still).append(i)
         self.running = still
-        self.ended = ended
         self.tick += 1
         self.sensed_at = time.perf_counter()
         self._begin_tick()
-        return ended
+        errors.update(self._errors)
+        self._errors = {}
+        for i, act, decision, before in records:
+            self._notify(i, errors, "step", StepRecord(*before[:5], self._rate(i, act), *(
+                (decision.planned, decision.plan_ok) if decision else (False, True)), *before[5:], splits[i]),
+                decision)
+        for i in ended:
+            if i in self._observers:
+                self._notify(i, errors, "end")
+        return StepReport(tuple(i for i in ended if i not in errors), tuple(refused), MappingProxyType(errors),
+                          MappingProxyType(splits))
+
+    def _before(self, i: int, st: TrialState) -> tuple:
+        """What trial i's observers get of t_k (taken before its move)."""
+        return st.t, st.position, st.velocity, st.acceleration, st.yaw, st.tracks, st.detections.ids
+
+    def _rate(self, i: int, act: Action) -> float:
+        lim = self.states[i].limits.yaw_rate
+        return min(max(act.yaw_rate, -lim), lim)
+
+    def _notify(self, i: int, errors: dict, what: str, record=None, decision=None) -> None:
+        """Trial i's observers' on_step (``record``) or on_end; one that raises ends the trial with its exception."""
+        if i in errors:
+            return
+        st, agent = self.states[i], self._agents[i]
+        try:
+            for w in self._observers[i]:
+                if what == "step":
+                    w.on_step(st, agent, decision, record)
+                else:
+                    w.on_end(st, agent)
+        except Exception as exc:
+            errors[i] = exc
 
     def close(self) -> None:
         """Disconnect the PyBullet client if the batch made its world (a lent world stays open)."""
@@ -220,7 +305,7 @@ class TrialBatch:
                 if self._banks is not None:
                     self._banks.attach(i, st)
             except Exception as exc:
-                self.errors[i] = exc
+                self._errors[i] = exc
                 continue
             self.running.append(i)
         if self.running:
@@ -257,7 +342,7 @@ class TrialBatch:
             st.track()                                                      # (3)
             c3 = time.perf_counter()
         except Exception as exc:
-            self.errors[i] = exc
+            self._errors[i] = exc
             failed.add(i)
             return
         st.sense_timings = (c1 - c0, c2 - c1, c3 - c2)
@@ -282,7 +367,7 @@ class TrialBatch:
                     world.set_mav_pose(st.position, st.yaw)
                 frame = st.perception.begin_frame(st.position, st.yaw)
             except Exception as exc:
-                self.errors[i] = exc
+                self._errors[i] = exc
                 failed.add(i)
                 continue
             if isinstance(frame, Detections):
@@ -301,7 +386,7 @@ class TrialBatch:
                     try:
                         cast.append((i, o, dirs_t, *world.cast_fan_rays(world.fan_rays(o, dirs_t.T, range_m))))
                     except Exception as exc:
-                        self.errors[i] = exc
+                        self._errors[i] = exc
                         failed.add(i)
             share = (time.perf_counter() - c1) / max(len(cast), 1)
             for i, o, dirs_t, hit_ids, hit_frac in cast:
@@ -310,7 +395,7 @@ class TrialBatch:
                 try:
                     st.detections = st.perception.complete(PendingScan(o, dirs_t, None), hit_ids, hit_frac)
                 except Exception as exc:
-                    self.errors[i] = exc
+                    self._errors[i] = exc
                     failed.add(i)
                     continue
                 rays[i] = share + time.perf_counter() - t0
@@ -319,7 +404,7 @@ class TrialBatch:
             {i: _track_one(states[i]) for i in sensed}
         for i, got in tracked.items():
             if isinstance(got, Exception):
-                self.errors[i] = got
+                self._errors[i] = got
                 failed.add(i)
                 continue
             states[i].sense_timings = (pose_share, rays[i], got)

@@ -26,7 +26,6 @@ import numpy as np
 
 from pbdyn.planning.view import MAVLimits
 from pbdyn.sim.contract import REL_TOL, START_TOL
-from pbdyn.sim.state import Action
 
 GUARD_CHECKS = ("form", "speed", "acceleration", "velocity_step", "position_step")
 """The guard's checks, in the order they are applied."""
@@ -38,6 +37,20 @@ _EXPLAIN = {
     "velocity_step": "|v_k+1 - v_k| <= a_max dt",
     "position_step": "|p_k+1 - p_k - (v_k + v_k+1) dt/2| <= a_max dt^2/4",
 }
+
+
+@dataclass(frozen=True)
+class Action:
+    """What the MAV does from t_k to t_k+1: its state at t_k+1 (p m, v m/s, a m/s^2, world frame [d]), its yaw
+    rate (rad/s; clipped to the limit by the core) and its consecutive planning failures (for the deadlock rule; 0
+    for callers without a planner). The core executes it only within the MAV's limits (pbdyn.sim.guard); callers
+    without a planner may give an acceleration command instead (pbdyn.sim.guard.Accel)."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    yaw_rate: float
+    consecutive_failures: int = 0
 
 
 @dataclass(frozen=True)

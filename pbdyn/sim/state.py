@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,6 +20,7 @@ from pbdyn.perception.perceive import Perception
 from pbdyn.perception.tracker import KalmanTracks
 from pbdyn.perception.tracks import readonly
 from pbdyn.planning.view import MAVLimits, View
+from pbdyn.sim.guard import Action
 from pbdyn.sim.collision import (DynamicContact, sampled_dynamic, sampled_static, shape_dynamic, swept_dynamic,
                                  swept_dynamic_many, swept_static)
 from pbdyn.outcome import Outcome
@@ -42,20 +42,6 @@ GOAL_TIE_M = 1e-9  # m: under thesis_program a distance this far above goal_radi
 
 SENSE_SPLITS = ("wall_world_s", "wall_rays_s", "wall_tracking_s")
 """Wall-time splits of steps (1), (2), (3)."""
-
-
-@dataclass(frozen=True)
-class Action:
-    """What the MAV does from t_k to t_k+1: its state at t_k+1 (p m, v m/s, a m/s^2, world frame [d]), its yaw
-    rate (rad/s; clipped to the limit by the core) and its consecutive planning failures (for the deadlock rule; 0
-    for callers without a planner). The core executes it only within the MAV's limits (pbdyn.sim.guard); callers
-    without a planner may give an acceleration command instead (pbdyn.sim.guard.Accel)."""
-
-    position: np.ndarray
-    velocity: np.ndarray
-    acceleration: np.ndarray
-    yaw_rate: float
-    consecutive_failures: int = 0
 
 
 def make_world(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, client=None) -> PyBulletWorld:
@@ -230,8 +216,8 @@ class TrialState:
                              self.goal_radius, self.limits, lo, hi, self.grid, self.tracks, trajectory, self.fov_deg,
                              sc.sensor.range, sc.sensor.vfov_deg)
 
-    def move(self, action: Action, dynamic: DynamicContact | None = None) -> None:
-        """Steps (6)-(7) of an action the batch's guard let through: the MAV to the action's state at t_k+1, turned
+    def _move(self, action: Action, dynamic: DynamicContact | None = None) -> None:
+        """Steps (6)-(7) of an action the batch's guard let through (only TrialBatch.step calls it): the MAV to the action's state at t_k+1, turned
         by the clipped yaw rate; then static collision, dynamic collision, goal, time limit and deadlock, in that
         order; the first that holds ends the trial. ``dynamic``: this move's obstacle contact when the batch checked
         it together with other trials' (dynamic_batch_key)."""

@@ -17,11 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from pbdyn import usercode
-from pbdyn.outcome import Outcome
 from pbdyn.planning.registry import recorded_fingerprint
 from pbdyn.sim.agent import Agent, brake, build_planners
 from pbdyn.sim.batch import TrialBatch
-from pbdyn.sim.observers import SPLITS, ProfileObserver, StepRecord, TraceObserver
+from pbdyn.sim.observers import SPLITS, ProfileObserver, TraceObserver
 from pbdyn.sim.result import TrialResult
 from pbdyn.sim.spec import TrialSpec, make_trial_spec
 from pbdyn.sim.state import TrialState, make_world
@@ -29,14 +28,18 @@ from pbdyn.usercode import decision_watchdog
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
-__all__ = ["SPLITS", "TrialBatch", "TrialSpec", "brake", "build_planners", "fly", "make_trial_spec", "make_world",
-           "run_trial"]
+__all__ = ["EXECUTIONS", "SPLITS", "TrialBatch", "TrialSpec", "brake", "build_planners", "fly", "make_trial_spec",
+           "make_world", "run_trial"]
+
+
+EXECUTIONS = ("physical", "thesis_program")
+"""The execution rules a flight may be switched to (docs/profiles.md): they set the agents and the guard together."""
 
 
 def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_path: str | Path | None = None,
               gui_sleep: float = 0.0, profile: dict | None = None, world: PyBulletWorld | None = None,
               trajectory_planner=None, gaze_planner=None, observers: list | None = None,
-              gui_follow: bool = False) -> TrialResult:
+              gui_follow: bool = False, execution: str | None = None) -> TrialResult:
     """Fly one trial (a batch of one) and return its TrialResult; what the trial raised is raised.
 
     gui: show the PyBullet GUI (pbdyn.sim.gui.GuiView: the arena framed, or followed with ``gui_follow``; field of
@@ -46,7 +49,7 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
     "planned" (True where replan_check asked for a plan).
     world: a PyBulletWorld from make_world for this map to reuse (batch workers); it is left open.
     trajectory_planner, gaze_planner: a planner class or instance used instead of the spec's named one (the
-    row keeps the spec's names). observers: extra observers (pbdyn.sim.observers.Observer).
+    row keeps the spec's names). observers: extra observers (pbdyn.sim.observers.Observer). execution: as fly's.
     """
     watchers = list(observers or [])
     if profile is not None:
@@ -58,12 +61,13 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
 
         watchers.append(GuiView(spec.scenario.world.dt, follow=gui_follow, real_time=gui_sleep > 0))
     return fly([spec], rollout, world=world, gui=gui, observers=[watchers],
-               planners=[(trajectory_planner, gaze_planner)], raise_errors=True)[0]
+               planners=[(trajectory_planner, gaze_planner)], raise_errors=True, execution=execution)[0]
 
 
 def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None, gui: bool = False,
         observers: Sequence[list] | None = None, planners: Sequence[tuple] | None = None,
-        step_walls: list | None = None, on_result=None, raise_errors: bool = False) -> list:
+        step_walls: list | None = None, on_result=None, raise_errors: bool = False,
+        execution: str | None = None) -> list:
     """Fly ``specs`` (trials of one map and scenario, in any mix of planner pairs, MAV speeds and start/goal pairs)
     together on ``rollout``: one TrialBatch, one Agent per trial. Returns, per spec in order, its TrialResult or the
     Exception that ended it (a planner or trial that raises ends only its own trial; ``raise_errors``: the first such
@@ -71,10 +75,15 @@ def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | 
 
     world: make_world of that map to use (left open); else the batch makes its own (``gui``: shown; a batch of one).
     observers: per trial, a list of observers (pbdyn.sim.observers.Observer). planners: per trial, (trajectory,
-    gaze) classes or instances used instead of the spec's named ones (None: the spec's). step_walls: a list that
-    receives, per spec in order, the wall time (s) of each of its steps: its own parts, its share of the shared work
-    and of the rest of the tick (_share_rest), so that the steps account for the loop's time. on_result(index,
-    result_or_exception) is called as each trial ends (batch workers stream rows)."""
+    gaze) classes or instances used instead of the spec's named ones (None: the spec's). execution: the one switch
+    of the execution rules, "physical" or "thesis_program" (EXECUTIONS; default: each scenario's profile): it sets
+    the agents (their plan checks, braking and planners' parameters) and the guard together. step_walls: a list
+    that receives, per spec in order, the wall time (s) of each of its steps: its own parts, its share of the
+    shared work and of the rest of the tick (_share_rest), so that the steps account for the loop's time.
+    on_result(index, result_or_exception) is called as each trial ends (batch workers stream rows)."""
+    if execution is not None and execution not in EXECUTIONS:
+        raise ValueError(f"execution must be one of {', '.join(EXECUTIONS)} or None (got {execution!r})")
+    physical = None if execution is None else execution == "physical"
     n = len(specs)
     out = _Results(n, on_result)
     watchers = [list(w) for w in observers] if observers is not None else [[] for _ in range(n)]
@@ -84,7 +93,7 @@ def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | 
     for i, spec in enumerate(specs):
         t0 = time.perf_counter()
         try:
-            agents[i] = Agent(spec, *given[i])
+            agents[i] = Agent(spec, *given[i], physical=physical)
         except Exception as exc:
             if raise_errors:
                 raise
@@ -95,14 +104,16 @@ def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | 
     if flying:
         t0 = time.perf_counter()
         batch = TrialBatch([specs[i] for i in flying], rollout, world=world, gui=gui,
-                           fov_deg=[agents[i].fov_deg for i in flying])
+                           agents=[agents[i] for i in flying])
         world_share = (time.perf_counter() - t0 - sum(batch.setup_s)) / len(flying)
         try:
             for b, i in enumerate(flying):
                 logs[i] = _Log(agent_s[i] + batch.setup_s[b] + world_share)
+                if watchers[i]:
+                    batch.watch(b, watchers[i])
             budget = usercode.PLANNER_CALL_TIMEOUT_S    # one timer for the loop: plug-ins' decisions are budgeted
             with (decision_watchdog(budget) if any(agents[i].plugin for i in flying) else contextlib.nullcontext()):
-                _Flight(batch, flying, specs, rollout, agents, watchers, logs, out).run()
+                _flight(batch, flying, specs, rollout, agents, logs, out)
         finally:
             batch.close()
     if raise_errors:
@@ -136,107 +147,43 @@ class _Results:
             self.on_result(i, value)
 
 
-class _Flight:
-    """The loop of fly(): each tick, every running trial's agent decides (steps (4)-(5)), the batch steps them all
-    ((6)-(7) and the next sensing), the observers watch, and the trials that ended become results."""
-
-    def __init__(self, batch: TrialBatch, flying: list[int], specs, rollout: Rollout, agents: list, watchers: list,
-                 logs: dict, out: _Results):
-        self.batch, self.flying, self.specs, self.rollout = batch, flying, specs, rollout
-        self.agents, self.watchers, self.logs, self.out = agents, watchers, logs, out
-        self.reported: set[int] = set()
-
-    def run(self) -> None:
-        batch, flying, agents, logs = self.batch, self.flying, self.agents, self.logs
-        watching = any(self.watchers[i] for i in flying)
-        states = batch.states
-        window = time.perf_counter()             # a tick's window: from its sensing to the next tick's sensing
-        batch.start()
-        self._errors()
-        results_s = 0.0                          # the results made in the window: not part of its steps
-        while not batch.done:
-            acting = []
-            actions = {}
-            for b in list(batch.running):        # (4)-(5): every trial decides
-                st = states[b]
-                agent = agents[flying[b]]
+def _flight(batch: TrialBatch, flying: list[int], specs, rollout: Rollout, agents: list, logs: dict,
+            out: _Results) -> None:
+    """The loop of fly(): each tick the batch steps every trial (its agent decides, the guard, the move and the
+    checks, the next sensing, the observers), each step's wall times are logged, and the trials that ended become
+    results (those that raised, their exceptions)."""
+    window = time.perf_counter()                 # a tick's window: from its sensing to the next tick's sensing
+    report = batch.start()
+    for b, exc in report.errors.items():
+        out[flying[b]] = exc
+    results_s = 0.0                              # the results made in the window: not part of its steps
+    while not batch.done:
+        report = batch.step()                    # (4)-(7), then the next tick's (1)-(3)
+        for b, exc in report.errors.items():
+            out[flying[b]] = exc
+        stepped = []
+        for b, splits in report.splits.items():
+            if b in report.errors:
+                continue
+            log = logs[flying[b]]
+            timings = log.timings
+            for name, value in zip(SPLITS, splits):
+                timings[name] += value
+            log.step_walls.append(sum(splits))
+            log.plan_walls.append(splits[3])
+            stepped.append(log)
+        _share_rest(stepped, batch.sensed_at - window - results_s)
+        window = batch.sensed_at
+        results_s = 0.0
+        if report.ended:
+            t0 = time.perf_counter()
+            for b in report.ended:
+                i = flying[b]
                 try:
-                    decision = agent.act(st.view(agent.trajectory))
+                    out[i] = _result(specs[i], rollout, batch.states[b], agents[i], logs[i])
                 except Exception as exc:
-                    batch.fail(b, exc)
-                    continue
-                if decision.violation is not None:
-                    batch.end(b, Outcome.INVALID_PLAN, decision.violation.reason)
-                else:
-                    acting.append((b, decision, st.sense_timings, self._record_at(b) if watching else None))
-                    actions[b] = decision.action
-            ended = batch.step(actions)          # (6)-(7), then the next tick's (1)-(3)
-            if batch.errors:
-                self._errors()
-            refused = batch.refused
-            stepped = []
-            for b, decision, sensed, record_at in acting:
-                if refused and b in refused or b in batch.errors:
-                    continue
-                log = logs[flying[b]]
-                splits = (*sensed, decision.planning_wall_s, decision.gaze_wall_s, states[b].collision_wall_s)
-                timings = log.timings
-                for name, value in zip(SPLITS, splits):
-                    timings[name] += value
-                log.step_walls.append(sum(splits))
-                log.plan_walls.append(decision.planning_wall_s)
-                stepped.append(log)
-                if record_at is not None:
-                    self._watch(b, decision, record_at, splits)
-            _share_rest(stepped, batch.sensed_at - window - results_s)
-            window = batch.sensed_at
-            results_s = 0.0
-            if ended:
-                t0 = time.perf_counter()
-                for b in ended:
-                    self._finish(b)
-                results_s = time.perf_counter() - t0
-
-    def _errors(self) -> None:
-        """Report the trials that raised since the last look."""
-        for b, exc in self.batch.errors.items():
-            if b not in self.reported:
-                self.reported.add(b)
-                self.out[self.flying[b]] = exc
-
-    def _record_at(self, b: int):
-        """What trial b's observers get of t_k (taken before the step), or None without observers."""
-        if not self.watchers[self.flying[b]]:
-            return None
-        st = self.batch.states[b]
-        return st.t, st.position, st.velocity, st.acceleration, st.yaw, st.tracks, st.detections.ids
-
-    def _watch(self, b: int, decision, record_at: tuple, splits: tuple) -> None:
-        i = self.flying[b]
-        st, agent = self.batch.states[b], self.agents[i]
-        t, p, v, a, yaw, tracks, ids = record_at
-        lim = st.limits.yaw_rate
-        rate = min(max(decision.action.yaw_rate, -lim), lim)
-        record = StepRecord(t, p, v, a, yaw, rate, decision.planned, decision.plan_ok, tracks, ids, splits)
-        for w in self.watchers[i]:
-            w.on_step(st, agent, decision, record)
-
-    def _finish(self, b: int) -> None:
-        """The ended trial b's observers' on_end, then its TrialResult (or the exception that raised on the way)."""
-        i = self.flying[b]
-        st, agent, log = self.batch.states[b], self.agents[i], self.logs[i]
-        try:
-            for w in self.watchers[i]:
-                w.on_end(st, agent)
-            grid_discovered = st.grid.discovered()
-            tracked = int(st.tracker.ever_tracked)
-            tracked_time = float(st.tracker.tracked_time_s)
-            step_summary(log.timings, log.step_walls, log.plan_walls)
-            wall = log.timings["wall_setup_s"] + sum(log.step_walls)
-            self.out[i] = _result(self.specs[i], self.rollout, st, agent, grid_discovered, tracked, tracked_time,
-                                  wall, log.timings)
-        except Exception as exc:
-            self.out[i] = exc
+                    out[i] = exc
+            results_s = time.perf_counter() - t0
 
 
 def _share_rest(stepped: list[_Log], tick_s: float) -> None:
@@ -260,8 +207,14 @@ def step_summary(timings: dict, step_walls: list, plan_walls: list) -> None:
     timings["wall_planning_p99_s"] = float(np.percentile(plan_walls, 99)) if plan_walls else 0.0
 
 
-def _result(spec: TrialSpec, rollout: Rollout, env: TrialState, agent: Agent, grid_discovered: int, tracked: int,
-            tracked_time: float, wall: float, timings: dict) -> TrialResult:
+def _result(spec: TrialSpec, rollout: Rollout, env: TrialState, agent: Agent, log: _Log) -> TrialResult:
+    """The TrialResult of the ended trial ``env`` (its wall timings summarised into ``log``)."""
+    grid_discovered = env.grid.discovered()
+    tracked = int(env.tracker.ever_tracked)
+    tracked_time = float(env.tracker.tracked_time_s)
+    timings = log.timings
+    step_summary(timings, log.step_walls, log.plan_walls)
+    wall = timings["wall_setup_s"] + sum(log.step_walls)
     sc = spec.scenario
     ms = spec.map_spec
     if sc.is_world:   # imported world: the moving bodies, their mean bounding radius and mean speed
