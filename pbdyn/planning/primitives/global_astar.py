@@ -65,6 +65,7 @@ import numpy as np
 from pbdyn.limits import MAX_PLAN_COUNT, MAX_PLAN_HORIZON_S
 from pbdyn.planning import params
 from pbdyn.planning.checks import WALL_MARGIN_CAP
+from pbdyn.planning.primitives.astar_goal import GOAL_TOL
 from pbdyn.planning.primitives.astar_heuristic import lqmt_lower_bound
 from pbdyn.planning.primitives.astar_static import StaticScreen
 from pbdyn.planning.protocols import PlannerContext
@@ -72,7 +73,6 @@ from pbdyn.planning.trajectory import Trajectory
 from pbdyn.planning.view import Tracks, View
 
 _A_TOL = 1e-12  # m/s^2: root accelerations may exceed a_max by this rounding slack
-_GOAL_TOL = 1e-9  # m: goal samples must be this far inside the goal ball (the trial tests the same samples)
 
 
 def acceleration_grid(n_accel: int, dims: int) -> np.ndarray:
@@ -530,7 +530,7 @@ class GlobalPrimitives:
             bad |= gb.reshape(bad.shape)
         n_c, n_s = bad.shape
         goal = view.goal
-        goal_r = view.goal_radius - _GOAL_TOL
+        goal_r = view.goal_radius - GOAL_TOL
         box_gap = np.maximum(np.maximum(lo - goal, goal - hi), 0.0)
         if float(box_gap @ box_gap) <= goal_r * goal_r:
             rel = pts - goal

@@ -27,9 +27,9 @@ import math
 import numpy as np
 
 from pbdyn.jit import njit
+from pbdyn.planning.primitives.astar_goal import GOAL_TOL
 from pbdyn.planning.primitives.astar_heuristic import _RATIOS
 from pbdyn.planning.primitives.compiled.candidate_kernels import _fma
-from pbdyn.planning.primitives.global_astar import _GOAL_TOL
 
 STATUSES = ("found", "exhausted", "budget")   # the kernel's status codes 0, 1, 2 (GlobalPrimitives.last_status)
 _EMPTY = -1                                   # key of an empty table slot and of a node without a key (goal nodes)
@@ -724,7 +724,7 @@ class CompiledSearch:
         lim = gp.limits
         sq_order, gemm_mode, gemv_mode, dot_mode, _ = self.modes
         out = search_kernel(
-            p0, v0, base, goal, float(view.goal_radius), float(view.goal_radius - _GOAL_TOL), self.acc_int, self.accel,
+            p0, v0, base, goal, float(view.goal_radius), float(view.goal_radius - GOAL_TOL), self.acc_int, self.accel,
             self.edge_cost, np.ascontiguousarray(root_J, dtype=np.int64), np.ascontiguousarray(root_acc),
             np.ascontiguousarray(root_cost), self.s, self.s2, float(gp.T), gp.rho, gp.epsilon, gp.max_expansions,
             gp.n_horizon, self.key_off, self.key_mult, float(gp._vj_max2), float(gp.c), float(gp.w),
