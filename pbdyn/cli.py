@@ -19,6 +19,7 @@ from pathlib import Path
 
 from pbdyn import __version__, limits
 from pbdyn.errors import ConfigError, PbdynError, PbdynWarning, check_writable_file
+from pbdyn.experiments import limit_threads
 
 EXIT_USAGE = 2
 EXIT_PIPE = 141
@@ -620,9 +621,7 @@ def _discard_stdout() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``pbdyn`` console script. ``PBDYN_DEBUG=1`` in the environment: an error also prints its
     full traceback (before its one line), an internal failure its Python traceback."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("MKL_NUM_THREADS", "1")
+    limit_threads()
     parser = build_parser()
     args = parser.parse_args(argv)
     debug = bool(os.environ.get("PBDYN_DEBUG"))

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
-import os
 import queue as queue_module
 from collections.abc import Iterator
 from pathlib import Path
 
+from pbdyn.experiments import limit_threads
 from pbdyn.experiments.cluster import connect
 from pbdyn.experiments.mainguard import PoolGuard
 from pbdyn.experiments.tasks import worker_init
@@ -42,8 +42,7 @@ class WorkerPool:
             self._start()
 
     def _start(self) -> None:
-        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ.setdefault(var, "1")
+        limit_threads()
         if self.guard is None:
             self.guard = PoolGuard(self.what)
         ctx = multiprocessing.get_context("spawn")

@@ -23,6 +23,7 @@ import numpy as np
 
 from pbdyn.config import PlannerEntry, Scenario, canonical_json
 from pbdyn.errors import one_line
+from pbdyn.experiments import limit_threads
 from pbdyn.metrics.catalog import BATCH
 from pbdyn.outcome import Outcome
 from pbdyn.world.maps import MapSpec, enumerate_maps, sequence_index
@@ -247,11 +248,6 @@ def enumerate_trials(scenario: Scenario, maps=None) -> TrialSequence:
 _CACHE: dict = {"rollout": (None, None), "world": (None, None), "client": None, "queue": None}
 
 
-def _limit_threads() -> None:
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-
-
 def _rollout(ref: RolloutRef, data: bytes | None = None):
     from pbdyn.world.rollout import Rollout
 
@@ -316,7 +312,7 @@ def run_trial_task(task: TrialTask, data: bytes | None = None) -> tuple[str, dic
     """Fly one trial in this worker: (trial key, TrialResult dict with its planner_fingerprint, None), or an "error"
     row and its message if the trial raised (the batch goes on). ``data``: the rollout's .npz bytes (cluster
     workers), else task.rollout."""
-    _limit_threads()
+    limit_threads()
     from pbdyn.sim.trial import run_trial
 
     try:
@@ -340,7 +336,7 @@ def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> lis
     worker's row queue (worker_init) the moment its trial ends, so the coordinator can commit it before the whole
     group is done. If the shared part of the batch's loop fails (world, ray batch), the trials not yet ended are
     flown one by one with run_trial_task instead."""
-    _limit_threads()
+    limit_threads()
     from pbdyn.sim.trial import fly
 
     singles = [TrialTask(k, s, task.rollout) for k, s in zip(task.keys, task.specs)]
@@ -403,7 +399,7 @@ def _error_message(exc: BaseException) -> str:
 def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
     """Compute one map's metrics in this worker: a maps-table row (metrics, their compute times, the map's mean
     obstacle speed and radius)."""
-    _limit_threads()
+    limit_threads()
     from pbdyn.metrics.cached import metric_params, metrics_code, resolve_backend
     from pbdyn.metrics.registry import compute
 
@@ -454,7 +450,7 @@ def worker_init(queue=None) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _limit_threads()
+    limit_threads()
     watch_parent()
     _CACHE["settle"] = True            # settle_heap after the first trial group
     if queue is not None:
