@@ -362,18 +362,6 @@ class ResultsStore:
 
     # ------------------------------------------------------------------------------------------- rows
     @_guarded
-    def finished_keys(self) -> set[str]:
-        """Keys of every stored trial."""
-        return {r[0] for r in self.conn.execute("SELECT trial_key FROM trials")}
-
-    @_guarded
-    def trial_states(self) -> dict[str, tuple[str | None, str | None, str | None]]:
-        """trial key -> (planner_label, planner_fingerprint, outcome) of every stored trial (None: not recorded)."""
-        fp = "planner_fingerprint" if "planner_fingerprint" in self._trial_table_columns() else "NULL"
-        return {r[0]: (r[1], r[2], r[3])
-                for r in self.conn.execute(f"SELECT trial_key, planner_label, {fp}, outcome FROM trials")}
-
-    @_guarded
     def error_count(self) -> int:
         """Number of stored trials whose outcome is "error"."""
         return int(self.conn.execute("SELECT COUNT(*) FROM trials WHERE outcome = 'error'").fetchone()[0])

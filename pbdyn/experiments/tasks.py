@@ -18,6 +18,7 @@ import os
 import traceback
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -78,7 +79,15 @@ def trial_spec(scenario: Scenario, map_spec: MapSpec, planner: PlannerEntry, v_m
     return TrialSpec(scenario, map_spec, planner, float(v_max), tuple(map(float, start)), tuple(map(float, goal)))
 
 
-Trial = tuple  # (key, MapSpec, PlannerEntry, v_max, start, goal)
+class Trial(NamedTuple):
+    """One trial of an experiment's enumeration (TrialSequence)."""
+
+    key: str                # its config hash
+    map: MapSpec
+    planner: PlannerEntry
+    v_max: float            # m/s
+    start: tuple            # m
+    goal: tuple             # m
 
 _VARYING = ("map", "v_max", "start", "goal", "planner")
 """The parts of TrialSpec.resolved() that differ between the trials of one scenario; each depends on one axis."""
@@ -231,7 +240,7 @@ class TrialSequence(Sequence):
                                 raise RuntimeError(f"trial key fragments disagree with TrialSpec.config_hash "
                                                    f"({key} != {ref}); update pbdyn.experiments.tasks._VARYING")
                             checked = True
-                        yield key, m, entry, v, s, g
+                        yield Trial(key, m, entry, v, s, g)
                         idx += 1
                     p = 0
                 v_i = 0
