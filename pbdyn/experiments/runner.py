@@ -41,7 +41,7 @@ from pbdyn.experiments.plan import BatchPlan, pending_trials, read_plan
 from pbdyn.experiments.shards import parse_shard
 from pbdyn.experiments.signals import BatchInterrupted, stop_on_signals
 from pbdyn.experiments.store import ResultsStore, check_store_path, store_error
-from pbdyn.experiments.tasks import enumerate_trials
+from pbdyn.experiments.tasks import enumerate_trials, trial_spec
 from pbdyn.world.maps import MAP_ID_RULE
 from pbdyn.world.rollout import default_horizon, rollout_file
 
@@ -101,23 +101,16 @@ def _default_workers() -> int:
 
 
 def check_planners(scenario: Scenario) -> None:
-    """Resolve and build every planner entry once (names, plug-in imports, parameters), so that a bad entry is one
+    """Build every planner entry at every MAV speed once, as its first trial on the first map builds them
+    (pbdyn.sim.agent.build_planners: names, plug-in imports, parameters, the profile's), so that a bad entry is one
     clear error before the batch starts rather than an "error" row for each of its trials."""
-    import numpy as np
+    from pbdyn.sim.agent import build_planners
 
-    from pbdyn.planning.protocols import PlannerContext
-    from pbdyn.planning.registry import build_planner, resolve_gaze_planner, resolve_trajectory_planner
-    from pbdyn.planning.view import MAVLimits
-
-    d = scenario.drone
-    for v in d.v_max:
-        ctx = PlannerContext(scenario.world.dims, scenario.world.dt, MAVLimits(d.radius, v, d.a_max, d.yaw_rate_limit),
-                             np.zeros(scenario.world.dims), np.asarray(scenario.world.size, dtype=float), 0)
-        for i, e in enumerate(scenario.planners):
-            build_planner(resolve_trajectory_planner(e.trajectory, f"planners[{i}].trajectory"), ctx,
-                          e.trajectory_params, f"planners[{i}].trajectory_params")
-            build_planner(resolve_gaze_planner(e.gaze, f"planners[{i}].gaze"), ctx, e.gaze_params,
-                          f"planners[{i}].gaze_params")
+    trials = enumerate_trials(scenario)
+    for v in range(len(trials.speeds)):
+        for e in range(len(trials.entries) if len(trials) else 0):
+            t = trials[(e * len(trials.speeds) + v) * trials.n_pairs]
+            build_planners(trial_spec(scenario, t.map, t.planner, t.v_max, t.start, t.goal))
 
 
 def pending_trials_of(scenario: Scenario, out: str | Path, options: BatchOptions = BatchOptions()) -> int:

@@ -76,20 +76,22 @@ def build_planners(spec: TrialSpec, trajectory=None, gaze=None, physical: bool |
     """(context, trajectory planner, gaze planner) of a trial. ``trajectory``/``gaze``: a planner class (built
     with the context and the entry's params) or an instance (used as it is) instead of the spec's named ones.
     Under the thesis_program rules (``physical`` False; default: the scenario's profile) built-in planners get
-    their PROGRAM_PARAMS (profile_params)."""
+    their PROGRAM_PARAMS (profile_params). Plug-ins' prints while they are built go to stderr (quiet_user_code).
+    Trials and pbdyn.experiments.runner.check_planners build planners here."""
     ctx = planner_context(spec, physical)
     idx = next((i for i, e in enumerate(spec.scenario.planners) if e == spec.planner), 0)
     objs = []
-    for kind, given, name, params, resolve in (
-            ("trajectory", trajectory, spec.planner.trajectory, spec.planner.trajectory_params,
-             resolve_trajectory_planner),
-            ("gaze", gaze, spec.planner.gaze, spec.planner.gaze_params, resolve_gaze_planner)):
-        if given is not None and not inspect.isclass(given):
-            objs.append(given)
-            continue
-        cls = given if given is not None else resolve(name, f"planners[{idx}].{kind}")
-        objs.append(build_planner(cls, ctx, profile_params(cls, dict(params), ctx.physical),
-                                  f"planners[{idx}].{kind}_params"))
+    with quiet_user_code():  # Python and C level
+        for kind, given, name, params, resolve in (
+                ("trajectory", trajectory, spec.planner.trajectory, spec.planner.trajectory_params,
+                 resolve_trajectory_planner),
+                ("gaze", gaze, spec.planner.gaze, spec.planner.gaze_params, resolve_gaze_planner)):
+            if given is not None and not inspect.isclass(given):
+                objs.append(given)
+                continue
+            cls = given if given is not None else resolve(name, f"planners[{idx}].{kind}")
+            objs.append(build_planner(cls, ctx, profile_params(cls, dict(params), ctx.physical),
+                                      f"planners[{idx}].{kind}_params"))
     return ctx, objs[0], objs[1]
 
 
@@ -123,8 +125,7 @@ class Agent:
     def __init__(self, spec: TrialSpec, trajectory=None, gaze=None, *, physical: bool | None = None):
         self.spec = spec
         self.physical = spec.scenario.physical if physical is None else bool(physical)
-        with quiet_user_code():  # plug-ins' prints while they are built go to stderr (Python and C level)
-            self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze, self.physical)
+        self.context, self.planner, self.gaze = build_planners(spec, trajectory, gaze, self.physical)
         self.limits = self.context.limits
         self._plugin = any(not type(x).__module__.startswith("pbdyn.") for x in (self.planner, self.gaze))
         self.fov_deg = getattr(self.gaze, "fov_deg", None)
