@@ -286,3 +286,32 @@ def test_reward_weights_are_validated_and_reported():
         AvoidEnv(reward={"speed": 1.0})
     with pytest.raises(ConfigError, match="reward.time"):
         AvoidEnv(reward={"time": -1.0})
+
+
+def test_a_gym_episode_is_traced_through_its_batch_and_replayed(tmp_path):
+    """An observer attached to the running episode (AvoidEnv.watch: the trial batch's observers) records the policy's
+    flight: a trace with one row per step, the episode's end, which pbdyn replay draws."""
+    import pbdyn
+    from pbdyn.analysis.replay import load_trace
+    from pbdyn.sim.observers import TraceObserver
+    from tests.gym_policies import goal_seeker
+
+    env = AvoidEnv("quickstart", dims=2)
+    policy = goal_seeker(2)
+    path = tmp_path / "episode.npz"
+    try:
+        obs, _ = env.reset(seed=2)
+        env.watch(TraceObserver(path))
+        steps, done = 0, False
+        while not done:
+            obs, _, term, trunc, info = env.step(policy(obs))
+            steps, done = steps + 1, term or trunc
+    finally:
+        env.close()
+    tr = load_trace(path)
+    assert tr["t"].shape == (steps,) and str(tr["outcome"]) == info["outcome"]
+    assert np.isnan(tr["plan"]).all()                 # a policy flies: no plan in execution
+    summary = pbdyn.replay(path, tmp_path / "episode.gif", every=10)
+    assert (tmp_path / "episode.gif").stat().st_size > 0 and summary.frames >= 2
+    with pytest.raises(RuntimeError, match="reset"):
+        AvoidEnv("quickstart").watch(TraceObserver(tmp_path / "x.npz"))

@@ -13,12 +13,13 @@ problem).
 Both observe pbdyn.gym.observation (what the MAV knows), are rewarded by pbdyn.gym.reward, end an episode when the
 trial ends (``terminated``: success, a collision, invalid_plan or deadlock; ``truncated``: the time limit, i.e.
 the outcome "freezing"), and put in ``info`` the outcome and its reason (once ended), the map's identity, its
-anchored difficulty and level (on the ladder), the reward's terms, and the MAV's speed and acceleration.
+anchored difficulty and level (on the ladder), the reward's terms, and the MAV's speed and acceleration: all built
+by pbdyn.gym.glue, as the vector environments' are. ``watch(observer)`` attaches an observer (e.g.
+pbdyn.sim.observers.TraceObserver: a trace ``pbdyn replay`` draws) to the running episode.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import gymnasium
@@ -26,14 +27,11 @@ import numpy as np
 from gymnasium import spaces
 
 from pbdyn.gym.episodes import WORLDS_KEPT, Episode, EpisodeSource
-from pbdyn.gym.observation import check_observed, observation_size, observe
-from pbdyn.gym.reward import RewardConfig, step_reward
-from pbdyn.outcome import Outcome
+from pbdyn.gym.glue import Glue
 from pbdyn.sim.agent import Agent
 from pbdyn.sim.batch import TrialBatch
 from pbdyn.sim.guard import Accel
 from pbdyn.sim.spec import make_trial_spec
-from pbdyn.sim.state import vector_norm
 
 
 def command(action: np.ndarray, limits) -> Accel:
@@ -54,10 +52,8 @@ class _CoreEnv(gymnasium.Env):
         super().__init__()
         self.episodes = EpisodeSource(scenario, dims, keep_worlds)
         self.dims = self.episodes.dims
-        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch, self.dims)
-        self.reward_config = RewardConfig.of(reward)
-        n = observation_size(self.dims, tracks, rays, self.patch)
-        self.observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
+        self.glue = Glue.of(self.dims, tracks, rays, patch, reward)
+        self.observation_space = spaces.Box(-1.0, 1.0, (self.glue.size(self.dims),), np.float32)
         self.batch: TrialBatch | None = None
         self.episode: Episode | None = None
 
@@ -72,11 +68,10 @@ class _CoreEnv(gymnasium.Env):
         rollout = self.episodes.rollout(spec)
         world = self.episodes.world_for(spec, rollout)
         report = self._start(episode, rollout, world)
-        st = self.batch.states[0]
         if 0 in report.errors:
             raise report.errors[0]
-        self._dist = vector_norm(st.position - st.goal)
-        return observe(st, self.tracks, self.rays, self.patch), self._info(st, None)
+        obs, info, self._dist = self.glue.first(self.episode, self.batch.states[0])
+        return obs, info
 
     def step(self, action):
         """One step of the trial with ``action``. Returns (observation, reward, terminated, truncated, info)."""
@@ -87,14 +82,15 @@ class _CoreEnv(gymnasium.Env):
         report = self._act(self._checked(action))
         if 0 in report.errors:
             raise report.errors[0]
-        dist = vector_norm(st.position - st.goal)
-        outcome = st.outcome
-        reward, terms = step_reward(self.reward_config, self._dist, dist, accel0, st.acceleration,
-                                    st.limits.a_max, outcome)
-        self._dist = dist
-        terminated = outcome is not None and outcome is not Outcome.FREEZING
-        truncated = outcome is Outcome.FREEZING
-        return observe(st, self.tracks, self.rays, self.patch), reward, terminated, truncated, self._info(st, terms)
+        *out, self._dist = self.glue.after(self.episode, st, self._dist, accel0)
+        return tuple(out)
+
+    def watch(self, observer) -> None:
+        """Attach ``observer`` (pbdyn.sim.observers.Observer; its ``agent`` is None under AvoidEnv) to the running
+        episode: it sees each of its steps and its end (TraceObserver writes a trace that ``pbdyn replay`` draws)."""
+        if self.batch is None or self.batch.done:
+            raise RuntimeError("watch() needs a running episode; call reset() first")
+        self.batch.watch(0, [observer])
 
     def close(self) -> None:
         """Release what the environment keeps: its trial, every PyBullet world (their clients disconnected) and
@@ -108,21 +104,6 @@ class _CoreEnv(gymnasium.Env):
         if a.shape != self.action_space.shape or not np.isfinite(a).all():
             raise ValueError(f"action must be {self.action_space.shape[0]} finite numbers (got {action!r})")
         return np.clip(a, -1.0, 1.0)
-
-    def _info(self, st, terms: dict | None) -> dict:
-        ep = self.episode
-        spec = ep.spec
-        info = {"outcome": None if st.outcome is None else st.outcome.value,
-                "reason": st.reason if st.outcome is not None else "",
-                "scenario": spec.scenario.name, "map_index": ep.map_index, "map_id": spec.map_spec.map_id,
-                "map_key": spec.map_spec.key, "difficulty": ep.difficulty, "level": ep.level,
-                "difficulty_clamped": ep.difficulty_clamped,
-                "start": tuple(spec.start), "goal": tuple(spec.goal), "v_max": float(spec.v_max), "t": st.t,
-                "speed": math.sqrt(float(st.velocity @ st.velocity)),
-                "acceleration": math.sqrt(float(st.acceleration @ st.acceleration))}
-        if terms is not None:
-            info["reward_terms"] = terms
-        return info
 
 
 class AvoidEnv(_CoreEnv):

@@ -11,12 +11,17 @@ a start that is clear now. The map's rollout covers ``epoch_s`` s (default five 
 would not fit in it, the next episodes start an epoch on a new map (drawn as reset draws it, with the last reset's
 options) while the old map's running episodes finish.
 
-Spaces, reward and outcomes are AvoidEnv's (GazeEnv's). Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after
-an episode ended resets that sub-environment: its action is ignored, it returns the new episode's first observation
-with reward 0). ``infos`` hold, for the sub-environments whose episode ended or began in the step, "outcome",
-"reason", "map_id", "level", "difficulty", "difficulty_clamped" and "t" (masked as Gymnasium does). A map's
-world and rollout are held while episodes run on it (the current epoch's, and an older one's until its last
+Spaces, observation, reward, outcomes and info are AvoidEnv's (GazeEnv's), built by the same pbdyn.gym.glue.
+Autoreset: Gymnasium 1.x's NEXT_STEP mode (the step after an episode ended resets that sub-environment: its action
+is ignored, it returns the new episode's first observation with reward 0 and that episode's first info). ``infos``
+hold every sub-environment's info under AvoidEnv's keys, stacked as Gymnasium stacks them (with "_key" masks). A
+map's world and rollout are held while episodes run on it (the current epoch's, and an older one's until its last
 episode ends); close() disconnects every map's PyBullet client.
+
+With num_envs = 1 the steps are built exactly as AvoidEnv's, but the episodes differ, by design (docs/gym.md
+"Vector environments"): a sub-environment's episodes follow one another on one map for an epoch (AvoidEnv draws a
+map at every reset), each begins at the batch's next tick with a start that is clear then (AvoidEnv's start rule
+may wait for one), and the map's rollout covers ``epoch_s``.
 """
 
 from __future__ import annotations
@@ -30,12 +35,10 @@ from gymnasium.vector.utils import batch_space
 
 from pbdyn.gym.env import PolicyYaw, command, gaze_spec
 from pbdyn.gym.episodes import Episode, EpisodeSource, check_options
-from pbdyn.gym.observation import check_observed, observation_size, observe
-from pbdyn.gym.reward import RewardConfig, step_reward
-from pbdyn.outcome import Outcome
+from pbdyn.gym.glue import Glue
 from pbdyn.sim.agent import Agent
 from pbdyn.sim.batch import TrialBatch
-from pbdyn.sim.state import make_world, vector_norm
+from pbdyn.sim.state import make_world
 from pbdyn.world.rollout import get_rollout
 
 START_DRAWS = 16
@@ -64,10 +67,8 @@ class _VectorCore(VectorEnv):
         self.num_envs = num_envs
         self.episodes = EpisodeSource(scenario, dims)
         self.dims = d = self.episodes.dims
-        self.tracks, self.rays, self.patch = check_observed(tracks, rays, patch, d)
-        self.reward_config = RewardConfig.of(reward)
-        n = observation_size(d, tracks, rays, self.patch)
-        self.single_observation_space = spaces.Box(-1.0, 1.0, (n,), np.float32)
+        self.glue = Glue.of(d, tracks, rays, patch, reward)
+        self.single_observation_space = spaces.Box(-1.0, 1.0, (self.glue.size(d),), np.float32)
         self.single_action_space = spaces.Box(-1.0, 1.0, (self._action_size(d),), np.float32)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
@@ -95,10 +96,8 @@ class _VectorCore(VectorEnv):
             self.slots[i] = (epoch, b)
         epoch.batch.step({})                     # the joined trials begin and sense together
         for i, (ep, b) in enumerate(self.slots):
-            st = self._state(i)
-            obs[i] = observe(st, self.tracks, self.rays, self.patch)
-            self._dist[i] = vector_norm(st.position - st.goal)
-            infos = self._add_info(infos, self._info(ep, st), i)
+            obs[i], info, self._dist[i] = self.glue.first(ep.episode, ep.batch.states[b])
+            infos = self._add_info(infos, info, i)
         self._pending[:] = False
         return obs, infos
 
@@ -137,23 +136,16 @@ class _VectorCore(VectorEnv):
         infos: dict = {}
         for i, (epoch, b) in enumerate(self.slots):
             st = epoch.batch.states[b]
-            obs[i] = observe(st, self.tracks, self.rays, self.patch)
-            dist = vector_norm(st.position - st.goal)
             if self._pending[i]:
                 self._pending[i] = False
-                self._dist[i] = dist
-                infos = self._add_info(infos, self._info(epoch, st), i)
-                continue
-            outcome = st.outcome
-            rewards[i], _ = step_reward(self.reward_config, self._dist[i], dist, accel0[i], st.acceleration,
-                                        st.limits.a_max, outcome)
-            self._dist[i] = dist
-            if outcome is not None:
-                terminated[i] = outcome is not Outcome.FREEZING
-                truncated[i] = outcome is Outcome.FREEZING
-                infos = self._add_info(infos, self._info(epoch, st), i)
-                self._pending[i] = True
-                epoch.batch.release(b)
+                obs[i], info, self._dist[i] = self.glue.first(epoch.episode, st)
+            else:
+                obs[i], rewards[i], terminated[i], truncated[i], info, self._dist[i] = \
+                    self.glue.after(epoch.episode, st, self._dist[i], accel0[i])
+                if st.outcome is not None:
+                    self._pending[i] = True
+                    epoch.batch.release(b)
+            infos = self._add_info(infos, info, i)
         self._drop_finished_epochs()
         return obs, rewards, terminated, truncated, infos
 
@@ -182,16 +174,18 @@ class _VectorCore(VectorEnv):
         raise NotImplementedError
 
     # ------------------------------------------------------------------------------------------------ parts
-    def _state(self, i: int):
+    def state(self, i: int):
+        """The trial state (pbdyn.sim.state.TrialState) of sub-environment i's episode."""
         epoch, b = self.slots[i]
         return epoch.batch.states[b]
 
-    def _info(self, epoch: _Epoch, st) -> dict:
-        ep = epoch.episode
-        return {"outcome": "" if st.outcome is None else st.outcome.value, "reason": st.reason,
-                "map_id": ep.spec.map_spec.map_id, "level": -1 if ep.level is None else ep.level,
-                "difficulty": math.nan if ep.difficulty is None else ep.difficulty,
-                "difficulty_clamped": ep.difficulty_clamped, "t": st.t}
+    def watch(self, i: int, observer) -> None:
+        """Attach ``observer`` (pbdyn.sim.observers.Observer) to sub-environment i's running episode (its agent is
+        None in AvoidVectorEnv): it sees each of the episode's steps and its end."""
+        slot = self.slots[i] if 0 <= i < self.num_envs else None
+        if slot is None or self._pending[i]:
+            raise RuntimeError(f"watch(): sub-environment {i} has no running episode")
+        slot[0].batch.watch(slot[1], [observer])
 
     def _new_epoch(self) -> _Epoch:
         """A new map (drawn with the last reset's options), its rollout over epoch_s, world and empty batch."""

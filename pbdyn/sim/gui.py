@@ -130,7 +130,7 @@ class GuiView:
         for k, side in enumerate((-1.0, 1.0)):
             a = env.yaw + side * half
             self._line(c, f"fov{k}", p, p + rng * np.array([math.cos(a), math.sin(a), 0.0]), (0.3, 0.6, 1.0, 1.0))
-        traj = agent.trajectory
+        traj = getattr(agent, "trajectory", None)
         plan = world.to_world3(traj.remaining(env.t).p) if traj is not None else p[None]
         idx = np.unique(np.linspace(0, plan.shape[0] - 1, min(PLAN_SEGMENTS + 1, plan.shape[0])).astype(int))
         for k in range(PLAN_SEGMENTS):                    # the plan as polyline segments (debug items are reused)
@@ -169,7 +169,7 @@ class Snapshot:
         self.view = self.proj = None
 
     def on_step(self, env, agent, decision, record) -> None:
-        self.last = (agent.trajectory, record.t)   # the plan in execution and when: drawn at the end
+        self.last = (getattr(agent, "trajectory", None), record.t)   # the plan in execution and when: drawn at the end
 
     def on_end(self, env, agent) -> None:
         world = env.world

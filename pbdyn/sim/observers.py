@@ -1,9 +1,11 @@
 """Observers of a trial: they watch each step and never change it (trace file, per-step profile; the GUI's are
 in pbdyn.sim.gui).
 
-An observer has ``on_step(env, agent, decision, record)``, called after every executed step with ``record`` the
-step's StepRecord (what the MAV knew and did at t_k, the wall-time splits), and ``on_end(env, agent)``, called
-once when the trial has ended normally (not when it raised).
+An observer has ``on_step(state, agent, decision, record)``, called after every executed step with ``state`` the
+trial's TrialState, ``agent`` its Agent and ``decision`` the agent's Decision of the step (both None for a trial
+a caller drives, e.g. a Gymnasium policy), ``record`` the step's StepRecord (what the MAV knew and did at t_k, the
+wall-time splits); and ``on_end(state, agent)``, called once when the trial has ended normally (not when it
+raised). Observers attach to a trial of a batch (pbdyn.sim.batch.TrialBatch.watch).
 """
 
 from __future__ import annotations
@@ -44,9 +46,9 @@ class StepRecord:
 class Observer(Protocol):
     """Watches a trial (see the module docstring)."""
 
-    def on_step(self, env, agent, decision, record: StepRecord) -> None: ...
+    def on_step(self, state, agent, decision, record: StepRecord) -> None: ...
 
-    def on_end(self, env, agent) -> None: ...
+    def on_end(self, state, agent) -> None: ...
 
 
 class ProfileObserver:
@@ -58,13 +60,14 @@ class ProfileObserver:
         for name in SPLITS + ("candidates_built", "planned"):
             profile[name] = []
 
-    def on_step(self, env, agent, decision, record: StepRecord) -> None:
+    def on_step(self, state, agent, decision, record: StepRecord) -> None:
         for name, value in zip(SPLITS, record.splits):
             self.profile[name].append(value)
-        self.profile["candidates_built"].append(getattr(agent.planner, "last_candidates_built", float("nan")))
+        self.profile["candidates_built"].append(getattr(getattr(agent, "planner", None), "last_candidates_built",
+                                                        float("nan")))
         self.profile["planned"].append(bool(record.planned))
 
-    def on_end(self, env, agent) -> None:
+    def on_end(self, state, agent) -> None:
         pass
 
 
@@ -86,7 +89,7 @@ class TraceObserver:
     track_active: list = field(default_factory=list)
     seen: list = field(default_factory=list)
 
-    def on_step(self, env, agent, decision, record: StepRecord) -> None:
+    def on_step(self, state, agent, decision, record: StepRecord) -> None:
         self.t.append(record.t)
         self.p.append(record.position.copy())
         self.v.append(record.velocity.copy())
@@ -94,9 +97,9 @@ class TraceObserver:
         self.yaw.append(record.yaw)
         self.yaw_rate.append(record.yaw_rate)
         self.plan_ok.append(record.plan_ok)
-        traj = agent.trajectory
+        traj = getattr(agent, "trajectory", None)
         self.planned.append(None if traj is None else traj.remaining(record.t).p.copy())
-        n, d = env.rollout.n_obstacles, env.dims
+        n, d = state.rollout.n_obstacles, state.dims
         mean = np.full((n, d), np.nan)
         std = np.full((n, d), np.nan)
         tr = record.tracks
@@ -112,28 +115,30 @@ class TraceObserver:
         seen[np.asarray(record.detected, dtype=np.int64)] = True
         self.seen.append(seen)
 
-    def on_end(self, env, agent) -> None:
-        k0, s = env.k0, len(self.t)
-        sc = env.spec.scenario
-        static = env.rollout.static
-        d = env.dims
-        extra = {"obstacle_p": np.asarray(env.rollout.positions[k0:k0 + s + 1]),
-                 "obstacle_r": np.asarray(env.rollout.radii), "start_step": np.array(k0),
-                 "dt": np.array(env.dt), "arena_lo": env.bounds[0], "arena_hi": env.bounds[1],
-                 "start": np.asarray(env.spec.start, dtype=float), "goal": env.goal,
-                 "goal_radius": np.array(env.goal_radius), "mav_radius": np.array(sc.drone.radius),
-                 "fov_deg": np.array(env.fov_deg), "range_m": np.array(sc.sensor.range),
+    def on_end(self, state, agent) -> None:
+        k0, s = state.k0, len(self.t)
+        sc = state.spec.scenario
+        static = state.rollout.static
+        d = state.dims
+        extra = {"obstacle_p": np.asarray(state.rollout.positions[k0:k0 + s + 1]),
+                 "obstacle_r": np.asarray(state.rollout.radii), "start_step": np.array(k0),
+                 "dt": np.array(state.dt), "arena_lo": state.bounds[0], "arena_hi": state.bounds[1],
+                 "start": np.asarray(state.spec.start, dtype=float), "goal": state.goal,
+                 "goal_radius": np.array(state.goal_radius), "mav_radius": np.array(sc.drone.radius),
+                 "fov_deg": np.array(state.fov_deg), "range_m": np.array(sc.sensor.range),
                  "vfov_deg": np.array(sc.sensor.vfov_deg if d == 3 else np.nan),
-                 "reason": np.array(env.reason), "label": np.array(trace_label(
-                     f"{sc.name} map {env.spec.map_spec.index}, {env.spec.planner.label}, v_max {env.spec.v_max:g} m/s")),
+                 "reason": np.array(state.reason), "label": np.array(trace_label(
+                     f"{sc.name} map {state.spec.map_spec.index}, {state.spec.planner.label}, "
+                     f"v_max {state.spec.v_max:g} m/s")),
                  "static_kind": np.array([b.kind for b in static], dtype=str),
                  "static_center": np.array([np.asarray(b.center, float)[:d] for b in static]).reshape(len(static), d),
                  "static_radius": np.array([b.radius for b in static], dtype=float),
                  "static_size": np.array([np.asarray(b.size if b.size else (0.0,) * d, float)[:d]
                                           for b in static]).reshape(len(static), d),
                  "static_yaw": np.array([b.yaw for b in static], dtype=float),
-                 **still_body_outlines(env.rollout.bodies, d, sc.world.flight_height)}
-        save_trace(self, self.path, env.position, env.velocity, env.acceleration, env.yaw, env.outcome, extra)
+                 **still_body_outlines(state.rollout.bodies, d, sc.world.flight_height)}
+        save_trace(self, self.path, state.position, state.velocity, state.acceleration, state.yaw, state.outcome,
+                   extra)
 
 
 MAX_LABEL_CHARS = 300
