@@ -386,7 +386,7 @@ def calibrate(scenario, *, maps=None, store: str | Path | None = None, workers: 
               progress: bool = False):
     """`pbdyn calibrate`: fly the reference panel on the scenario's maps (all, or the indices ``maps``) into the
     results store ``store`` (default: one in the cache, keyed by what is flown; resumable) and return each map's
-    measured difficulty on the anchored scale (pbdyn.experiments.calibrate.MapDifficulty: reference success with a
+    measured difficulty on the anchored scale (pbdyn.analysis.scale.MapDifficulty: reference success with a
     95% interval, difficulty in logits with its interval and percentile among the calibration maps)."""
     from pbdyn.experiments.mainguard import check_not_reimported
 

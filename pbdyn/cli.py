@@ -481,14 +481,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from pbdyn import api
-    from pbdyn.experiments.calibrate import format_difficulties
+    from pbdyn.analysis.scale import format_difficulties, load_anchors
+    from pbdyn.planning.registry import pair_fingerprint
 
     res = api.calibrate(args.scenario, maps=args.map, store=args.store, workers=args.workers,
                         progress=not args.json)
-    from pbdyn.experiments.calibrate import load_anchors
-
     anchors = load_anchors()
-    status = anchors.code_status() if anchors is not None else "no anchors"
+    status = anchors.code_status(pair_fingerprint) if anchors is not None else "no anchors"
     if args.json:
         sys.stdout.write(json.dumps({"maps": [r.to_dict() for r in res], "anchors_code": status},
                                     sort_keys=True) + "\n")

@@ -10,8 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from pbdyn.analysis.scale import SCALE_VERSION
-from pbdyn.experiments.calibrate import RESPONDENTS, load_anchors
+from pbdyn.analysis.scale import RESPONDENTS, SCALE_VERSION, load_anchors
 from tests.conftest import ROOT
 
 sys.path.insert(0, str(ROOT))

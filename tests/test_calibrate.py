@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 import pbdyn
-from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS, ability_given_difficulties, difficulty_given_abilities, sigmoid
-from pbdyn.experiments.calibrate import RESPONDENTS, Anchors, measure_store
+from pbdyn.analysis.scale import (PANEL, PANEL_SPEEDS, RESPONDENTS, Anchors, ability_given_difficulties,
+                                  difficulty_given_abilities, sigmoid)
+from pbdyn.experiments.calibrate import measure_store
 from tests.conftest import pbdyn_cmd
 
 SMALL = {"name": "cal_small", "world": {"time_limit": 25.0},

@@ -430,8 +430,7 @@ def test_the_calibration_records_its_code_and_says_whether_this_pbdyn_flies_it(t
         import fit_anchors as fa
     finally:
         sys.path.remove(str(ROOT / "tools"))
-    from pbdyn.analysis.scale import PANEL
-    from pbdyn.experiments.calibrate import Anchors, load_anchors
+    from pbdyn.analysis.scale import PANEL, Anchors, load_anchors
     from pbdyn.experiments.runner import BatchOptions, run_batch
     from pbdyn.planning.registry import pair_fingerprint
 
@@ -448,11 +447,11 @@ def test_the_calibration_records_its_code_and_says_whether_this_pbdyn_flies_it(t
     assert all(fps == [pair_fingerprint(e.trajectory, e.gaze)] for e in PANEL for fps in [code.get(e.label)] if fps)
     assert fa._recorded_code("2d") == {"code": code}
     shipped = load_anchors()
-    assert shipped.code_status() == "not recorded"          # fitted before pbdyn recorded code identities
+    assert shipped.code_status(pair_fingerprint) == "not recorded"   # fitted before pbdyn recorded code identities
     now = {e.label: [pair_fingerprint(e.trajectory, e.gaze)] for e in PANEL}
-    assert Anchors(shipped.version, shipped.abilities, code=now).code_status() == "same"
+    assert Anchors(shipped.version, shipped.abilities, code=now).code_status(pair_fingerprint) == "same"
     stale = {**now, PANEL[0].label: ["sha256:0+pbdyn:0+core:0"]}
-    assert Anchors(shipped.version, shipped.abilities, code=stale).code_status() == "other"
+    assert Anchors(shipped.version, shipped.abilities, code=stale).code_status(pair_fingerprint) == "other"
 
 
 def test_identifying_a_plugin_imports_nothing(checkout, tmp_path):

@@ -27,9 +27,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pbdyn.analysis.scale import (PANEL, PRIOR_TRIALS, SCALE_VERSION, difficulty_given_abilities,  # noqa: E402
-                                  respondent)
-from pbdyn.experiments.calibrate import RESPONDENTS  # noqa: E402
+from pbdyn.analysis.scale import (ANCHORS_FILE, PANEL, PRIOR_TRIALS, RESPONDENTS, SCALE_VERSION,  # noqa: E402
+                                  difficulty_given_abilities, respondent)
 
 DATA = ROOT / "pbdyn" / "analysis" / "data"
 CODE_FILE = "calibration_code.json"
@@ -177,7 +176,7 @@ def main(argv=None) -> int:
         p = DATA / f"calibration_{dims}d.csv.gz"
         if p.is_file():
             doc["difficulties"][str(dims)] = map_difficulties(read_outcomes(p), doc["abilities"])
-    (DATA / "anchors.json").write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+    (DATA / ANCHORS_FILE).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
     print(json.dumps(doc["abilities"], indent=1))
     return 0
 

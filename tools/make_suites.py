@@ -5,13 +5,13 @@ Three steps, each a sub-command:
   draft NAME     choose the suite's maps from the calibration sets (pbdyn/analysis/data/calibration_*.csv.gz: the
                  reference panel's flights of every calibration map) and extra generated maps (--extra FILE: scenario
                  files written by `pbdyn generate --success` or `measured`), imported worlds (the bundled 2D set, and
-                 --world FILE: measured by `pbdyn calibrate`), LEVELS_PER_SUITE levels by the panel's success,
-                 MAPS_PER_LEVEL maps per level, families mixed (module functions choose and level_of); writes
+                 --world FILE: measured by `pbdyn calibrate`), levelled by the panel's success (level_of of
+                 pbdyn.benchmark.levels), MAPS_PER_LEVEL maps per level, families mixed (choose()); writes
                  scenarios/suites/NAME/ with the manifest (no measured difficulty yet) and the generated maps' part.
   fly NAME DIR   fly every built-in trajectory planner (with its thesis gaze) on the draft into DIR/<planner>/
                  (the bench runner's flights; resumable).
   freeze NAME DIR  measure every map's difficulty from the reference panel's flights in DIR on exactly the suite's
-                 tasks (pbdyn.experiments.calibrate.measure: the same numbers `pbdyn calibrate` gives), assign the
+                 tasks (pbdyn.analysis.scale.measure_difficulties: the numbers `pbdyn calibrate` gives), assign the
                  levels, write the final manifest and the reference results (reference.json.gz) with the suite's hash.
 
 Hard maps beyond the calibration sets' range (the 3D sets reach reference success 0.54 only) come from a pool:
@@ -53,10 +53,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from pbdyn.benchmark.levels import LEVEL_EDGES, level_of, level_ranges  # noqa: E402
+
 DATA = ROOT / "pbdyn" / "analysis" / "data"
 SUITES = ROOT / "scenarios" / "suites"
-LEVEL_EDGES = (1.0, 0.85, 0.75, 0.65, 0.55, 0.45, 0.35, 0.25, 0.15, 0.0)
-"""Reference-success edges of the levels: level 1 = [0.85, 1], ..., level 9 = [0, 0.15)."""
 MAPS_PER_LEVEL = 4
 MINI_LEVELS = (1, 4, 7, 9)
 MINI_PAIRS = 3
@@ -69,19 +69,6 @@ POOL_MAPS = 6
 POOL_SEED = 2027
 POOL_BOX = {"count": (30, 160), "radius": (0.8, 2.0), "speed": (2.5, 6.0)}
 """The pool's (n, r, v) box: up to ~25x the flux of the thesis' box, where 3D maps get hard."""
-
-
-def levels_doc() -> list[dict]:
-    """The manifest's levels: number and reference-success range [lo, hi]."""
-    return [{"level": i + 1, "success_range": [LEVEL_EDGES[i + 1], LEVEL_EDGES[i]]} for i in range(len(LEVEL_EDGES) - 1)]
-
-
-def level_of(success: float) -> int:
-    """The level of a map whose reference success is ``success``."""
-    for i in range(len(LEVEL_EDGES) - 1):
-        if success >= LEVEL_EDGES[i + 1]:
-            return i + 1
-    return len(LEVEL_EDGES) - 1
 
 
 def choose(candidates: list[dict], k: int, used: dict) -> list[dict]:
@@ -205,7 +192,7 @@ def draft(name: str, dims: int, extra: list[Path], worlds: list[Path] = ()) -> P
              "family": c["kind"], "level": None, "calibration_success": round(c["success"], 6), "difficulty": None}
             for c in chosen]
     manifest = {"format": "pbdyn-suite/1", "name": name, "version": "1", "dims": dims,
-                "speeds": list(PANEL_SPEEDS), "levels": levels_doc(), "parts": parts,
+                "speeds": list(PANEL_SPEEDS), "levels": level_ranges(), "parts": parts,
                 "maps": sorted(maps, key=lambda m: (m["part"], m["map_index"]))}
     (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return folder
@@ -236,7 +223,7 @@ def draft_mini(name: str, source: str) -> Path:
              "map_index": i, "level": None, "difficulty": None} for i, m in enumerate(picked)]
     pairs = [list(part.pairs[i * len(part.pairs) // MINI_PAIRS]) for i in range(MINI_PAIRS)]   # spread over the starts
     manifest = {"format": "pbdyn-suite/1", "name": name, "version": "1", "dims": src.dims, "speeds": [MINI_SPEED],
-                "levels": levels_doc(), "parts": [{"name": "generated", "scenario": "generated.toml",
+                "levels": level_ranges(), "parts": [{"name": "generated", "scenario": "generated.toml",
                                                    "pairs_flown": pairs}], "maps": maps,
                 "cut_from": src.name}
     (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
@@ -276,7 +263,7 @@ def measured(path: Path, store: Path, out: Path) -> Path:
     """Write ``out``: the pool ``path`` with every map's measured reference success from the panel's flights in
     ``store`` (module doc); a map the store does not hold in full stops the tool."""
     from pbdyn.config import load_scenario
-    from pbdyn.experiments.calibrate import panel_counts
+    from pbdyn.analysis.scale import panel_counts
     from pbdyn.experiments.store import ResultsStore
     from pbdyn.world.maps import enumerate_maps
 
@@ -397,7 +384,7 @@ def candidate_suite(folder: Path, dims: int, extra: list[Path], worlds: list[str
                      "family": "world:" + part.rstrip("_0123456789"), "level": None, "calibration_success": None,
                      "difficulty": None})
     manifest = {"format": "pbdyn-suite/2", "name": folder.name, "version": "candidates", "dims": dims,
-                "speeds": list(PANEL_SPEEDS), "levels": levels_doc(), "parts": parts, "maps": maps}
+                "speeds": list(PANEL_SPEEDS), "levels": level_ranges(), "parts": parts, "maps": maps}
     (folder / "suite.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return folder
 
@@ -475,7 +462,7 @@ def draft_v2(name: str, candidates, heldout) -> Path:
     text = LEVELS_FROM_TEXT.format(panel=", ".join(e.label for e in PANEL),
                                    speeds=", ".join(f"{v:g}" for v in PANEL_SPEEDS), per_map=per_map)
     manifest = {"format": SUITE_FORMAT, "name": name, "version": name.rsplit("-v", 1)[-1], "dims": cand.dims,
-                "speeds": list(cand.speeds), "levels": levels_doc(), "parts": parts,
+                "speeds": list(cand.speeds), "levels": level_ranges(), "parts": parts,
                 "maps": sorted(maps, key=lambda m: (m["part"], m["map_index"])),
                 LEVELS_FROM: {"tasks": "held-out", "panel": [e.label for e in PANEL], "text": text,
                               "candidates": len(pool)}}
@@ -670,48 +657,20 @@ def fly_heldout(name: str, out: Path, planners: list[str], workers: int) -> None
                   command=f"tools/make_suites.py fly-heldout {name}")
 
 
-def _measure_subset(counts: dict, speeds: list[float]) -> dict:
-    """measure() restricted to the panel respondents at ``speeds``: map id -> (success, ci, b, b_ci)."""
-    import numpy as np
-
-    from pbdyn.analysis.scale import difficulty_given_abilities
-    from pbdyn.experiments.calibrate import RESPONDENTS, load_anchors
-    from pbdyn.world.maps import stable_hash64
-
-    theta_all = load_anchors().theta()
-    cols = [j for j, r in enumerate(RESPONDENTS) if float(r.rsplit("@", 1)[1]) in speeds]
-    out = {}
-    for mid, m in counts.items():
-        s, n = m["success"][:, cols], m["trials"][:, cols]
-        t = s.shape[0]
-        rng = np.random.default_rng([0, stable_hash64(mid)])
-        w = rng.multinomial(t, np.full(t, 1.0 / t), size=1000).astype(float)
-        ks, ns = w @ s, w @ n
-        rate = ks.sum(axis=1) / ns.sum(axis=1)
-        b = difficulty_given_abilities(theta_all[cols], s.sum(axis=0), n.sum(axis=0))
-        bb = difficulty_given_abilities(theta_all[cols], ks, ns)
-        out[mid] = (float(s.sum() / n.sum()), [float(np.quantile(rate, 0.025)), float(np.quantile(rate, 0.975))],
-                    float(b), [float(np.quantile(bb, 0.025)), float(np.quantile(bb, 0.975))], t)
-    return out
-
-
 def _panel_measure(suite, flown_rows: dict) -> dict:
     """The panel's measurement of every map from its flights (``flown_rows``: panel label -> task rows): map
     "part/id" -> (success, success ci, difficulty, difficulty ci, tasks per respondent), by the same code as
-    `pbdyn calibrate` (or the respondents at the suite's speeds only)."""
-    from pbdyn.analysis.scale import PANEL, PANEL_SPEEDS
-    from pbdyn.experiments.calibrate import load_anchors, measure, panel_counts
+    `pbdyn calibrate`, from the respondents at the suite's speeds."""
+    from pbdyn.analysis.scale import PANEL, load_anchors, measure_difficulties, panel_counts
 
     panel_rows = []
     for e in PANEL:
         for r in flown_rows[e.label]:
             panel_rows.append({**r, "map_id": f"{r['part']}/{r['map_id']}", "planner_label": e.label,
                                "map_index": None})
-    counts = panel_counts(panel_rows)
-    if sorted(suite.speeds) == sorted(PANEL_SPEEDS):
-        return {m.map_id: (m.success, list(m.success_ci), m.difficulty, list(m.difficulty_ci), m.tasks)
-                for m in measure(counts, load_anchors(), dims=suite.dims)}
-    return _measure_subset(counts, list(suite.speeds))
+    return {m.map_id: (m.success, list(m.success_ci), m.difficulty, list(m.difficulty_ci), m.tasks)
+            for m in measure_difficulties(panel_counts(panel_rows), load_anchors(), dims=suite.dims,
+                                          speeds=suite.speeds)}
 
 
 def link_offset(suite_measure: dict, heldout_measure: dict) -> float:
@@ -759,7 +718,7 @@ def freeze(name: str, out: Path, heldout: Path | None = None) -> None:
     from pbdyn.benchmark.card import machine
     from pbdyn.benchmark.run import REFERENCE_FILE, THESIS_GAZE, read_rows, reference_document
     from pbdyn.benchmark.suite import LEVELS_FROM, REFERENCES_DIGEST, SUITE_FORMAT, load_suite, references_digest
-    from pbdyn.experiments.calibrate import load_anchors
+    from pbdyn.analysis.scale import load_anchors
     from pbdyn.planning.registry import pair_fingerprint
 
     folder = SUITES / name

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pbdyn.analysis.scale import sigmoid
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.features import FEATURES
 
@@ -67,7 +68,7 @@ class Predictor:
         eta = x @ np.asarray(self.coef, float)
         var = np.einsum("ni,ij,nj->n", x, np.asarray(self.cov, float), x) + self.sigma ** 2
         half = Z95 * np.sqrt(var)
-        return _sigmoid(eta), _sigmoid(eta - half), _sigmoid(eta + half)
+        return sigmoid(eta), sigmoid(eta - half), sigmoid(eta + half)
 
     def percentile(self, success: float, dims: int) -> float | None:
         """The share (%) of the ``dims``-D calibration maps easier (higher measured reference success) than
@@ -84,10 +85,6 @@ class Predictor:
                 "sd": list(self.sd), "coef": list(self.coef), "cov": [list(r) for r in self.cov],
                 "sigma": self.sigma, "dims": list(self.dims), "calibration": self.calibration,
                 "source": self.source}
-
-
-def _sigmoid(x):
-    return 1.0 / (1.0 + np.exp(-np.asarray(x, float)))
 
 
 def fit_predictor(rows: list[dict], features, *, source: str = "", calibration: dict | None = None) -> Predictor:
@@ -130,7 +127,7 @@ def map_sigma(k, n, eta) -> float:
     p = sigmoid(eta) (method of moments)."""
     k, n, eta = (np.asarray(a, float) for a in (k, n, eta))
     emp = np.log((k + 0.5) / (n - k + 0.5))
-    p = _sigmoid(eta)
+    p = sigmoid(eta)
     noise = 1.0 / np.maximum(n * p * (1.0 - p), 1e-12)
     return float(math.sqrt(max(0.0, float(np.mean((emp - eta) ** 2 - noise)))))
 

@@ -251,13 +251,12 @@ def _ability_draws(rows: list[dict], difficulty: dict, seed: int, resamples=None
     bootstrap draws [B]. ``resamples``: (the suite's maps in order, their weights [B, M], map_weights) shared by
     every planner of a card; default: weights over the maps ``rows`` cover, drawn from ``seed``. A planner that flew
     every map gets the same draws either way."""
-    from pbdyn.analysis.scale import ability_given_difficulties, difficulty_given_abilities
+    from pbdyn.analysis.scale import ability_given_difficulties
 
     maps = sorted({(r["part"], r["map_id"]) for r in rows})
     b = np.array([difficulty[m] for m in maps])
     idx = {m: i for i, m in enumerate(maps)}
-    k = np.zeros(len(maps))
-    n = np.zeros(len(maps))
+    k, n = np.zeros(len(maps)), np.zeros(len(maps))
     for r in rows:
         i = idx[(r["part"], r["map_id"])]
         k[i] += r["outcome"] == "success"
@@ -269,14 +268,9 @@ def _ability_draws(rows: list[dict], difficulty: dict, seed: int, resamples=None
         order, weights = resamples
         col = {m: j for j, m in enumerate(order)}
         w = weights[:, [col[m] for m in maps]]
-    boot = -difficulty_given_abilities(-b, w * k, w * n)      # every resample at once (the mirror, as in scale)
+    boot = ability_given_difficulties(b, w * k, w * n)        # every resample at once
     lo, hi = np.quantile(boot, [0.025, 0.975])
     return {"logit": float(a), "ci95": [float(lo), float(hi)]}, boot
-
-
-def _ability(rows: list[dict], difficulty: dict, seed: int) -> dict:
-    """The ability (logits) given the maps' fixed difficulties, with a map-bootstrap 95% interval."""
-    return _ability_draws(rows, difficulty, seed)[0]
 
 
 def goal_radii(suite) -> dict:
@@ -472,10 +466,8 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
     """The score card (module doc). ``planner``: {"label", "trajectory", "gaze", "fingerprint"}; ``rows``: its
     task rows; ``references``: label -> {"meta": {...}, "rows": [task rows]} (the suite's shipped references)."""
     from pbdyn import __version__
-    from pbdyn.experiments.calibrate import load_anchors
-    from pbdyn.analysis.scale import SCALE_VERSION
+    from pbdyn.analysis.scale import load_anchors, scale_name
 
-    anchors = load_anchors()
     scenarios = part_scenarios(suite)
     radius = {name: float(sc.task.goal_radius) for name, sc in scenarios.items()}
     params = flight_parameters(suite, scenarios)
@@ -510,11 +502,10 @@ def make_card(suite, planner: dict, rows: list[dict], references: dict, *, seed:
                              for lv in suite.levels],
                   "levels_from": levels_from(suite),
                   "map_ids": suite.id_rule, **({"note": V1_NOTE} if suite.id_rule == "setup-1" else {})}
-    scale = f"anchored-{SCALE_VERSION}/{anchors.version}" if anchors is not None else "unanchored"
     card = {"schema": CARD_SCHEMA, "summary": "", "suite": suite_info,
             "planner": {**planner, "fov_deg": _fov(planner.get("gaze"), sensor_fov)},
             "flight_parameters": params,
-            "provenance": {"pbdyn": __version__, "scale": scale, "machine": machine(),
+            "provenance": {"pbdyn": __version__, "scale": scale_name(load_anchors()), "machine": machine(),
                            "code": code_provenance(planner, references),
                            "date": date or datetime.now(timezone.utc).replace(microsecond=0).isoformat()},
             "trials": {"flown": len(rows), "expected": suite.n_tasks(), "errors": mine["outcomes"][Outcome.ERROR.value]},

@@ -219,8 +219,6 @@ def flight_levels(paths) -> dict[str, dict[str, int]]:
     "<suite>.<part>" of a shipped suite): scenario name -> {the store's map id: level}, for the stores whose flown
     world is the suite part's (the map ids the store holds are among the part's, by the suite's id rule); other
     stores are left out."""
-    import json as _json
-
     from pbdyn.experiments.store import ResultsStore
 
     names = set(suite_names())
@@ -228,7 +226,7 @@ def flight_levels(paths) -> dict[str, dict[str, int]]:
     for path in paths:
         st = ResultsStore.open(path)
         try:
-            name = str(_json.loads(st.get_meta("scenario") or "{}").get("name") or "")
+            name = str(json.loads(st.get_meta("scenario") or "{}").get("name") or "")
             suite_name, _, part = name.rpartition(".")
             if suite_name not in names:          # not a suite's flight store: its rows are not read
                 continue

@@ -97,8 +97,7 @@ def evaluate_stores(paths: list[str | Path], *, plots: str | Path | None = None,
     ``levels`` as in load_results)."""
     from pbdyn.analysis.figure_tables import figure_tables
     from pbdyn.analysis.report import evaluate, format_table, paired_sections
-
-    from pbdyn.experiments.calibrate import format_scale, load_anchors, place_on_scale
+    from pbdyn.analysis.scale import format_scale, load_anchors, place_on_scale
 
     trials, maps, controlled = load_results(paths, pool, levels)
     report = evaluate(trials, maps, n_boot=n_boot, seed=seed, controlled=controlled)
