@@ -109,7 +109,7 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     observers: extra step observers (pbdyn.sim.observers.Observer).
     """
     from pbdyn.sim.spec import make_trial_spec, with_planner_objects
-    from pbdyn.sim.trial import run_trial as fly
+    from pbdyn.sim.trial import run_trial as fly_one
 
     sc = load_scenario(scenario)
     ms = _map(sc, map)
@@ -137,7 +137,7 @@ def run_trial(scenario="quickstart", *, planner=None, gaze=None, map: int = 0, s
     spec = with_planner_objects(spec, tobj, gobj)
     from pbdyn.world.rollout import get_rollout
 
-    return fly(spec, get_rollout(sc, ms), gui=gui, trace_path=trace, gui_sleep=sc.world.dt if gui else 0.0,
+    return fly_one(spec, get_rollout(sc, ms), gui=gui, trace_path=trace, gui_sleep=sc.world.dt if gui else 0.0,
                trajectory_planner=tobj, gaze_planner=gobj, observers=observers, gui_follow=follow)
 
 

@@ -52,7 +52,7 @@ MOTION_MODELS = ("pbdyn.motion.cvm", "pbdyn.motion.rvo")
 identity holds only its own model's, and the core's none (a row's world fingerprint identifies its rollout)."""
 
 CORE_ROOTS = ("pbdyn.sim.trial",)
-"""The trial core's entry: every row is flown through pbdyn.sim.trial.fly."""
+"""The trial core's entry: every row is flown through pbdyn.sim.trial.fly_trials."""
 
 MAX_USER_FILES = 5_000
 """A plug-in's package may hold at most this many source files (a path that points at a whole drive is an error,

@@ -32,7 +32,7 @@ PLANNER_CALL_TIMEOUT_S = 60.0
 """Wall-clock budget (s) of one decision of a trial whose planner pair includes a plug-in: its ``replan_check``,
 ``plan`` and ``yaw_rate`` calls of one step together (pbdyn.sim.agent.Agent.act). A decision past it ends the trial
 as an error naming the budget (a batch's ``error`` row; the batch goes on). Built-in pairs have no budget and pay
-nothing for it. Within pbdyn.sim.trial.fly one interval timer (decision_watchdog) serves every decision of the
+nothing for it. Within pbdyn.sim.trial.fly_trials one interval timer (decision_watchdog) serves every decision of the
 loop, and a decision costs a clock read (about 0.1 us); elsewhere each decision arms a time_budget of its own
 (about 12 us). Interrupts Python code (loops, sleeps, waits) in a process's main thread -- local batch workers,
 ``pbdyn run`` --, not one C call that never returns, and not on Dask workers (threads), where a decision is not
@@ -213,7 +213,7 @@ def watchdog() -> "decision_watchdog | None":
 
 class decision_watchdog:
     """Context manager: one interval timer for many short, budgeted calls of a loop (plug-in planners' decisions in
-    pbdyn.sim.trial.fly), armed once. A call marks its start (``started = time.monotonic()``) and clears it
+    pbdyn.sim.trial.fly_trials), armed once. A call marks its start (``started = time.monotonic()``) and clears it
     (``started = None``) when it returns; the timer ticks every min(1 s, seconds / 4) and raises UserCodeTimeout in
     a call that has run ``seconds`` or more (again at each tick if user code swallows it), so a call costs a clock
     read instead of the timer and handler calls of a time_budget. It arms only in the main thread of a POSIX

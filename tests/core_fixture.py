@@ -129,12 +129,12 @@ def fly_one_by_one(name: str, *, traces: bool = True) -> dict:
 
 def fly_batch(name: str) -> list[dict]:
     """The rows of a group flown as one batch on one world (the batch workers' path)."""
-    from pbdyn.sim.trial import fly, make_world
+    from pbdyn.sim.trial import fly_trials, make_world
 
     _, ro, specs = specs_of(name)
     world = make_world(specs[0], ro)
     try:
-        results = fly(specs, ro, world=world)
+        results = fly_trials(specs, ro, world=world)
     finally:
         world.close()
     for r in results:

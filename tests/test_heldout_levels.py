@@ -55,7 +55,7 @@ def frozen(tools, tmp_path_factory):
         tools.fly_heldout("tiny-v1", flights, [], workers=1)
         folder = tools.draft_v2("tiny-v2", [src, src], [flights / "heldout"] * 2)   # a map once, whatever its source
         draft = json.loads((folder / "suite.json").read_text())
-        tools.fly("tiny-v2", flights, [], workers=1)
+        tools.fly_references("tiny-v2", flights, [], workers=1)
         tools.freeze("tiny-v2", flights, [flights / "heldout"])
     finally:
         tools.SUITES = old

@@ -1,4 +1,4 @@
-"""The trial core (pbdyn.sim.batch.TrialBatch, pbdyn.sim.trial.fly): trials flown together give exactly the recorded
+"""The trial core (pbdyn.sim.batch.TrialBatch, pbdyn.sim.trial.fly_trials): trials flown together give exactly the recorded
 rows of trials flown one by one, for every built-in planner pair in 2D and 3D, under the thesis_program profile, on
 walled and imported worlds, with observers; a trial that raises ends only itself; the guarded step lets no caller
 move the MAV outside its limits; the acceleration action is integrated within them."""
@@ -23,7 +23,7 @@ from pbdyn.sim.batch import TrialBatch
 from pbdyn.sim.guard import Accel, Action, breach, integrate
 from pbdyn.sim.observers import SPLITS, TraceObserver
 from pbdyn.sim.spec import make_trial_spec, with_planner_objects
-from pbdyn.sim.trial import _Log, _share_rest, fly, make_world, run_trial
+from pbdyn.sim.trial import _Log, _share_rest, fly_trials, make_world, run_trial
 from pbdyn.world.maps import get_map
 from pbdyn.world.rollout import get_rollout
 from tests import core_fixture as fx
@@ -46,7 +46,7 @@ def test_a_batch_flies_the_recorded_one_by_one_rows(recorded, group):
 def test_a_batch_under_the_thesis_program_profile_flies_the_recorded_rows(recorded):
     """Every third case of the thesis_program group (program braking, pixel positions, the program's plans)."""
     _, ro, specs = fx.specs_of("thesis_program")
-    got = fly(specs[::3], ro)
+    got = fly_trials(specs[::3], ro)
     assert [fx.row_of(r) for r in got] == recorded["thesis_program"]["rows"][::3]
 
 
@@ -56,7 +56,7 @@ def test_observers_watch_every_trial_of_a_batch(recorded):
     with tempfile.TemporaryDirectory() as tmp:
         paths = {i: Path(tmp, f"{i}.npz") for i in (0, 17)}
         observers = [[TraceObserver(paths[i])] if i in paths else [] for i in range(len(specs))]
-        rows = [fx.row_of(r) for r in fly(specs[:20], ro, observers=observers[:20])]
+        rows = [fx.row_of(r) for r in fly_trials(specs[:20], ro, observers=observers[:20])]
         assert rows == recorded["all_2d"]["rows"][:20]
         for i, path in paths.items():
             assert fx.trace_digest(path) == recorded["all_2d"]["traces"][str(i)]
@@ -88,7 +88,7 @@ def test_a_trial_that_raises_ends_only_itself():
     world = make_world(specs[0], ro)
     try:
         single = [run_trial(s, ro, world=world) for s in specs if s.start[0] < 40.0]
-        together = fly(odd, ro, world=world)
+        together = fly_trials(odd, ro, world=world)
         with pytest.raises(ConfigError, match="start x > 40"):       # alone, what it raised is raised
             run_trial(next(s for s in odd if s.start[0] > 40.0), ro, world=world)
     finally:
@@ -121,9 +121,9 @@ def test_step_times_account_for_the_loop_in_a_batch_and_alone():
     ro, specs = _quickstart_specs(8)
     world = make_world(specs[0], ro)
     try:
-        fly(specs[:1], ro, world=world)           # imports and compiled code in place before timing
+        fly_trials(specs[:1], ro, world=world)           # imports and compiled code in place before timing
         t0 = time.perf_counter()
-        together = fly(specs, ro, world=world)
+        together = fly_trials(specs, ro, world=world)
         elapsed = time.perf_counter() - t0
         t0 = time.perf_counter()
         single = [run_trial(s, ro, world=world) for s in specs]

@@ -284,9 +284,9 @@ def measured(path: Path, store: Path, out: Path) -> Path:
     return out
 
 
-def fly(name: str, out: Path, planners: list[str], workers: int) -> None:
+def fly_references(name: str, out: Path, planners: list[str], workers: int) -> None:
     """Fly the built-in planners (or ``planners``) on suite NAME into out/<trajectory>/."""
-    from pbdyn.benchmark.run import THESIS_GAZE, _check_marker, fly as fly_suite, planner_entry
+    from pbdyn.benchmark.run import THESIS_GAZE, _check_marker, fly_suite, planner_entry
     from pbdyn.benchmark.suite import load_suite
 
     suite = load_suite(SUITES / name)
@@ -645,7 +645,7 @@ def fly_heldout(name: str, out: Path, planners: list[str], workers: int) -> None
     """Fly the reference panel (or ``planners``) on the held-out tasks of suite NAME's maps into
     out/heldout/<trajectory>/."""
     from pbdyn.analysis.scale import PANEL
-    from pbdyn.benchmark.run import _check_marker, fly as fly_suite, planner_entry
+    from pbdyn.benchmark.run import _check_marker, fly_suite, planner_entry
     from pbdyn.benchmark.suite import load_suite
 
     suite = heldout_suite(load_suite(SUITES / name if (SUITES / name).is_dir() else name))
@@ -871,7 +871,7 @@ def main(argv=None) -> int:
     elif a.cmd == "fly-heldout":
         fly_heldout(a.name, a.out, a.planner, a.workers)
     elif a.cmd == "fly":
-        fly(a.name, a.out, a.planner, a.workers)
+        fly_references(a.name, a.out, a.planner, a.workers)
     else:
         freeze(a.name, a.out, a.heldout)
     return 0

@@ -196,7 +196,7 @@ class Flights:
                                    "resume)") from None
 
 
-def fly(suite: Suite, entry: PlannerEntry, out: Path, *, workers=None, scheduler=None, progress: bool = False,
+def fly_suite(suite: Suite, entry: PlannerEntry, out: Path, *, workers=None, scheduler=None, progress: bool = False,
         command: str = "", rerun_changed: bool = False) -> list[dict]:
     """Fly ``entry`` on every part of ``suite`` into out/flights/ (resuming what is there; Flights) and return its
     task rows (read_rows)."""
@@ -318,7 +318,7 @@ def reference_document(suite: Suite, flown: dict) -> dict:
             "planners": {k: flown[k]["meta"] for k in sorted(flown)}, "rows": rows}
 
 
-def compare_rows(mine: list[dict], reference: list[dict]) -> list[str]:
+def reproduction_differences(mine: list[dict], reference: list[dict]) -> list[str]:
     """The differences between flown task rows and reference rows (DETERMINISTIC_FIELDS), one line each; [] when
     they reproduce bit for bit."""
     ref = {task_key(r): r for r in reference}
@@ -391,7 +391,7 @@ def bench(planner: str, *, gaze: str | None = None, params=None, gaze_params=Non
             **parameter_record(entry)}
     card = make_card(s, info, rows, refs)
     if reproduce:
-        diffs = compare_rows(rows, refs[entry.label]["rows"])
+        diffs = reproduction_differences(rows, refs[entry.label]["rows"])
         card["reproduction"] = {"reference": entry.label, "tasks": len(refs[entry.label]["rows"]),
                                 "identical": not diffs, "differences": diffs[:50], "n_differences": len(diffs)}
     if replays is not None:

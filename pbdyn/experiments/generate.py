@@ -197,7 +197,7 @@ def _entry(req: MetricTarget, c: Candidate) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ measuring
-def measure(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]]) -> list[tuple[int, float, int]]:
+def measure_metric(scenario: Scenario, metric: str, entries: list[tuple[int, dict, int]]) -> list[tuple[int, float, int]]:
     """(index, the metric's value, the map's seed) of each (index, setup values, replicate) map of ``scenario``:
     its rollout over the metric's horizon, then the metric as `pbdyn metrics` computes it (the scenario's MAV
     radius and backend)."""
@@ -243,7 +243,7 @@ def shipped_predictor(dims: int):
 
 def _measure_task(args):
     doc, metric, entries = args
-    return measure(parse_scenario(doc), metric, entries)
+    return measure_metric(parse_scenario(doc), metric, entries)
 
 
 class _Measurer:
@@ -265,7 +265,7 @@ class _Measurer:
         entries = [(i, {"count": c.count, "radius": c.radius, "speed": c.speed, "structure": family}, c.replicate)
                    for i, c in enumerate(cands)]
         if self.pool is None:
-            results = measure(self.scenario, self.metric, entries)
+            results = measure_metric(self.scenario, self.metric, entries)
         else:
             results = self._measure_in_pool(entries)
         for i, value, seed in results:

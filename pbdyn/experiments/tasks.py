@@ -53,7 +53,7 @@ class TrialTask:
 
 @dataclass(frozen=True)
 class TrialGroupTask:
-    """Trials of one map flown together as one trial batch (pbdyn.sim.trial.fly): their keys and TrialSpecs, in
+    """Trials of one map flown together as one trial batch (pbdyn.sim.trial.fly_trials): their keys and TrialSpecs, in
     order, and where the map's rollout is."""
 
     keys: tuple
@@ -346,7 +346,7 @@ def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> lis
     group is done. If the shared part of the batch's loop fails (world, ray batch), the trials not yet ended are
     flown one by one with run_trial_task instead."""
     limit_threads()
-    from pbdyn.sim.trial import fly
+    from pbdyn.sim.trial import fly_trials
 
     singles = [TrialTask(k, s, task.rollout) for k, s in zip(task.keys, task.specs)]
     queue = _CACHE.get("queue")
@@ -368,7 +368,7 @@ def run_trial_group_task(task: TrialGroupTask, data: bytes | None = None) -> lis
     try:
         ro = _rollout(task.rollout, data)
         world = _world(singles[0], task.specs[0], ro)
-        fly(task.specs, ro, world=world, on_result=ended)
+        fly_trials(task.specs, ro, world=world, on_result=ended)
     except Exception:
         _CACHE["world"] = (None, None)
         for i, t in enumerate(singles):

@@ -55,10 +55,10 @@ class _Violations:
     def __init__(self):
         self.found: tuple[PlanViolation, ...] = ()
 
-    def on_step(self, env, agent, decision, record) -> None:
+    def on_step(self, state, agent, decision, record) -> None:
         pass
 
-    def on_end(self, env, agent) -> None:
+    def on_end(self, state, agent) -> None:
         self.found = tuple(agent.violations)
 
 

@@ -100,38 +100,38 @@ class GuiView:
         self.items[name] = client.addUserDebugLine(list(map(float, a)), list(map(float, b)), list(rgba[:3]),
                                                    lineWidth=width, replaceItemUniqueId=old)
 
-    def start(self, env) -> None:
-        world = env.world
+    def start(self, state) -> None:
+        world = state.world
         c = world.client
-        sc = env.spec.scenario
+        sc = state.spec.scenario
         highlight_mav(world)
-        cam = arena_camera(sc.world.size, world.flight_height, env.dims)
+        cam = arena_camera(sc.world.size, world.flight_height, state.dims)
         focal = float(c.getDebugVisualizerCamera()[3][5]) if c.getConnectionInfo()["connectionMethod"] == 1 else 0.0
         if focal > 0.0:       # the window's own vertical field of view: fit the arena to it (GUI connection = 1)
             scale = focal * math.tan(math.radians(CAMERA_FOV_DEG / 2.0))
             cam = Camera(cam.target, cam.distance * scale, cam.yaw, cam.pitch)
         c.resetDebugVisualizerCamera(cam.distance, cam.yaw, cam.pitch, list(cam.target))
-        g = world.to_world3(env.goal)
-        r = float(env.goal_radius)
+        g = world.to_world3(state.goal)
+        r = float(state.goal_radius)
         for k, (dx, dy) in enumerate(((r, 0.0), (0.0, r))):
             self._line(c, f"goal{k}", g - [dx, dy, 0.0], g + [dx, dy, 0.0], GOAL_RGBA, 4.0)
         self._line(c, "goal_post", g, g + [0.0, 0.0, 3.0], GOAL_RGBA, 4.0)
-        self.disc = _disc(c, world.to_world3(env.position), world.mav_radius, MAV_RGBA)
+        self.disc = _disc(c, world.to_world3(state.position), world.mav_radius, MAV_RGBA)
         self.t0 = time.perf_counter()
 
-    def on_step(self, env, agent, decision, record) -> None:
-        world = env.world
+    def on_step(self, state, agent, decision, record) -> None:
+        world = state.world
         c = world.client
         if self.t0 is None:
-            self.start(env)
-        p = world.to_world3(env.position)
+            self.start(state)
+        p = world.to_world3(state.position)
         c.resetBasePositionAndOrientation(self.disc, p.tolist(), [0.0, 0.0, 0.0, 1.0])
-        rng, half = float(env.spec.scenario.sensor.range), math.radians(min(float(env.fov_deg), 359.9)) / 2.0
+        rng, half = float(state.spec.scenario.sensor.range), math.radians(min(float(state.fov_deg), 359.9)) / 2.0
         for k, side in enumerate((-1.0, 1.0)):
-            a = env.yaw + side * half
+            a = state.yaw + side * half
             self._line(c, f"fov{k}", p, p + rng * np.array([math.cos(a), math.sin(a), 0.0]), (0.3, 0.6, 1.0, 1.0))
         traj = getattr(agent, "trajectory", None)
-        plan = world.to_world3(traj.remaining(env.t).p) if traj is not None else p[None]
+        plan = world.to_world3(traj.remaining(state.t).p) if traj is not None else p[None]
         idx = np.unique(np.linspace(0, plan.shape[0] - 1, min(PLAN_SEGMENTS + 1, plan.shape[0])).astype(int))
         for k in range(PLAN_SEGMENTS):                    # the plan as polyline segments (debug items are reused)
             a, b = (plan[idx[k]], plan[idx[k + 1]]) if k + 1 < idx.shape[0] else (p, p)
@@ -139,7 +139,7 @@ class GuiView:
         if self.follow:
             cam = c.getDebugVisualizerCamera()
             c.resetDebugVisualizerCamera(cam[10], cam[8], cam[9], p.tolist())
-        self.pace(env.done)
+        self.pace(state.done)
 
     def pace(self, done: bool) -> None:
         """Count a step and, in real time, sleep until the wall clock reaches steps x dt since the start (a step's own
@@ -153,7 +153,7 @@ class GuiView:
                 time.sleep(wait)
                 self.slept += wait
 
-    def on_end(self, env, agent) -> None:
+    def on_end(self, state, agent) -> None:
         pass
 
 
@@ -168,23 +168,23 @@ class Snapshot:
         self.image = None
         self.view = self.proj = None
 
-    def on_step(self, env, agent, decision, record) -> None:
+    def on_step(self, state, agent, decision, record) -> None:
         self.last = (getattr(agent, "trajectory", None), record.t)   # the plan in execution and when: drawn at the end
 
-    def on_end(self, env, agent) -> None:
-        world = env.world
+    def on_end(self, state, agent) -> None:
+        world = state.world
         c = world.client
-        world.set_mav_pose(env.position, env.yaw)
+        world.set_mav_pose(state.position, state.yaw)
         highlight_mav(world)
-        markers = [_marker(c, world.to_world3(env.goal), max(0.6, 0.6 * float(env.goal_radius)), GOAL_RGBA),
-                   _disc(c, world.to_world3(env.position), world.mav_radius, MAV_RGBA)]
+        markers = [_marker(c, world.to_world3(state.goal), max(0.6, 0.6 * float(state.goal_radius)), GOAL_RGBA),
+                   _disc(c, world.to_world3(state.position), world.mav_radius, MAV_RGBA)]
         traj, t = getattr(self, "last", (None, 0.0))
         plan = None if traj is None else traj.remaining(t).p
         if plan is not None and plan.shape[0] > 1:
             for q in world.to_world3(plan[1::max(1, plan.shape[0] // 8)]):
                 markers.append(_marker(c, q, 0.3, PLAN_RGBA))
         try:
-            cam = arena_camera(env.spec.scenario.world.size, world.flight_height, env.dims)
+            cam = arena_camera(state.spec.scenario.world.size, world.flight_height, state.dims)
             self.view, self.proj = view_projection(c, cam, self.size, self.size)
             _, _, rgba, _, _ = c.getCameraImage(self.size, self.size, self.view, self.proj,
                                                 renderer=c.ER_TINY_RENDERER)

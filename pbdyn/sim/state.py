@@ -283,10 +283,10 @@ class TrialState:
         return None, clearance
 
 
-def check_dynamic_many(envs: list, targets: list) -> list[DynamicContact]:
+def check_dynamic_many(states: list, targets: list) -> list[DynamicContact]:
     """The swept obstacle contacts of the moves state.position -> target of trials (TrialStates) with one
     dynamic_batch_key, all at once (the same floats as each trial's own check)."""
-    env = envs[0]
-    k0 = env.k0 + env.k
-    return swept_dynamic_many(np.array([e.position for e in envs]), np.array(targets), env.rollout.at(k0)[0],
-                              env.rollout.at(k0 + 1)[0], env.radii, env.spec.scenario.drone.radius)
+    state = states[0]
+    k0 = state.k0 + state.k
+    return swept_dynamic_many(np.array([s.position for s in states]), np.array(targets), state.rollout.at(k0)[0],
+                              state.rollout.at(k0 + 1)[0], state.radii, state.spec.scenario.drone.radius)

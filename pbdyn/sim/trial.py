@@ -1,6 +1,6 @@
 """Flying trials (docs/architecture.md "The trial core", thesis Algorithm 1): the one loop over the trial core.
 
-``fly`` flies N >= 1 trials of one map together: the core (pbdyn.sim.batch.TrialBatch) owns steps (1)-(3), (6) and
+``fly_trials`` flies N >= 1 trials of one map together: the core (pbdyn.sim.batch.TrialBatch) owns steps (1)-(3), (6) and
 (7), shared across the trials; one agent per trial (pbdyn.sim.agent.Agent) owns steps (4)-(5), braking and the plan
 contract; observers (pbdyn.sim.observers) record traces and profiles and pace the GUI, per trial. ``run_trial`` is a
 batch of one. Each ended trial becomes its TrialResult.
@@ -28,7 +28,7 @@ from pbdyn.usercode import decision_watchdog
 from pbdyn.world.bullet import PyBulletWorld
 from pbdyn.world.rollout import Rollout
 
-__all__ = ["EXECUTIONS", "SPLITS", "TrialBatch", "TrialSpec", "brake", "build_planners", "fly", "make_trial_spec",
+__all__ = ["EXECUTIONS", "SPLITS", "TrialBatch", "TrialSpec", "brake", "build_planners", "fly_trials", "make_trial_spec",
            "make_world", "run_trial"]
 
 
@@ -49,7 +49,7 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
     "planned" (True where replan_check asked for a plan).
     world: a PyBulletWorld from make_world for this map to reuse (batch workers); it is left open.
     trajectory_planner, gaze_planner: a planner class or instance used instead of the spec's named one (the
-    row keeps the spec's names). observers: extra observers (pbdyn.sim.observers.Observer). execution: as fly's.
+    row keeps the spec's names). observers: extra observers (pbdyn.sim.observers.Observer). execution: as fly_trials'.
     """
     watchers = list(observers or [])
     if profile is not None:
@@ -60,11 +60,11 @@ def run_trial(spec: TrialSpec, rollout: Rollout, *, gui: bool = False, trace_pat
         from pbdyn.sim.gui import GuiView
 
         watchers.append(GuiView(spec.scenario.world.dt, follow=gui_follow, real_time=gui_sleep > 0))
-    return fly([spec], rollout, world=world, gui=gui, observers=[watchers],
+    return fly_trials([spec], rollout, world=world, gui=gui, observers=[watchers],
                planners=[(trajectory_planner, gaze_planner)], raise_errors=True, execution=execution)[0]
 
 
-def fly(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None, gui: bool = False,
+def fly_trials(specs: Sequence[TrialSpec], rollout: Rollout, *, world: PyBulletWorld | None = None, gui: bool = False,
         observers: Sequence[list] | None = None, planners: Sequence[tuple] | None = None,
         step_walls: list | None = None, on_result=None, raise_errors: bool = False,
         execution: str | None = None) -> list:
@@ -149,7 +149,7 @@ class _Results:
 
 def _flight(batch: TrialBatch, flying: list[int], specs, rollout: Rollout, agents: list, logs: dict,
             out: _Results) -> None:
-    """The loop of fly(): each tick the batch steps every trial (its agent decides, the guard, the move and the
+    """The loop of fly_trials(): each tick the batch steps every trial (its agent decides, the guard, the move and the
     checks, the next sensing, the observers), each step's wall times are logged, and the trials that ended become
     results (those that raised, their exceptions)."""
     window = time.perf_counter()                 # a tick's window: from its sensing to the next tick's sensing
@@ -207,11 +207,11 @@ def step_summary(timings: dict, step_walls: list, plan_walls: list) -> None:
     timings["wall_planning_p99_s"] = float(np.percentile(plan_walls, 99)) if plan_walls else 0.0
 
 
-def _result(spec: TrialSpec, rollout: Rollout, env: TrialState, agent: Agent, log: _Log) -> TrialResult:
-    """The TrialResult of the ended trial ``env`` (its wall timings summarised into ``log``)."""
-    grid_discovered = env.grid.discovered()
-    tracked = int(env.tracker.ever_tracked)
-    tracked_time = float(env.tracker.tracked_time_s)
+def _result(spec: TrialSpec, rollout: Rollout, state: TrialState, agent: Agent, log: _Log) -> TrialResult:
+    """The TrialResult of the ended trial ``state`` (its wall timings summarised into ``log``)."""
+    grid_discovered = state.grid.discovered()
+    tracked = int(state.tracker.ever_tracked)
+    tracked_time = float(state.tracker.tracked_time_s)
     timings = log.timings
     step_summary(timings, log.step_walls, log.plan_walls)
     wall = timings["wall_setup_s"] + sum(log.step_walls)
@@ -228,16 +228,16 @@ def _result(spec: TrialSpec, rollout: Rollout, env: TrialState, agent: Agent, lo
         gaze=spec.planner.gaze, planner=spec.planner.trajectory, motion_profile=motion,
         map_index=ms.index, map_id=ms.map_id, map_seed=ms.seed, obstacle_count=count,
         obstacle_radius=radius, obstacle_speed=speed, mav_speed=float(spec.v_max),
-        start=tuple(spec.start), goal=tuple(spec.goal), flight_time_s=round(env.steps * env.dt, 10),
+        start=tuple(spec.start), goal=tuple(spec.goal), flight_time_s=round(state.steps * state.dt, 10),
         grid_discovered=grid_discovered, obstacles_tracked=tracked, tracked_time_s=round(tracked_time, 10),
-        outcome=env.outcome.value, final_state=agent.state, reason=_reason(env),
-        min_clearance_m=float(env.min_clearance), planning_failures=agent.total_failures, steps=env.steps,
+        outcome=state.outcome.value, final_state=agent.state, reason=_reason(state),
+        min_clearance_m=float(state.min_clearance), planning_failures=agent.total_failures, steps=state.steps,
         planner_label=spec.planner.label, scenario=sc.name, map_key=ms.key, config_hash=spec.config_hash,
         planner_fingerprint=recorded_fingerprint(spec.planner.trajectory, spec.planner.gaze), profile=sc.profile,
-        start_delay_s=round(env.start.time_s, 10),
-        max_speed_mps=env.max_speed, max_accel_mps2=env.max_accel,
-        limits_exceeded=limits_exceeded(env.max_speed, env.max_accel, env.limits.v_max, env.limits.a_max),
-        **task_metrics(spec, env.rollout, env.start.time_s), path_length_m=round(env.path_length, 10),
+        start_delay_s=round(state.start.time_s, 10),
+        max_speed_mps=state.max_speed, max_accel_mps2=state.max_accel,
+        limits_exceeded=limits_exceeded(state.max_speed, state.max_accel, state.limits.v_max, state.limits.a_max),
+        **task_metrics(spec, state.rollout, state.start.time_s), path_length_m=round(state.path_length, 10),
         wall_time_s=wall, wall_timings=timings)
 
 
@@ -305,12 +305,12 @@ def limits_exceeded(max_speed: float, max_accel: float, v_max: float, a_max: flo
     return "; ".join(out)
 
 
-def _reason(env: TrialState) -> str:
+def _reason(state: TrialState) -> str:
     """The outcome's reason, with a note when the "first_clear" start rule found no clear start."""
-    if env.start.clear:
-        return env.reason
-    task = env.spec.scenario.task
-    return (f"{env.reason} (the start was not clear for {task.start_window_s:g} s within {task.start_wait_max_s:g} "
-            f"s: began at the clearest moment, t = {env.start.time_s:g} s)")
+    if state.start.clear:
+        return state.reason
+    task = state.spec.scenario.task
+    return (f"{state.reason} (the start was not clear for {task.start_window_s:g} s within {task.start_wait_max_s:g} "
+            f"s: began at the clearest moment, t = {state.start.time_s:g} s)")
 
 

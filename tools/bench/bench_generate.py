@@ -31,7 +31,7 @@ from bench_common import machine  # noqa: E402
 
 import pbdyn  # noqa: E402
 from pbdyn.config import parse_scenario  # noqa: E402
-from pbdyn.experiments.generate import BOX, FAMILIES, MetricTarget, measure, scenario_document  # noqa: E402
+from pbdyn.experiments.generate import BOX, FAMILIES, MetricTarget, measure_metric, scenario_document  # noqa: E402
 
 METRIC = "survivability"
 CONFIGS = tuple((f, 2) for f in FAMILIES) + (("uniform", 3), ("mixed", 3))
@@ -46,7 +46,7 @@ def pilot_range(family: str, dims: int) -> tuple[float, float]:
     corners = [(i, {"count": n, "radius": r, "speed": v, "structure": family}, i)
                for i, (n, r, v) in enumerate((n, r, v) for n in BOX["count"] for r in BOX["radius"]
                                              for v in BOX["speed"])]
-    values = [value for _, value, _ in measure(sc, METRIC, corners)]
+    values = [value for _, value, _ in measure_metric(sc, METRIC, corners)]
     return min(values), max(values)
 
 

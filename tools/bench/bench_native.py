@@ -26,7 +26,7 @@ def record_views(setups: int, limit: int) -> list:
     10th step and every step whose best candidate failed (grids copied as they were)."""
     from pbdyn.config import load_scenario
     from pbdyn.planning.primitives import local as lp
-    from pbdyn.sim.trial import fly
+    from pbdyn.sim.trial import fly_trials
     from pbdyn.sim.trial import make_trial_spec, make_world
     from pbdyn.world.maps import get_map
     from pbdyn.world.rollout import get_rollout
@@ -55,7 +55,7 @@ def record_views(setups: int, limit: int) -> list:
             specs = [make_trial_spec(sc, ms, planner=label, v_max=v, start=tuple(cands[i]), goal=tuple(cands[j]))
                      for v in sc.drone.v_max for i, j in sc.task.pairs()]
             world = make_world(specs[0], ro)
-            fly(specs, ro, world=world)
+            fly_trials(specs, ro, world=world)
             world.close()
     finally:
         lp.LocalPrimitives.plan = original

@@ -87,7 +87,7 @@ def fly(setups: list[int], keep: set | None = None) -> tuple[list, _Recorder, fl
     """Fly the first replicate of ``setups`` in lockstep; (per trial the wall time of each step (s), the recorder,
     the wall time of the lockstep loops outside the trials' setups and steps (s): results and the loops' set-up)."""
     from pbdyn.config import load_scenario
-    from pbdyn.sim.trial import fly
+    from pbdyn.sim.trial import fly_trials
     from pbdyn.sim.trial import make_trial_spec, make_world
     from pbdyn.world.maps import get_map
     from pbdyn.world.rollout import get_rollout
@@ -108,7 +108,7 @@ def fly(setups: list[int], keep: set | None = None) -> tuple[list, _Recorder, fl
                          for i, j in sc.task.pairs()]
                 n0 = len(walls)
                 t0 = time.perf_counter()
-                results = fly(specs, ro, world=world, step_walls=walls)
+                results = fly_trials(specs, ro, world=world, step_walls=walls)
                 glue += time.perf_counter() - t0 - sum(sum(w) for w in walls[n0:])
                 glue -= sum(r.wall_timings["wall_setup_s"] for r in results)
             world.close()

@@ -44,9 +44,9 @@ from pbdyn.sim.trial import make_trial_spec, make_world, run_trial
 from pbdyn.world.maps import get_map
 from pbdyn.world.rollout import get_rollout
 try:
-    from pbdyn.sim.trial import fly                      # the trial core (a batch of N trials, one loop)
+    from pbdyn.sim.trial import fly_trials               # the trial core (a batch of N trials, one loop)
     def run_lockstep(specs, ro, world, step_walls=None):
-        return fly(specs, ro, world=world, step_walls=step_walls)
+        return fly_trials(specs, ro, world=world, step_walls=step_walls)
 except ImportError:
     try:
         from pbdyn.sim.lockstep import run_lockstep      # older revisions: the separate lockstep loop
