@@ -23,10 +23,10 @@ import time
 from collections.abc import Iterator
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pbdyn.config import Scenario
 from pbdyn.errors import PbdynError
+from pbdyn.experiments.options import BatchOptions
 from pbdyn.experiments.plan import BatchPlan
 from pbdyn.experiments.pool import WorkerPool
 from pbdyn.experiments.progress import Progress
@@ -34,9 +34,6 @@ from pbdyn.experiments.store import WORLD_FINGERPRINT_CHARS, ResultsStore
 from pbdyn.experiments.tasks import (METRIC_SET, MapTask, RolloutRef, TrialGroupTask, TrialTask, error_row,
                                      run_map_task, run_trial_group_task, run_trial_task, trial_spec)
 from pbdyn.world.rollout import default_horizon, rollout_file
-
-if TYPE_CHECKING:
-    from pbdyn.experiments.runner import BatchOptions
 
 COMMIT_INTERVAL_S = 1.0
 """The store is committed at least this often while rows arrive, in s."""

@@ -10,17 +10,14 @@ import itertools
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pbdyn.config import Scenario
 from pbdyn.errors import ConfigError
 from pbdyn.experiments.extend import (changed_metrics, changed_planners, changed_worlds, check_scenario,
                                      world_fingerprints)
+from pbdyn.experiments.options import BatchOptions
 from pbdyn.experiments.shards import shard_range
 from pbdyn.experiments.store import ResultsStore
-
-if TYPE_CHECKING:
-    from pbdyn.experiments.runner import BatchOptions
 
 
 @dataclass

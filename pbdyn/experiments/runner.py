@@ -1,14 +1,14 @@
 """The batch runner (`pbdyn batch`): every trial and map metric of a scenario, in parallel, into a results store.
 
-This module is the entry: BatchOptions, BatchSummary and run_batch, with the checks run before anything is written
-(options, planners, rollouts). The coordinator (this process) enumerates the experiment, skips what the store already
-holds (pbdyn.experiments.plan), builds each map's rollout once (cached .npz files, shipped to workers by path; to
-Dask workers as bytes, scattered once per map), submits trials and map-metric tasks to a process pool (spawn: no
-worker is ever forked from a process holding a PyBullet client) or to a Dask cluster through its concurrent.futures
-executor (pbdyn.experiments.pool, pbdyn.experiments.cluster), and is the only writer of the store: rows are
-inserted with INSERT OR IGNORE and committed at least once a second (pbdyn.experiments.dispatch), so killing the
-coordinator or a worker loses no committed trial and a re-run completes the rest. A trial that raises becomes an
-"error" row.
+This module is the entry: BatchSummary and run_batch, with the checks run before anything is written (options:
+pbdyn.experiments.options; planners, rollouts). The coordinator (this process) enumerates the experiment, skips what
+the store already holds (pbdyn.experiments.plan), builds each map's rollout once (cached .npz files, shipped to
+workers by path; to Dask workers as bytes, scattered once per map), submits trials and map-metric tasks to a process
+pool (spawn: no worker is ever forked from a process holding a PyBullet client) or to a Dask cluster through its
+concurrent.futures executor (pbdyn.experiments.pool, pbdyn.experiments.cluster), and is the only writer of the
+store: rows are inserted with INSERT OR IGNORE and committed at least once a second (pbdyn.experiments.dispatch), so
+killing the coordinator or a worker loses no committed trial and a re-run completes the rest. A trial that raises
+becomes an "error" row.
 
 Every row records its planner pair's fingerprint (pbdyn.planning.registry.pair_fingerprint) and its world's (the
 first digits of its map's rollout key, which covers an imported world's URDFs, meshes and motion modules). A store
@@ -37,6 +37,7 @@ from pbdyn.experiments.cluster import connect
 from pbdyn.experiments.dispatch import execute
 from pbdyn.experiments.extend import check_scenario
 from pbdyn.experiments.mainguard import MainGuardError, check_not_reimported
+from pbdyn.experiments.options import BatchOptions
 from pbdyn.experiments.plan import BatchPlan, pending_trials, read_plan
 from pbdyn.experiments.shards import parse_shard
 from pbdyn.experiments.signals import BatchInterrupted, stop_on_signals
@@ -45,32 +46,8 @@ from pbdyn.experiments.tasks import enumerate_trials, trial_spec
 from pbdyn.world.maps import MAP_ID_RULE
 from pbdyn.world.rollout import default_horizon, rollout_file
 
-LOCKSTEP_TRIALS = 72
-"""Default most trials of one map flown together per task (one planner pair's start/goal pairs at one speed)."""
 MAX_WORKERS_PER_CPU = 4
 """--workers may be at most this many times the CPU count (max_workers)."""
-
-
-@dataclass(frozen=True)
-class BatchOptions:
-    """workers: local processes (default: CPU count); scheduler: a Dask scheduler address ("tcp://host:8786") or
-    a dask.distributed Client; limit: fly only the first N trials of the enumeration; extend: accept a scenario
-    that adds grid values, planners, MAV speeds or maps to the one in the store; metrics: compute each map's
-    metrics (METRIC_SET); progress: a progress line on stderr, or a pbdyn.experiments.progress.Progress that
-    several batches share (one line and one ETA over all of them; pending_trials_of counts each batch's trials);
-    rerun_changed: re-fly stored rows whose planner fingerprint differs from the current code's, and the maps whose
-    world changed (else such rows stop the batch); retry_errors: re-fly stored "error" rows."""
-
-    workers: int | None = None
-    scheduler: object = None
-    limit: int | None = None
-    extend: bool = False
-    metrics: bool = True
-    progress: bool | object = True
-    rerun_changed: bool = False
-    retry_errors: bool = False
-    lockstep: int = LOCKSTEP_TRIALS
-    shard: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)
