@@ -92,6 +92,25 @@ def _no_unknown(table: Mapping, allowed: tuple[str, ...], where: str) -> None:
             raise ConfigError(name, f"unknown key (allowed: {', '.join(allowed)})", table[k], show_value=False)
 
 
+def _array_of_tables(doc: Mapping, key: str, what: str) -> list:
+    """doc[key] ([] when absent): an array of at most limits.MAX_OBSTACLES ``what``; ConfigError naming ``key``
+    otherwise."""
+    items = doc.get(key, [])
+    if not isinstance(items, list):
+        raise ConfigError(key, f"must be an array of tables ([[{key}]])", items)
+    limits.check_limit(key, what, len(items), limits.MAX_OBSTACLES, len(items))
+    return items
+
+
+def _tables(items: list, key: str):
+    """(i, "key[i]", item) for each item of the array of tables ``key``; ConfigError unless the item is a table."""
+    for i, t in enumerate(items):
+        where = f"{key}[{i}]"
+        if not isinstance(t, Mapping):
+            raise ConfigError(where, "must be a table", t)
+        yield i, where, t
+
+
 def _vector(value: Any, name: str, dims: int) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or len(value) != dims:
         raise ConfigError(name, f"must be a list of {dims} numbers", value)
@@ -266,10 +285,7 @@ def _parse_map_list(t: Mapping) -> ObstacleConfig:
     tables = _table(t, "structures", "obstacles")
     names: list[str] = []
     entries = []
-    for i, m in enumerate(items):
-        where = f"obstacles.maps[{i}]"
-        if not isinstance(m, Mapping):
-            raise ConfigError(where, "must be a table", m)
+    for _, where, m in _tables(items, "obstacles.maps"):
         _no_unknown(m, ("count", "radius", "speed", "structure", "replicate", "seed", "measured"), where)
         for key in ("count", "radius", "speed"):
             if key not in m:
@@ -391,16 +407,10 @@ def _parse_structures(t: Mapping, motion: str) -> tuple[tuple[str, ...], tuple[S
 
 
 def _parse_static(doc: Mapping, world: WorldConfig) -> tuple[StaticObstacleConfig, ...]:
-    items = doc.get("static_obstacles", [])
-    if not isinstance(items, list):
-        raise ConfigError("static_obstacles", "must be an array of tables ([[static_obstacles]])", items)
-    limits.check_limit("static_obstacles", "static obstacles", len(items), limits.MAX_OBSTACLES, len(items))
+    items = _array_of_tables(doc, "static_obstacles", "static obstacles")
     sd = _defaults(StaticObstacleConfig)
     out = []
-    for i, t in enumerate(items):
-        where = f"static_obstacles[{i}]"
-        if not isinstance(t, Mapping):
-            raise ConfigError(where, "must be a table", t)
+    for _, where, t in _tables(items, "static_obstacles"):
         _no_unknown(t, ("kind", "center", "radius", "size", "yaw_deg"), where)
         kind = _string(t, "kind", where, StaticObstacleConfig.DEFAULT_KIND, StaticObstacleConfig.KINDS)
         if "center" not in t:
@@ -473,17 +483,11 @@ def _parse_motion(t: Mapping, where: str, world: WorldConfig) -> tuple[str, tupl
 
 
 def _parse_bodies(doc: Mapping, world: WorldConfig) -> tuple[BodyConfig, ...]:
-    items = doc.get("bodies", [])
-    if not isinstance(items, list):
-        raise ConfigError("bodies", "must be an array of tables ([[bodies]])", items)
-    limits.check_limit("bodies", "bodies", len(items), limits.MAX_OBSTACLES, len(items))
+    items = _array_of_tables(doc, "bodies", "bodies")
     bd = _defaults(BodyConfig)
     out = []
     names = set()
-    for i, t in enumerate(items):
-        where = f"bodies[{i}]"
-        if not isinstance(t, Mapping):
-            raise ConfigError(where, "must be a table", t)
+    for i, where, t in _tables(items, "bodies"):
         _no_unknown(t, ("name", "urdf", "scale", "position", "rpy_deg", "motion", "velocity", "waypoints", "speed",
                         "params"), where)
         name = _string(t, "name", where, BodyConfig.DEFAULT_NAME.format(index=i))
@@ -718,10 +722,7 @@ def _parse_planners(doc: Mapping) -> tuple[PlannerEntry, ...]:
         raise ConfigError("planners", "must be a non-empty array of tables ([[planners]])", items)
     d = _defaults(PlannerEntry)
     out = []
-    for i, t in enumerate(items):
-        where = f"planners[{i}]"
-        if not isinstance(t, Mapping):
-            raise ConfigError(where, "must be a table", t)
+    for _, where, t in _tables(items, "planners"):
         _no_unknown(t, ("trajectory", "gaze", "trajectory_params", "gaze_params", "name"), where)
         traj = _string(t, "trajectory", where, d["trajectory"])
         gaze = _string(t, "gaze", where, d["gaze"])
