@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from pbdyn.analysis.html_kit import interval, num
 from pbdyn.errors import ConfigError
 
 Z95 = 1.959963984540054
@@ -281,16 +282,6 @@ def success_by_group(trials: list[dict], maps: dict[str, dict]) -> dict:
             "setup": _cells(by_setup), "level": _cells(by_level) if by_level else None}
 
 
-def _ci_text(ci) -> str:
-    if not ci or ci[0] is None or (isinstance(ci[0], float) and math.isnan(ci[0])):
-        return "-"
-    return f"[{ci[0]:.3f}, {ci[1]:.3f}]"
-
-
-def _num_text(x, spec: str = ".3f") -> str:
-    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
-
-
 def format_success_by_group(section: dict) -> list[str]:
     """Text lines of a success_by_group section: per setup, then per level when present."""
     lines: list[str] = []
@@ -305,7 +296,7 @@ def format_success_by_group(section: dict) -> list[str]:
                   f"{'maps':>5}"]
         for pair, cells in table.items():
             for group, c in cells.items():
-                lines.append(f"  {pair:<{wp}}  {group:<{wg}}  {_num_text(c['rate']):>7}  {_ci_text(c['ci95']):>16}"
+                lines.append(f"  {pair:<{wp}}  {group:<{wg}}  {num(c['rate']):>7}  {interval(c['ci95']):>16}"
                              f"  {c['trials']:>6}  {c['n_maps']:>5}")
     return lines
 
@@ -323,7 +314,7 @@ def format_paired(section: dict) -> list[str]:
                  "difference of success, 95% interval from a paired bootstrap over maps; exact McNemar p):", head]
     for r in rows:
         lines.append(f"  {r['a']:<{wa}}  {r['b']:<{wb}}  {r['tasks']:>5} {r['both']:>5} {r['a_only']:>6} "
-                     f"{r['b_only']:>6} {r['neither']:>7}  {_num_text(r['success_a']):>6} "
-                     f"{_num_text(r['success_b']):>6}  {_num_text(r['difference'], '+.3f'):>6} "
-                     f"{_ci_text(r['difference_ci95']):>17}  {_num_text(r['mcnemar_p'], '.4f'):>9}")
+                     f"{r['b_only']:>6} {r['neither']:>7}  {num(r['success_a']):>6} "
+                     f"{num(r['success_b']):>6}  {num(r['difference'], '+.3f'):>6} "
+                     f"{interval(r['difference_ci95']):>17}  {num(r['mcnemar_p'], '.4f'):>9}")
     return lines

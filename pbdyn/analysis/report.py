@@ -46,6 +46,7 @@ import numpy as np
 
 from pbdyn.analysis.bands import band_fit, band_shares
 from pbdyn.analysis.cv import LEVELS, cv_by_level, cv_summary
+from pbdyn.analysis.html_kit import NA, interval, num
 from pbdyn.analysis.normalise import Normaliser, fit_normaliser
 from pbdyn.analysis.paired import wilson_interval
 from pbdyn.analysis.regression import FEATURES, LinearFit, fit_linear, setup_features, setup_key
@@ -467,12 +468,8 @@ def difficulty_table(maps: dict, report: dict) -> tuple[tuple[str, ...], dict[st
     return map_ids, out
 
 
-def _f(x, spec: str = ".3f") -> str:
-    return "-" if x is None else format(x, spec)
-
-
 def _term(x) -> str:
-    return "+ -" if x is None else f"{'-' if x < 0 else '+'} {abs(x):.3f}"
+    return f"+ {NA}" if x is None else f"{'-' if x < 0 else '+'} {abs(x):.3f}"
 
 
 def verdict_mark(row: dict, raw: str = "beats_baselines", holm: str = "beats_baselines_holm") -> str:
@@ -504,17 +501,15 @@ def _success_lines(report: dict) -> list[str]:
              "between maps; error trials not rated):"]
     for pair, per in report["success"]["per_pair"].items():
         for ds, s in per.items():
-            ci = s.get("ci95") or [None, None]
-            lines.append(f"  {pair:<40} {ds:<24} {_f(s['rate'])} [{_f(ci[0])}, {_f(ci[1])}] +- {_f(s['se'])} "
-                         f"({_f(s['se_between_maps'])})  {s['n_trials']} trials, {s['n_maps']} maps")
+            lines.append(f"  {pair:<40} {ds:<24} {_rate_text(s)} +- {num(s['se'])} "
+                         f"({num(s['se_between_maps'])})  {s['n_trials']} trials, {s['n_maps']} maps")
     lines.append(f"Trials: {report['n_trials']} ({report['n_error_trials']} errors, not rated); outcomes: "
                  + ", ".join(f"{k} {v}" for k, v in report["outcomes"].items()))
     return lines
 
 
 def _rate_text(s: dict) -> str:
-    ci = s.get("ci95") or [None, None]
-    return f"{_f(s['rate'])} [{_f(ci[0])}, {_f(ci[1])}]"
+    return f"{num(s['rate'])} {interval(s.get('ci95') or [None, None])}"
 
 
 def verdict_line(report: dict) -> str:
@@ -551,14 +546,14 @@ def verdict_line(report: dict) -> str:
         name = max(metrics, key=lambda n: metrics[n]["srcc_mean"])
         vs = (metrics[name].get("vs_baselines") or {}).get(SETUP_MODEL) or {}
         ci = vs.get("ci95") or [None, None]
-        diff = f"{SETUP_MODEL} SRCC {_f(setup['srcc_mean'])}; difference {_f(vs.get('diff'), '+.3f')}"
+        diff = f"{SETUP_MODEL} SRCC {num(setup['srcc_mean'])}; difference {num(vs.get('diff'), '+.3f')}"
         if ci[0] is None or ci[1] is None:
             how, detail = "is compared without an interval with", f"{diff}; 0 bootstrap draws"
         else:
             how = ("ranks maps better than" if ci[0] > 0 else "ranks maps worse than" if ci[1] < 0
                    else "does not rank maps clearly better than")
-            detail = f"{diff} [{_f(ci[0])}, {_f(ci[1])}]"
-        metric = f"the best metric, {name} (SRCC {_f(metrics[name]['srcc_mean'])}), {how} the setup baseline ({detail})"
+            detail = f"{diff} {interval(ci)}"
+        metric = f"the best metric, {name} (SRCC {num(metrics[name]['srcc_mean'])}), {how} the setup baseline ({detail})"
     return f"Verdict: {pairs}; {metric}."
 
 
@@ -590,13 +585,13 @@ def format_table(report: dict) -> str:
         vs = (r.get("vs_baselines") or {}).get(best) if best else None
         if vs is not None:
             mark = verdict_mark(r)
-            cmp = f"{_term(vs['diff'])} [{_f(vs['ci95'][0]):>6}, {_f(vs['ci95'][1]):>6}]{mark}"
+            cmp = f"{_term(vs['diff'])} [{num(vs['ci95'][0]):>6}, {num(vs['ci95'][1]):>6}]{mark}"
         else:
-            cmp = "(baseline)" if r.get("kind") == "baseline" else "-"
+            cmp = "(baseline)" if r.get("kind") == "baseline" else NA
         fitted = (r.get("fitted") or {}).get("srcc")
-        lines.append(f"{name:<24} {_f(r['srcc_mean']):>7} +- {_f(r['srcc_std']):<5} "
-                     f"[{_f(ci[0]):>6}, {_f(ci[1]):>6}]  {_f(r['within_setup_srcc']):>12} {_f(fitted):>7} "
-                     f"{cmp:>27} {_f(r['cv_mean']):>7} +- {_f(r['cv_std']):<5} {_f(r['compute_time_s'], '.2f'):>9}")
+        lines.append(f"{name:<24} {num(r['srcc_mean']):>7} +- {num(r['srcc_std']):<5} "
+                     f"[{num(ci[0]):>6}, {num(ci[1]):>6}]  {num(r['within_setup_srcc']):>12} {num(fitted):>7} "
+                     f"{cmp:>27} {num(r['cv_mean']):>7} +- {num(r['cv_std']):<5} {num(r['compute_time_s'], '.2f'):>9}")
     if base:
         lines += ["", f"Baselines (need no simulation): {', '.join(base)}; best across maps: {best}. "
                       "'fitted': SRCC against the fitted difficulty (1PL). '*': beats every baseline (95% CI of the "
@@ -614,9 +609,9 @@ def format_table(report: dict) -> str:
         t = fd.get("tasks")
         if t and "n_tasks" in t:
             lines.append(f"  Tasks (map, start, goal) as items ({t['method']}, {t['n_tasks']} tasks): difficulty sd "
-                         f"{_f(t['difficulty_sd'])}, within maps {_f(t['within_map_sd'])} (share of variance "
-                         f"{_f(t['within_map_share_of_variance'])}, {_f(t['within_map_share_noise_corrected'])} "
-                         f"after the fit's own noise; mean se {_f(t['mean_se'])})")
+                         f"{num(t['difficulty_sd'])}, within maps {num(t['within_map_sd'])} (share of variance "
+                         f"{num(t['within_map_share_of_variance'])}, {num(t['within_map_share_noise_corrected'])} "
+                         f"after the fit's own noise; mean se {num(t['mean_se'])})")
     tl = report.get("trial_level")
     if tl:
         lines += ["", "Trial level (held-out maps): AUC and log-loss of predicting each trial's success from the "
@@ -624,8 +619,8 @@ def format_table(report: dict) -> str:
         for name, r in tl["predictors"].items():
             ci = r.get("log_loss_gain_ci95") or [None, None]
             mark = verdict_mark(r)
-            lines.append(f"  {name:<26} AUC {_f(r['auc'])}  log-loss {_f(r['log_loss'], '.4f')}  gain "
-                         f"{_f(r['log_loss_gain'], '+.4f')} [{_f(ci[0], '+.4f')}, {_f(ci[1], '+.4f')}]  "
+            lines.append(f"  {name:<26} AUC {num(r['auc'])}  log-loss {num(r['log_loss'], '.4f')}  gain "
+                         f"{num(r['log_loss_gain'], '+.4f')} [{num(ci[0], '+.4f')}, {num(ci[1], '+.4f')}]  "
                          f"({r['n_trials']} trials){mark}")
         lines.append(f"  ('*': lower held-out log-loss than every baseline predictor ({', '.join(tl['baselines'])}),"
                      " 95% interval over resampled maps; '**': still after Holm's correction for the number of "
@@ -634,12 +629,12 @@ def format_table(report: dict) -> str:
     if fams:
         fr = report.get("within_family_reliability") or {}
         lines += ["", f"Within structure families (maps of one setup and structure; reliability "
-                      f"{_f(fr.get('mean_reliability'), '.2f')}; 95% CI over families): " +
-                  ", ".join(f"{n} {_f(r['within_family_srcc'])} [{_f(r['within_family_ci95'][0], '.2f')}, "
-                            f"{_f(r['within_family_ci95'][1], '.2f')}]" for n, r in fams)]
+                      f"{num(fr.get('mean_reliability'), '.2f')}; 95% CI over families): " +
+                  ", ".join(f"{n} {num(r['within_family_srcc'])} [{num(r['within_family_ci95'][0], '.2f')}, "
+                            f"{num(r['within_family_ci95'][1], '.2f')}]" for n, r in fams)]
     rel = report.get("within_setup_reliability") or {}
     if rel.get("n_setups"):
-        lines += ["", f"Within-setup reliability of per-map success: {_f(rel['mean_reliability'], '.2f')} (mean over "
+        lines += ["", f"Within-setup reliability of per-map success: {num(rel['mean_reliability'], '.2f')} (mean over "
                       f"pairs over {rel['n_setups']} setups; 1 - binomial noise variance / between-map variance). A "
                       "metric's within-setup SRCC cannot exceed about its square root."]
     b = report.get("sigma_bands")
@@ -648,15 +643,15 @@ def format_table(report: dict) -> str:
                       f"{b['metric']} difficulty (tables 4-6..4-8):"]
         for name, s in b["datasets"].items():
             tag = " (controlled, in-sample)" if s["controlled"] else ""
-            lines.append(f"  {name:<30} n={s['n_points']:<6} 1s {_f(s['within_1sigma'], '.1%'):>6}  "
-                         f"2s {_f(s['within_2sigma'], '.1%'):>6}  3s {_f(s['within_3sigma'], '.1%'):>6}{tag}")
+            lines.append(f"  {name:<30} n={s['n_points']:<6} 1s {num(s['within_1sigma'], '.1%'):>6}  "
+                         f"2s {num(s['within_2sigma'], '.1%'):>6}  3s {num(s['within_3sigma'], '.1%'):>6}{tag}")
     lines += ["", "Linear model of the setup (eq. 5-1; table 5-4 is the first line):"]
     for key in ("regression", "regression_raw", "setup_model"):
         g = report.get(key)
         if g:
             c = g["coefficients"]
-            lines.append(f"  {g['target']} = {_f(c['b0'])} {_term(c['b1'])} n {_term(c['b2'])} r {_term(c['b3'])} v"
-                         f"   R^2 {_f(g['r2'])}  ({g['n_maps']} maps; eq. 5-1)")
+            lines.append(f"  {g['target']} = {num(c['b0'])} {_term(c['b1'])} n {_term(c['b2'])} r {_term(c['b3'])} v"
+                         f"   R^2 {num(g['r2'])}  ({g['n_maps']} maps; eq. 5-1)")
     if report.get("paired"):
         from pbdyn.analysis.paired import format_paired
 

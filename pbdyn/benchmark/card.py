@@ -628,9 +628,11 @@ def rank_text(rank: dict) -> str:
 
 def summary_line(card: dict) -> str:
     """The one line to quote: planner, suite and hash, success with CI, ability with CI, rank, worst levels."""
+    from pbdyn.analysis.html_kit import interval, num
+
     s, a = card["success"], card["ability"]
     text = (f"{card['planner']['label']} on {card['suite']['name']} ({card['suite']['hash'][:12]}): success "
-            f"{_f(s['rate'])} [{_f(s['ci95'][0])}, {_f(s['ci95'][1])}] over {s['trials']} tasks")
+            f"{num(s['rate'], '.2f')} {interval(s['ci95'], '.2f')} over {s['trials']} tasks")
     if a is not None:
         text += (f"; ability {a['logit']:+.2f} [{a['ci95'][0]:+.2f}, {a['ci95'][1]:+.2f}] logits "
                  f"({card['provenance']['scale']}), " + ("rank " if card["rank"]["rank"] is not None else "")
@@ -639,7 +641,3 @@ def summary_line(card: dict) -> str:
     if cv is not None:
         text += f"; worst-20% levels {cv:.2f}"
     return text
-
-
-def _f(x) -> str:
-    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.2f}"

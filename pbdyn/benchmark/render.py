@@ -18,10 +18,8 @@ import io
 import math
 import re
 
+from pbdyn.analysis.html_kit import NA, interval, num, page, table
 from pbdyn.benchmark.card import OUTCOMES
-
-NA = "n/a"
-
 
 _MD_SPECIAL = "\\`*_[]<>|~&"
 """Characters a Markdown renderer may read as markup anywhere in a line (emphasis, code, links and images -- with
@@ -43,14 +41,6 @@ def md_escape(text: object) -> str:
         digits = len(line) - len(line.lstrip("0123456789"))
         return line[:digits] + "\\" + line[digits:] if digits else "\\" + line
     return line
-
-
-def _f(x, fmt: str = ".2f") -> str:
-    return NA if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
-
-
-def _ci(pair, fmt: str = ".2f") -> str:
-    return f"[{_f(pair[0], fmt)}, {_f(pair[1], fmt)}]" if pair else NA
 
 
 def _nan(x) -> float:
@@ -129,11 +119,11 @@ def _mark(entry: dict) -> str:
 def _median_iqr(x: dict | None, fmt: str = ".2f") -> str:
     if not x or x.get("median") is None:
         return NA
-    return f"{_f(x['median'], fmt)} {_ci(x['iqr'], fmt)}"
+    return f"{num(x['median'], fmt)} {interval(x['iqr'], fmt)}"
 
 
 def _rate_ci(x: dict) -> str:
-    return f"{_f(x['rate'])} {_ci(x['ci95'])}"
+    return f"{num(x['rate'], '.2f')} {interval(x['ci95'], '.2f')}"
 
 
 LEVEL_HEAD = ["level", "reference success range", "success [95% CI]", "tasks",
@@ -157,7 +147,7 @@ def _level_rows(card: dict) -> list[list[str]]:
     ranges = {lv["level"]: lv["success_range"] for lv in card["suite"]["levels"]}
     for lv in card["levels"]:
         rng = ranges.get(lv["level"])
-        rows.append([str(lv["level"]), _ci(rng) if rng else NA, _rate_ci(lv), str(lv["trials"]),
+        rows.append([str(lv["level"]), interval(rng, ".2f") if rng else NA, _rate_ci(lv), str(lv["trials"]),
                      *(str(lv["outcomes"][o]) for o in FAILURES)])
     return rows
 
@@ -171,21 +161,22 @@ def _speed_rows(card: dict) -> list[list[str]]:
     rows = []
     for who, label in [(card, card["planner"]["label"] + " (this card)")] + [(r, r["label"]) for r in _others(card)]:
         for x in who.get("by_speed", []):
-            rows.append([label, _f(x["mav_speed_mps"], "g"), _rate_ci(x), str(x["trials"])])
+            rows.append([label, num(x["mav_speed_mps"], "g"), _rate_ci(x), str(x["trials"])])
     return rows
 
 
 def _level_speed_rows(card: dict) -> list[list[str]]:
-    return [[str(x["level"]), _f(x["mav_speed_mps"], "g"), _rate_ci(x), str(x["trials"])]
+    return [[str(x["level"]), num(x["mav_speed_mps"], "g"), _rate_ci(x), str(x["trials"])]
             for x in card.get("by_level_speed", [])]
 
 
 def _planner_row(entry: dict, label: str) -> list[str]:
     a, pt = entry["ability"], entry["planning_time_ms"]
-    return [label, _f(entry.get("fov_deg"), "g"), _rate_ci(entry["success"]),
-            f"{_f(a['logit'], '+.2f')} {_ci(a['ci95'], '+.2f')}" if a else NA, _f(entry["cvar20_success"]["rate"]),
+    return [label, num(entry.get("fov_deg"), "g"), _rate_ci(entry["success"]),
+            f"{num(a['logit'], '+.2f')} {interval(a['ci95'], '+.2f')}" if a else NA,
+            num(entry["cvar20_success"]["rate"], ".2f"),
             _median_iqr(entry["time_to_goal_s"]), _median_iqr(entry["path_ratio"], ".3f"),
-            _median_iqr(entry["min_clearance_m"]), f"{_f(pt['median'], '.3f')} / {_f(pt['p99'], '.3f')}"]
+            _median_iqr(entry["min_clearance_m"]), f"{num(pt['median'], '.3f')} / {num(pt['p99'], '.3f')}"]
 
 
 def _planners_rows(card: dict) -> list[list[str]]:
@@ -203,10 +194,10 @@ def _paired_rows(card: dict) -> list[list[str]]:
         pc = r["paired"]
         test = pc.get("test") or {}
         t = test.get("t")
-        t_text = ("inf" if test.get("t_infinite") else _f(t, ".2f")) + f" ({test.get('df', NA)})"
+        t_text = ("inf" if test.get("t_infinite") else num(t, ".2f")) + f" ({test.get('df', NA)})"
         rows.append([_mark(r), str(pc["tasks"]), str(pc.get("maps", NA)), str(pc["both"]), str(pc["a_only"]),
                      str(pc["b_only"]), str(pc["neither"]),
-                     f"{_f(pc['difference'], '+.3f')} {_ci(pc['difference_ci95'], '+.3f')}", t_text,
+                     f"{num(pc['difference'], '+.3f')} {interval(pc['difference_ci95'], '+.3f')}", t_text,
                      _p(test.get("p")), _p(pc.get("p_holm"))])
     return rows
 
@@ -219,7 +210,7 @@ def _map_head(card: dict) -> list[str]:
 def _map_rows(card: dict) -> list[list[str]]:
     rows = []
     for m in card.get("maps", []):
-        cells = [m["part"], m["map_id"], str(m["level"]), str(m.get("family") or NA), _f(m.get("difficulty"), "+.2f"),
+        cells = [m["part"], m["map_id"], str(m["level"]), str(m.get("family") or NA), num(m.get("difficulty"), "+.2f"),
                  f"{m['planner']['successes']}/{m['planner']['trials']}"]
         for r in _others(card):
             c = m["references"].get(r["label"])
@@ -242,12 +233,12 @@ def _code_text(code: dict) -> str:
 
 
 def _cost_text(cost: dict) -> str:
-    def num(key, unit):
+    def amount(key, unit):
         v = cost.get(key)
-        return f"{_f(v, '.1f')} {unit}" if isinstance(v, (int, float)) and not isinstance(v, bool) else NA
+        return f"{num(v, '.1f')} {unit}" if isinstance(v, (int, float)) and not isinstance(v, bool) else NA
 
     runs = cost.get("runs")
-    return f"wall {num('wall_s', 's')}, CPU {num('cpu_s', 's')}, {runs if runs is not None else NA} run(s)"
+    return f"wall {amount('wall_s', 's')}, CPU {amount('cpu_s', 's')}, {runs if runs is not None else NA} run(s)"
 
 
 def _header_facts(card: dict) -> list[tuple[str, str]]:
@@ -255,7 +246,8 @@ def _header_facts(card: dict) -> list[tuple[str, str]]:
 
     s, a, pv, pl = card["success"], card["ability"], card["provenance"], card["planner"]
     m = pv["machine"]
-    facts = [("planner", f"{_mark(pl)} (fingerprint {pl['fingerprint']}; sensor FOV {_f(pl.get('fov_deg'), 'g')} deg)")]
+    facts = [("planner", f"{_mark(pl)} (fingerprint {pl['fingerprint']}; sensor FOV {num(pl.get('fov_deg'), 'g')} "
+                         "deg)")]
     if pl.get("trajectory_params"):
         facts.append(("trajectory parameters", _params_text(pl["trajectory_params"])))
     if pl.get("gaze_params"):
@@ -266,11 +258,11 @@ def _header_facts(card: dict) -> list[tuple[str, str]]:
     facts += [
         ("suite", f"{card['suite']['name']} v{card['suite']['version']}, hash {card['suite']['hash']} "
                   f"({card['suite']['maps']} maps, {card['suite']['tasks']} tasks, MAV speeds "
-                  f"{'/'.join(_f(v, 'g') for v in card['suite']['speeds_mps'])} m/s)"),
+                  f"{'/'.join(num(v, 'g') for v in card['suite']['speeds_mps'])} m/s)"),
         ("levels from", card["suite"].get("levels_from", {}).get("text", NA)),
         ("success", f"{_rate_ci(s)} ({s['successes']} of {s['trials']} tasks; flown "
                     f"{card['trials']['flown']} of {card['trials']['expected']}, errors {card['trials']['errors']})"),
-        ("ability", (f"{_f(a['logit'], '+.2f')} logits {_ci(a['ci95'], '+.2f')} on the {pv['scale']} scale")
+        ("ability", (f"{num(a['logit'], '+.2f')} logits {interval(a['ci95'], '+.2f')} on the {pv['scale']} scale")
          if a else NA),
         ("rank", rank_text(card["rank"]) + (" by ability, 95% interval over map resamples"
                                              if card["rank"].get("rank") is not None else "")),
@@ -313,26 +305,26 @@ def _param_facts(card: dict) -> list[tuple[str, str]]:
 
     def mav(x):
         v = x["mav"]
-        return (f"radius {_f(v['radius_m'], 'g')} m, a_max {_f(v['a_max_mps2'], 'g')} m/s^2, v_max "
-                f"{'/'.join(_f(s, 'g') for s in v['v_max_mps'])} m/s, yaw rate limit "
-                f"{_f(v['yaw_rate_limit_radps'], 'g')} rad/s")
+        return (f"radius {num(v['radius_m'], 'g')} m, a_max {num(v['a_max_mps2'], 'g')} m/s^2, v_max "
+                f"{'/'.join(num(s, 'g') for s in v['v_max_mps'])} m/s, yaw rate limit "
+                f"{num(v['yaw_rate_limit_radps'], 'g')} rad/s")
 
     def sensor(x):
         v = x["sensor"]
-        vf = f", vertical FOV {_f(v['vfov_deg'], 'g')} deg" if v.get("vfov_deg") is not None else ""
-        return (f"FOV {_f(v['fov_deg'], 'g')} deg{vf}, range {_f(v['range_m'], 'g')} m, resolution "
-                f"{_f(v['resolution_deg'], 'g')} deg, noise {_f(v['noise_std_m'], 'g')} m, model {v['model']}")
+        vf = f", vertical FOV {num(v['vfov_deg'], 'g')} deg" if v.get("vfov_deg") is not None else ""
+        return (f"FOV {num(v['fov_deg'], 'g')} deg{vf}, range {num(v['range_m'], 'g')} m, resolution "
+                f"{num(v['resolution_deg'], 'g')} deg, noise {num(v['noise_std_m'], 'g')} m, model {v['model']}")
 
     def world(x):
         v = x["world"]
-        fh = f", flight height {_f(v['flight_height_m'], 'g')} m" if v.get("flight_height_m") is not None else ""
-        return (f"{v['dims']}D, arena {' x '.join(_f(s, 'g') for s in v['arena_m'])} m, dt {_f(v['dt_s'], 'g')} s, "
-                f"time limit {_f(v['time_limit_s'], 'g')} s, grid {_f(v['grid_resolution_m'], 'g')} m{fh}, profile "
+        fh = f", flight height {num(v['flight_height_m'], 'g')} m" if v.get("flight_height_m") is not None else ""
+        return (f"{v['dims']}D, arena {' x '.join(num(s, 'g') for s in v['arena_m'])} m, dt {num(v['dt_s'], 'g')} s, "
+                f"time limit {num(v['time_limit_s'], 'g')} s, grid {num(v['grid_resolution_m'], 'g')} m{fh}, profile "
                 f"{v['profile']}, collision check {v['collision_check']}")
 
     def task(x):
         v = x["task"]
-        return (f"goal radius {_f(v['goal_radius_m'], 'g')} m, {v['pairs_per_map']} start/goal pairs per map, "
+        return (f"goal radius {num(v['goal_radius_m'], 'g')} m, {v['pairs_per_map']} start/goal pairs per map, "
                 f"deadlock after {v['deadlock_steps']} planning failures at rest, start rule {v['start_rule']}")
 
     out = []
@@ -368,10 +360,10 @@ def _replay_facts(card: dict) -> list[tuple[str, str, str | None]]:
     out = [("failure replays", f"{fr.get('requested', NA)} requested, {len(files)} written", None)]
     for f in files:
         def xy(v):
-            return "(" + ", ".join(_f(c, "g") for c in v) + ")" if isinstance(v, list) else NA
+            return "(" + ", ".join(num(c, "g") for c in v) + ")" if isinstance(v, list) else NA
 
         text = (f"{f.get('outcome', NA)}, part {f.get('part', NA)}, map {f.get('map_id', NA)}, start "
-                f"{xy(f.get('start'))} -> goal {xy(f.get('goal'))} m, {_f(f.get('mav_speed'), 'g')} m/s: "
+                f"{xy(f.get('start'))} -> goal {xy(f.get('goal'))} m, {num(f.get('mav_speed'), 'g')} m/s: "
                 f"{f.get('file', NA)}")
         if isinstance(f.get("reflown"), dict) and f["reflown"]:
             text = text[:-len(str(f.get("file", NA)))] + (f"(re-flight differs in {', '.join(sorted(f['reflown']))}) "
@@ -430,33 +422,9 @@ def card_markdown(card: dict) -> str:
     return "\n".join(parts)
 
 
-_STYLE = """
-body { font-family: sans-serif; margin: 2em auto; max-width: 1100px; color: #222; line-height: 1.4; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 1.6em; border-bottom: 1px solid #ccc; }
-blockquote { background: #f3f6fb; border-left: 4px solid #79c; margin: 1em 0; padding: 0.5em 1em; }
-table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.9em; }
-th, td { border: 1px solid #bbb; padding: 3px 8px; text-align: right; } th { background: #eef; }
-td:first-child, th:first-child { text-align: left; } dt { font-weight: bold; } dd { margin: 0 0 0.4em 1.5em; }
-figure { margin: 1em 0; } figcaption { font-size: 0.9em; color: #444; }
-dl.how-to-read dd { color: #333; font-size: 0.92em; }
-"""
-
-
-def _html_table(head: list[str], rows: list[list[str]], cls: str = "") -> str:
-    e = html.escape
-    out = [f'<table class="{cls}"><tr>' + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>"]
-    out += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in r) + "</tr>" for r in rows]
-    return "".join(out) + "</table>"
-
-
 def _html_facts(facts, cls: str = "facts") -> str:
     e = html.escape
     return f'<dl class="{cls}">' + "".join(f"<dt>{e(k)}</dt><dd>{e(v)}</dd>" for k, v in facts) + "</dl>"
-
-
-def _page(title: str, body: list[str]) -> str:
-    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>" + html.escape(title) +
-            f"</title><style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
 
 
 def card_html(card: dict) -> str:
@@ -471,20 +439,20 @@ def card_html(card: dict) -> str:
              f'<figure id="curve">{curve_svg([card])}<figcaption>Success per difficulty level of '
              f'{e(card["planner"]["label"])} (solid) beside the reference planners (dashed) on '
              f'{e(card["suite"]["name"])}; each band is the Wilson interval of its curve.</figcaption></figure>',
-             _html_table(LEVEL_HEAD, _level_rows(card), "levels"),
+             table(LEVEL_HEAD, _level_rows(card), "levels"),
              "<h2>Time to goal and clearance per level (this planner)</h2>",
-             _html_table(LEVEL_FIGURES_HEAD, _level_figure_rows(card), "level-figures"),
-             "<h2>Success per MAV speed</h2>", _html_table(SPEED_HEAD, _speed_rows(card), "speeds"),
+             table(LEVEL_FIGURES_HEAD, _level_figure_rows(card), "level-figures"),
+             "<h2>Success per MAV speed</h2>", table(SPEED_HEAD, _speed_rows(card), "speeds"),
              "<h2>Success per level and MAV speed (this planner)</h2>",
-             _html_table(LEVEL_SPEED_HEAD, _level_speed_rows(card), "level-speeds"),
+             table(LEVEL_SPEED_HEAD, _level_speed_rows(card), "level-speeds"),
              "<h2>This planner and the reference planners</h2>",
-             _html_table(PLANNERS_HEAD, _planners_rows(card), "references")]
+             table(PLANNERS_HEAD, _planners_rows(card), "references")]
     if _dagger_facts(card):
         body.append(_html_facts(_dagger_facts(card), "footnotes"))
     body.append("<h2>Paired comparison with the reference planners (identical tasks)</h2>")
-    body += ([_html_facts(_test_facts(card)), _html_table(PAIRED_HEAD, _paired_rows(card), "paired")]
+    body += ([_html_facts(_test_facts(card)), table(PAIRED_HEAD, _paired_rows(card), "paired")]
              if _paired_rows(card) else ["<p>No reference results.</p>"])
-    body += ["<h2>Success per map</h2>", _html_table(_map_head(card), _map_rows(card), "maps"),
+    body += ["<h2>Success per map</h2>", table(_map_head(card), _map_rows(card), "maps"),
              "<h2>MAV, sensor, world and task</h2>", _html_facts(_param_facts(card), "parameters")]
     replays = _replay_facts(card)
     if replays:
@@ -495,7 +463,7 @@ def card_html(card: dict) -> str:
             items.append(f"<dt>{e(k)}</dt><dd>{dd}</dd>")
         body += ["<h2>Failure replays</h2>", '<dl class="replays">' + "".join(items) + "</dl>"]
     body += ['<h2 id="how-to-read">How to read this card</h2>', _html_facts(_definitions(card), "how-to-read")]
-    return _page(f"pbdyn score card: {card['planner']['label']}", body)
+    return page(f"pbdyn score card: {card['planner']['label']}", body)
 
 
 COMPARE_HEAD = ["planner", "suite (hash)", "success [95% CI]", "ability (logits) [95% CI]", "rank [95% CI]",
@@ -510,17 +478,17 @@ def _rank_cell(rank: dict) -> str:
     return f"{rank['rank']} of {rank['of']}" + (f" [{lo}, {hi}]" if lo is not None else "")
 
 
-def compare_rows(cards: list[dict]) -> list[list[str]]:
+def comparison_table(cards: list[dict]) -> list[list[str]]:
     """One table row per card."""
     rows = []
     for c in cards:
         a, pt = c["ability"], c["planning_time_ms"]
         rows.append([c["planner"]["label"], f"{c['suite']['name']} ({c['suite']['hash'][:12]})",
-                     f"{_f(c['success']['rate'])} {_ci(c['success']['ci95'])}",
-                     f"{_f(a['logit'], '+.2f')} {_ci(a['ci95'], '+.2f')}" if a else NA, _rank_cell(c["rank"]),
-                     _f(c["cvar20_success"]["rate"]), _f(c["time_to_goal_s"]["median"]),
-                     _f(c["path_ratio"]["median"], ".3f"), _f(c["min_clearance_m"]["median"]),
-                     f"{_f(pt['median'], '.3f')}, {_f(pt['p99'], '.3f')}", c["provenance"]["date"]])
+                     f"{num(c['success']['rate'], '.2f')} {interval(c['success']['ci95'], '.2f')}",
+                     f"{num(a['logit'], '+.2f')} {interval(a['ci95'], '+.2f')}" if a else NA, _rank_cell(c["rank"]),
+                     num(c["cvar20_success"]["rate"], ".2f"), num(c["time_to_goal_s"]["median"], ".2f"),
+                     num(c["path_ratio"]["median"], ".3f"), num(c["min_clearance_m"]["median"], ".2f"),
+                     f"{num(pt['median'], '.3f')}, {num(pt['p99'], '.3f')}", c["provenance"]["date"]])
     return rows
 
 
@@ -528,7 +496,7 @@ def compare_text(cards: list[dict]) -> str:
     """The comparison as a plain-text table (columns padded)."""
     from pbdyn.errors import one_line_text
 
-    rows = [COMPARE_HEAD] + [[one_line_text(c) for c in r] for r in compare_rows(cards)]
+    rows = [COMPARE_HEAD] + [[one_line_text(c) for c in r] for r in comparison_table(cards)]
     widths = [max(len(r[i]) for r in rows) for i in range(len(COMPARE_HEAD))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows) + "\n"
 
@@ -536,13 +504,13 @@ def compare_text(cards: list[dict]) -> str:
 def compare_html(cards: list[dict]) -> str:
     """The comparison as one self-contained HTML page: the table and every card's curve."""
     e = html.escape
-    body = ["<h1>pbdyn score cards compared</h1>", _html_table(COMPARE_HEAD, compare_rows(cards), "compare"),
+    body = ["<h1>pbdyn score cards compared</h1>", table(COMPARE_HEAD, comparison_table(cards), "compare"),
             f'<figure id="curves">{curve_svg(cards, references=False)}<figcaption>Success per difficulty level of '
             f'each card\'s planner (band: 95% Wilson interval) on {e(cards[0]["suite"]["name"])}.</figcaption>'
             "</figure>"]
-    return _page("pbdyn score cards compared", body)
+    return page("pbdyn score cards compared", body)
 
 
 def compare_markdown(cards: list[dict]) -> str:
     """The comparison as Markdown."""
-    return "# pbdyn score cards compared\n\n" + _md_table(COMPARE_HEAD, compare_rows(cards)) + "\n"
+    return "# pbdyn score cards compared\n\n" + _md_table(COMPARE_HEAD, comparison_table(cards)) + "\n"
