@@ -298,6 +298,12 @@ class _Measurer:
             self.pool.close(terminate=terminate)
             self.pool = None
 
+    def __enter__(self) -> "_Measurer":
+        return self
+
+    def __exit__(self, exc_type, *_) -> None:
+        self.close(terminate=exc_type is not None)   # an error or SIGTERM/SIGINT (BaseException): at once
+
 
 # ------------------------------------------------------------------------------------------------ the search
 def _design_matrix(c: list[Candidate]) -> np.ndarray:
@@ -369,6 +375,17 @@ def _propose(req: MetricTarget, beta: np.ndarray, rng: np.random.Generator, n_ne
     return out
 
 
+def _round(aim: MetricTarget, beta: np.ndarray, rng: np.random.Generator, next_rep, spread: float, measurer,
+           measured: list, scale: float, band: float) -> tuple[list, np.ndarray, float]:
+    """One round of the search: ROUND candidates proposed around ``aim.target`` and measured (added to
+    ``measured``); (them, the model refitted, the next spread: narrower when a quarter landed within ``band``)."""
+    batch = _propose(aim, beta, rng, ROUND, next_rep, spread)
+    measurer(aim.family, batch)
+    measured += batch
+    hits = sum(abs(c.value - aim.target) <= band for c in batch)
+    return batch, fit_linear(measured, aim.target, scale), 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
+
+
 def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = False) -> GeneratedMaps:
     """Search maps whose measured ``req.metric`` lies within the tolerance of the target (module doc); ConfigError
     naming "target" if the family's pilot maps do not reach it, or if too few candidates land within the
@@ -385,7 +402,7 @@ def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = 
     next_rep = itertools.count().__next__                 # replicates 0, 1, 2, ...: every candidate a new map
     measurer = _Measurer(doc, req.metric, workers)
     shown = _Progress(req.count, progress)
-    try:
+    with shown, measurer:                  # the workers end first, at once on an error or SIGTERM/SIGINT
         measured, lo, hi = _run_pilot(req, rng, next_rep, measurer)
         if req.target + req.tolerance < lo or req.target - req.tolerance > hi:
             raise ConfigError("target", f"{req.metric} {req.target:g} is outside what family {req.family!r} reaches "
@@ -403,20 +420,9 @@ def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = 
                                   f"within {req.tolerance:g} of {req.metric} {req.target:g} after {len(measured)} "
                                   f"candidates (reached: {lo:.3g} to {hi:.3g}); widen --tolerance or move the target "
                                   "inside the range", req.target, show_value=False)
-            batch = _propose(req, beta, rng, ROUND, next_rep, spread)
-            measurer(req.family, batch)
-            measured += batch
+            batch, beta, spread = _round(req, beta, rng, next_rep, spread, measurer, measured, scale, req.tolerance)
             kept += [c for c in batch if abs(c.value - req.target) <= req.tolerance][:req.count - len(kept)]
-            beta = fit_linear(measured, req.target, scale)
-            hits = sum(abs(c.value - req.target) <= req.tolerance for c in batch)
-            spread = 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
             shown.update(len(kept), len(measured))
-    except BaseException:
-        measurer.close(terminate=True)         # an error or SIGTERM/SIGINT: end the workers at once
-        raise
-    finally:
-        measurer.close()
-        shown.done()
     wall = time.perf_counter() - t0
     return GeneratedMaps(tuple(kept), scenario_document(req, kept), len(measured), (lo, hi),
                          tuple(float(x) for x in fit_linear(measured)), wall)
@@ -448,7 +454,7 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
     shown = _Progress(req.count, progress, "flown")
     kept: list[Candidate] = []
     flown = 0
-    try:
+    with shown, measurer:                  # the workers end first, at once on an error or SIGTERM/SIGINT
         measured, lo, hi = _run_pilot(req, rng, next_rep, measurer)
         pilot_size = len(measured)
         if req.target + req.tolerance < lo or req.target - req.tolerance > hi:
@@ -494,18 +500,8 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
                 raise ConfigError("success", f"the predictor proposed too few maps of family {req.family!r} near "
                                   f"reference success {req.target:g} after {len(measured)} candidates (predicted "
                                   f"range {lo:.2f} to {hi:.2f}); widen --tolerance", req.target, show_value=False)
-            batch = _propose(aim, beta, rng, ROUND, next_rep, spread)
-            measurer(req.family, batch)
-            measured += batch
-            beta = fit_linear(measured, aim.target, scale)
-            hits = sum(abs(c.value - aim.target) <= PROPOSE_SHARE * req.tolerance for c in batch)
-            spread = 0.02 if hits >= ROUND // 4 else min(0.15, spread * 1.5)
-    except BaseException:
-        measurer.close(terminate=True)         # an error or SIGTERM/SIGINT: end the workers at once
-        raise
-    finally:
-        measurer.close()
-        shown.done()
+            _, beta, spread = _round(aim, beta, rng, next_rep, spread, measurer, measured, scale,
+                                     PROPOSE_SHARE * req.tolerance)
     wall = time.perf_counter() - t0
     return GeneratedMaps(tuple(kept), scenario_document(req, kept), len(measured), (lo, hi),
                          tuple(float(x) for x in fit_linear(measured)), wall, flown)
@@ -545,7 +541,10 @@ class _Progress:
             sys.stderr.write(f"\rpbdyn generate: {kept}/{self.total} maps, {tried} {self.what}{per}   ")
             sys.stderr.flush()
 
-    def done(self) -> None:
+    def __enter__(self) -> "_Progress":
+        return self
+
+    def __exit__(self, *_) -> None:
         if self.enabled:
             sys.stderr.write("\n")
             sys.stderr.flush()
