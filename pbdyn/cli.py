@@ -11,6 +11,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import sys
 import tempfile
 import traceback
@@ -257,7 +258,8 @@ FLAGS = {"planner": "--planner", "gaze": "--gaze", "map": "--map", "start": "--s
          "seed": "--seed", "fixed.count": "--obstacles", "fixed.radius": "--radius", "fixed.speed": "--speed",
          "store": "--store", "maps": "--map", "success": "--success", "suite": "--suite", "card": "CARD",
          "gaze_params": "--gaze-params", "reproduce": "--reproduce", "rerun_changed": "--rerun-changed",
-         "failures": "--failures", "failures_format": "--failures-format"}
+         "failures": "--failures", "failures_format": "--failures-format", "extend": "--extend",
+         "retry_errors": "--retry-errors", "shard": "--shard", "params": "--params"}
 """Library parameter names -> the flags (or positional arguments) that set them, for error messages."""
 
 
@@ -582,6 +584,25 @@ def _flag(command: str, field: str) -> str | None:
     return FLAGS.get(field)
 
 
+ELSEWHERE = {"rerun_changed": "batch", "retry_errors": "batch", "extend": "batch", "trace": "run", "params": "bench"}
+"""The command whose flag a library message may advise where the command that raised it has no such flag."""
+_NAMED = re.compile(r"`([a-z][a-z0-9_]*)`")
+
+
+def _cli_words(command: str, text: str) -> str:
+    """A library message in the command line's words: each option it names in backticks (`rerun_changed`,
+    pbdyn.errors.ConfigError) becomes the flag that sets it (_flag), "pbdyn OTHER --flag" where only another
+    command has it (ELSEWHERE); other backticked text is kept."""
+    def word(m: re.Match) -> str:
+        flag = _flag(command, m.group(1))
+        home = ELSEWHERE.get(m.group(1))
+        if flag is None or home in (None, command):
+            return flag or m.group(0)
+        sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+        return flag if flag in sub.choices[command]._option_string_actions else f"pbdyn {home} {flag}"
+    return _NAMED.sub(word, text)
+
+
 def _warning_line(show):
     """A warnings.showwarning that prints a PbdynWarning as one line ``pbdyn: warning: ...`` on stderr (naming the
     flag where the library names a parameter) and passes any other warning to ``show``."""
@@ -634,12 +655,12 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             traceback.print_exc()
         flag = _flag(args.command, exc.field)
-        sys.stderr.write(f"pbdyn: error: {exc.renamed(flag) if flag else exc}\n")
+        sys.stderr.write(f"pbdyn: error: {_cli_words(args.command, str(exc.renamed(flag) if flag else exc))}\n")
         return EXIT_USAGE
     except PbdynError as exc:
         if debug:
             traceback.print_exc()
-        sys.stderr.write(f"pbdyn: error: {exc}\n")
+        sys.stderr.write(f"pbdyn: error: {_cli_words(args.command, str(exc))}\n")
         return EXIT_USAGE
     except KeyboardInterrupt as exc:   # pbdyn batch: BatchInterrupted (SIGTERM 143, SIGINT 130)
         sys.stderr.write(f"pbdyn: {str(exc) or 'interrupted'}\n")

@@ -20,7 +20,8 @@ class ConfigError(PbdynError, ValueError):
     """An invalid scenario, world file or command-line value.
 
     The message always names the field and the offending value, e.g.
-    ``obstacles.radius: must be > 0 (got -1.0)``.
+    ``obstacles.radius: must be > 0 (got -1.0)``. It names another option by its library name in backticks
+    (``pass `rerun_changed```), never by a flag: the command line writes the flag (pbdyn.cli._cli_words).
     """
 
     def __init__(self, field: str, problem: str, value: object = None, *, show_value: bool = True):

@@ -178,8 +178,10 @@ def _message_texts(path: Path):
 
 def test_every_error_bench_can_reach_advises_only_bench_flags():
     """Static: every message of the modules `pbdyn bench` runs (their strings, docstrings aside), as bench words it
-    (bench_error), names only flags bench has and never asks for a file where bench takes a folder (--out)."""
+    (bench_error, then the command line's words, pbdyn.cli._cli_words), names only flags bench has and never asks
+    for a file where bench takes a folder (--out)."""
     from pbdyn.benchmark.run import _OUT_FILE
+    from pbdyn.cli import _cli_words
 
     root = Path(__file__).resolve().parents[1]
     seen = 0
@@ -187,8 +189,31 @@ def test_every_error_bench_can_reach_advises_only_bench_flags():
         for message, of_scenario in _message_texts(root / rel):
             if of_scenario:                  # bench_error words a store of another scenario itself
                 continue
-            worded = _OUT_FILE.sub("another --out folder", message)
+            worded = _cli_words("bench", _OUT_FILE.sub("another `out` folder", message))
             assert not foreign_flags("bench", worded), (rel, message)
             assert "--out file" not in worded, (rel, message)
-            seen += "--" in message
+            seen += "--" in worded
     assert seen >= 10                        # the walk found the runner's advice
+
+
+def test_library_errors_name_options_not_flags():
+    """Static: no error or warning raised below pbdyn/cli.py names a flag or a command line ("--out", "pbdyn
+    batch"): a library message names an option by its library name in backticks (`rerun_changed`), which the
+    command line writes as the flag (pbdyn.cli._cli_words)."""
+    from pbdyn.cli import COMMANDS
+
+    words = re.compile(r"(?<![\w-])--[a-z][\w-]*|\bpbdyn (?:%s)\b" % "|".join(COMMANDS))
+    root = Path(__file__).resolve().parents[1]
+    found = []
+    for path in sorted((root / "pbdyn").rglob("*.py")):
+        if path == root / "pbdyn" / "cli.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            name = getattr(node, "func", None)
+            name = getattr(name, "id", None) or getattr(name, "attr", None) or ""
+            if isinstance(node, ast.Call) and name.endswith(("Error", "Warning")):
+                text = " ".join(n.value for n in ast.walk(node)
+                                if isinstance(n, ast.Constant) and isinstance(n.value, str))
+                if words.search(text):
+                    found.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert not found

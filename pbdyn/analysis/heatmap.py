@@ -194,7 +194,7 @@ def heatmap_metrics(requested: list[str] | None, dense: bool) -> list[str]:
     chosen = [n for n in names if n in PER_POINT]
     if not chosen:
         raise ConfigError("plot", f"draws per-sample maps of {', '.join(PER_POINT)}; none of them was asked "
-                          "for with --metric", ", ".join(requested))
+                          "for with `metric`", ", ".join(requested))
     return chosen
 
 

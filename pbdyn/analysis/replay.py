@@ -79,7 +79,7 @@ def load_trace(path: str | Path) -> dict:
         raise ConfigError("TRACE", f"is not a readable trace .npz ({type(exc).__name__})", str(path)) from None
     missing = [k for k in REQUIRED if k not in data]
     if missing:
-        raise ConfigError("TRACE", f"lacks {', '.join(missing)} (record it again with this pbdyn: pbdyn run --trace)",
+        raise ConfigError("TRACE", f"lacks {', '.join(missing)} (record it again with this pbdyn: `trace`)",
                           str(path))
     _check_arrays(data, str(path))
     return data

@@ -228,7 +228,7 @@ def panel_counts(rows: list[dict]) -> dict[str, dict]:
             continue
         if r.get("outcome") == "error":
             raise ConfigError("RESULTS", f"holds an error row of the panel on map {r.get('map_index')} ({name}: "
-                              f"{r.get('reason')}); re-fly it (pbdyn batch --retry-errors)", r.get("trial_key"),
+                              f"{r.get('reason')}); re-fly it (`retry_errors`)", r.get("trial_key"),
                               show_value=False)
         m = per.setdefault(r["map_id"], {"index": r.get("map_index"), "setup": {"count": r.get("obstacle_count"),
                                                                                  "radius": r.get("obstacle_radius"),

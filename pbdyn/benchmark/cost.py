@@ -55,7 +55,7 @@ def read_ledger(out: Path) -> list[dict]:
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         problem = type(exc).__name__
     raise ConfigError("out", f"holds a cost ledger {LEDGER} that is not a {LEDGER_FORMAT} document ({problem}); "
-                      f"remove it (the card's cost then counts from the next bench on) or use another --out folder",
+                      f"remove it (the card's cost then counts from the next bench on) or use another `out` folder",
                       str(path))
 
 

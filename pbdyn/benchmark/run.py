@@ -138,10 +138,10 @@ def _check_marker(out: Path, suite: Suite, entry: PlannerEntry) -> None:
                 changed = sorted(k for k in set(have.get("parameter_files", {})) | set(mine.get("parameter_files", {}))
                                  if have.get("parameter_files", {}).get(k) != mine.get("parameter_files", {}).get(k))
                 what += f" whose parameter file {changed[0]} held other content then"
-            raise ConfigError("out", f"holds the bench of {what}; use another --out folder", str(out))
+            raise ConfigError("out", f"holds the bench of {what}; use another `out` folder", str(out))
         return
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ConfigError("out", "exists and is not an empty folder or a bench folder; use another --out folder",
+        raise ConfigError("out", "exists and is not an empty folder or a bench folder; use another `out` folder",
                           str(out))
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(marker, json.dumps(mine, indent=1, sort_keys=True) + "\n")
@@ -205,8 +205,8 @@ def fly_suite(suite: Suite, entry: PlannerEntry, out: Path, *, workers=None, sch
     return read_rows(suite, out)
 
 
-_OUT_FILE = re.compile(r"(?:a new|another) --out file|another file")
-"""The runner's advice to write elsewhere: for a bench, another --out folder."""
+_OUT_FILE = re.compile(r"(?:a new|another) `out` file|another file")
+"""The runner's advice to write elsewhere: for a bench, another `out` folder."""
 _CHANGED_PLANNER = re.compile(r"planners\[\d+\] \((.*)\): (\d+) stored trials (flown with .*)")
 """The runner's note on rows flown by other planner code (pbdyn.experiments.extend.changed_planners)."""
 
@@ -228,11 +228,11 @@ def bench_error(exc: ConfigError, out: Path, part: str) -> ConfigError:
     suite's scenario (the runner's SCENARIO, with its --extend advice) is the folder's problem; what changed
     (planner code, a world), which the runner names in place of a field, is said of the store."""
     store = f"flights/{part}.sqlite"
-    problem = _OUT_FILE.sub("another --out folder", exc.problem).replace(
-        "give a file name for the results store", "use another --out folder")
+    problem = _OUT_FILE.sub("another `out` folder", exc.problem).replace(
+        "give a file name for the results store", "use another `out` folder")
     if exc.field == "SCENARIO":
         return ConfigError("out", f"{store} holds flights of another scenario than the suite's part {part} (made by "
-                           "another pbdyn, or edited); use another --out folder", str(out))
+                           "another pbdyn, or edited); use another `out` folder", str(out))
     if exc.field == "out":
         return ConfigError("out", f"{store}: {problem}", str(out))
     if exc.show_value:

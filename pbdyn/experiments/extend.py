@@ -63,16 +63,16 @@ def check_scenario(store: ResultsStore, scenario: Scenario, extend: bool, write:
     old_profile = old.get("profile", "physical")
     if old_profile != scenario.profile:
         raise ConfigError("SCENARIO", f"has profile {scenario.profile!r} but {store.path.name} holds "
-                          f"{old_profile!r} rows; a store holds one profile (use a new --out file)",
+                          f"{old_profile!r} rows; a store holds one profile (use a new `out` file)",
                           scenario.source or scenario.name)
     allowed, refused = scenario_changes(old, doc)
     if refused:
         raise ConfigError("SCENARIO", f"differs from the scenario {store.path.name} was made with in "
-                          f"{', '.join(refused)}; --extend only accepts added grid values, planners, MAV speeds or "
-                          "maps (use a new --out file)", scenario.source or scenario.name)
+                          f"{', '.join(refused)}; `extend` only accepts added grid values, planners, MAV speeds or "
+                          "maps (use a new `out` file)", scenario.source or scenario.name)
     if not extend:
         raise ConfigError("SCENARIO", f"adds to the scenario {store.path.name} was made with ({', '.join(allowed)});"
-                          " pass --extend to run the additions", scenario.source or scenario.name)
+                          " pass `extend` to run the additions", scenario.source or scenario.name)
     if write:
         store.set_meta("scenario", new_json)
 

@@ -237,7 +237,7 @@ def shipped_predictor(dims: int):
     if dims not in predictors:
         have = "/".join(f"{d}D" for d in sorted(predictors)) or "no"
         raise ConfigError("success", f"needs the reference-success predictor of {dims}D maps (shipped: {have}); use "
-                          "--metric", dims, show_value=False)
+                          "`metric`", dims, show_value=False)
     return predictors[dims]
 
 
@@ -418,7 +418,7 @@ def generate_by_metric(req: MetricTarget, *, workers: int = 1, progress: bool = 
             if len(measured) >= budget:
                 raise ConfigError("target", f"only {len(kept)} of {req.count} maps of family {req.family!r} came "
                                   f"within {req.tolerance:g} of {req.metric} {req.target:g} after {len(measured)} "
-                                  f"candidates (reached: {lo:.3g} to {hi:.3g}); widen --tolerance or move the target "
+                                  f"candidates (reached: {lo:.3g} to {hi:.3g}); widen `tolerance` or move the target "
                                   "inside the range", req.target, show_value=False)
             batch, beta, spread = _round(req, beta, rng, next_rep, spread, measurer, measured, scale, req.tolerance)
             kept += [c for c in batch if abs(c.value - req.target) <= req.tolerance][:req.count - len(kept)]
@@ -477,7 +477,7 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
                     raise ConfigError("success", f"only {len(kept)} of {req.count} maps of family {req.family!r} "
                                       f"flew within {req.tolerance:g} of reference success {req.target:g} after "
                                       f"{flown} flown candidates (predicted range {lo:.2f} to {hi:.2f}); widen "
-                                      "--tolerance or move the target", req.target, show_value=False)
+                                      "`tolerance` or move the target", req.target, show_value=False)
                 batch = near[:min(FLY_ROUND, req.count - len(kept), budget - flown)]
                 tried.update(c.replicate for c in batch)
                 res = calibrate(scenario_document(req, batch), workers=workers)
@@ -499,7 +499,7 @@ def generate_by_success(req: MetricTarget, *, workers: int = 1, progress: bool =
             if len(measured) >= MAX_CANDIDATES_PER_MAP * req.count + pilot_size:
                 raise ConfigError("success", f"the predictor proposed too few maps of family {req.family!r} near "
                                   f"reference success {req.target:g} after {len(measured)} candidates (predicted "
-                                  f"range {lo:.2f} to {hi:.2f}); widen --tolerance", req.target, show_value=False)
+                                  f"range {lo:.2f} to {hi:.2f}); widen `tolerance`", req.target, show_value=False)
             _, beta, spread = _round(aim, beta, rng, next_rep, spread, measurer, measured, scale,
                                      PROPOSE_SHARE * req.tolerance)
     wall = time.perf_counter() - t0

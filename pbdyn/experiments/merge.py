@@ -54,7 +54,7 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         finally:
             st.conn.close()
         if doc is None:
-            raise ConfigError("RESULTS", "holds no scenario (not written by pbdyn batch)", str(path))
+            raise ConfigError("RESULTS", "holds no scenario (not written by a batch)", str(path))
         if scenario is None:
             scenario, first = doc, path
         elif doc != scenario:
@@ -68,7 +68,7 @@ def merge_stores(out: str | Path, inputs: list[str | Path]) -> MergeSummary:
         finally:
             st.conn.close()
         if have is not None and have != scenario:
-            raise ConfigError("out", "holds another scenario than the stores to merge (use a new --out file)",
+            raise ConfigError("out", "holds another scenario than the stores to merge (use a new `out` file)",
                               str(out))
         if have is not None:
             rules.setdefault(_id_rule(out_path), out_path)
@@ -173,20 +173,20 @@ def check_same_code(stores: list[tuple]) -> None:
             (c1, p1), (c2, p2) = list(codes.items())[:2]
             raise ConfigError("RESULTS", f"the metrics of map {index.get(map_id, '?')} ({map_id}) were computed by "
                               f"code {c1} in {p1.name} and {c2} in {p2.name} (a metric's code changed); merged, one "
-                              "map would hold two versions of its metrics (re-run one store with `pbdyn batch "
-                              "--rerun-changed`)", show_value=False)
+                              "map would hold two versions of its metrics (re-run one store with `rerun_changed`)",
+                              show_value=False)
     for label, fps in sorted(planners.items(), key=lambda kv: str(kv[0])):
         if len(fps) > 1:
             (f1, p1), (f2, p2) = list(fps.items())[:2]
             raise ConfigError("RESULTS", f"planner {label} was flown with code {f1} in {p1.name} and {f2} in "
-                              f"{p2.name}; merged, one label would hold two planners (re-fly one store with `pbdyn "
-                              "batch --rerun-changed`)", show_value=False)
+                              f"{p2.name}; merged, one label would hold two planners (re-fly one store with "
+                              "`rerun_changed`)", show_value=False)
     for key, fps in sorted(worlds.items(), key=lambda kv: (keys.get(kv[0], -1), kv[0])):
         if len(fps) > 1:
             (f1, p1), (f2, p2) = list(fps.items())[:2]
             raise ConfigError("RESULTS", f"map {keys.get(key, '?')} ({key}) was flown in world {f1} in "
                               f"{p1.name} and in world {f2} in {p2.name} (its code or files changed); merged, one "
-                              "map would hold two worlds (re-fly one store with `pbdyn batch --rerun-changed`)",
+                              "map would hold two worlds (re-fly one store with `rerun_changed`)",
                               show_value=False)
 
 

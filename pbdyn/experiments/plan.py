@@ -81,7 +81,7 @@ def check_id_rule(store: ResultsStore, out: Path, field: str = "out") -> None:
     if rule == MAP_ID_RULE or (rule is None and store.is_empty()):
         return
     raise ConfigError(field, f"names its maps by the map id rule {rule or 'setup-1'} (an older pbdyn); this pbdyn "
-                      f"names them by {MAP_ID_RULE}, and one store cannot hold both (use a new --out file)", str(out))
+                      f"names them by {MAP_ID_RULE}, and one store cannot hold both (use a new `out` file)", str(out))
 
 
 def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchOptions) -> BatchPlan:
@@ -98,24 +98,24 @@ def read_plan(out: Path, scenario: Scenario, trials, total: int, options: BatchO
     store = ResultsStore.open(out, field="out")
     try:
         if store._foreign_tables():
-            raise ConfigError("out", "is an SQLite file but not a pbdyn results store (use a new --out file)",
+            raise ConfigError("out", "is an SQLite file but not a pbdyn results store (use a new `out` file)",
                               str(out))
         check_id_rule(store, out)
         stale, notes = changed_planners(store, scenario)
         if stale and not options.rerun_changed:
             raise ConfigError("; ".join(notes), "planner code changed since these rows were flown; pass "
-                              "--rerun-changed to re-fly them (or use a new --out file)", show_value=False)
+                              "`rerun_changed` to re-fly them (or use a new `out` file)", show_value=False)
         check_scenario(store, scenario, options.extend, write=False)
         stale_maps, world_notes = changed_worlds(store, scenario, per_map_maps, worlds)
         if stale_maps and not options.rerun_changed:
             raise ConfigError("; ".join(world_notes), "a world's code or files changed since these rows were "
-                              "flown; pass --rerun-changed to re-fly those maps (or use a new --out file)",
+                              "flown; pass `rerun_changed` to re-fly those maps (or use a new `out` file)",
                               show_value=False)
         stale_metrics, metric_notes = (changed_metrics(store, scenario, per_map_maps) if options.metrics
                                        else (frozenset(), []))
         if stale_metrics and not options.rerun_changed:
             raise ConfigError("; ".join(metric_notes), "a metric's code changed since these metrics were computed; "
-                              "pass --rerun-changed to compute them again (or use a new --out file)",
+                              "pass `rerun_changed` to compute them again (or use a new `out` file)",
                               show_value=False)
         if not options.rerun_changed:
             stale = {}

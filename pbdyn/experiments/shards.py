@@ -34,5 +34,5 @@ def parse_shard(text) -> tuple[int, int]:
             i = n = None
     if not (isinstance(i, int) and isinstance(n, int) and not isinstance(i, bool) and not isinstance(n, bool)
             and 1 <= i <= n):
-        raise ConfigError("--shard", "must be I/N with integers 1 <= I <= N (e.g. 3/8)", text)
+        raise ConfigError("shard", "must be I/N with integers 1 <= I <= N (e.g. 3/8)", text)
     return i, n

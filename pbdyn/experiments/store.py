@@ -108,10 +108,10 @@ def store_error(field: str, exc: BaseException, path) -> ConfigError:
                    "space and re-run the same command to resume")
     elif "readonly" in low or "read-only" in low:
         problem = ("is read-only (the file or its folder is not writable; SQLite also writes -wal and -shm files "
-                   "beside it); make both writable or use another --out file")
+                   "beside it); make both writable or use another `out` file")
     elif "locked" in low or "busy" in low:
-        problem = (f"is locked by another process for more than {LOCK_TIMEOUT_S:g} s (another pbdyn batch writing "
-                   "it?); wait for it or use another file")
+        problem = (f"is locked by another process for more than {LOCK_TIMEOUT_S:g} s (another batch writing it?); "
+                   "wait for it or use another file")
     elif "unable to open" in low:
         problem = "cannot be opened as a file (a folder, or a folder on its path is missing or not accessible)"
     elif "disk i/o" in low:
@@ -184,7 +184,7 @@ def check_store_path(path, field: str = "out") -> Path:
                 raise ConfigError(field, f"cannot be written: the folder {anc} is not writable", str(path))
             break
     if p.exists() and not os.access(p, os.R_OK | os.W_OK):
-        raise ConfigError(field, "is read-only (not writable by this user); make it writable or use another --out "
+        raise ConfigError(field, "is read-only (not writable by this user); make it writable or use another `out` "
                           "file", str(path))
     return p
 
@@ -218,9 +218,9 @@ class ResultsStore:
             version = store._schema_version()
             if version is not None and version > SCHEMA_VERSION:
                 raise ConfigError(field, f"was written by schema version {version}; this pbdyn reads versions up "
-                                  f"to {SCHEMA_VERSION} (use a newer pbdyn or a new --out file)", str(path))
+                                  f"to {SCHEMA_VERSION} (use a newer pbdyn or a new `out` file)", str(path))
             if version is None and store._foreign_tables():
-                raise ConfigError(field, "is an SQLite file but not a pbdyn results store (use a new --out file)",
+                raise ConfigError(field, "is an SQLite file but not a pbdyn results store (use a new `out` file)",
                                   str(path))
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute("PRAGMA synchronous=NORMAL")

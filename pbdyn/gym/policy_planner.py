@@ -99,7 +99,7 @@ class PolicyPlanner:
                  patch: int = 0):
         if policy is None:
             raise ConfigError("policy", "is required: a callable (observation -> action) or 'package.module:factory' "
-                              "(pbdyn bench: --params '{\"policy\": \"package.module:factory\"}')", None,
+                              "(`params` '{\"policy\": \"package.module:factory\"}')", None,
                               show_value=False)
         self.context = context
         self.policy = load_policy(policy, policy_args)

@@ -59,11 +59,11 @@ def check_display() -> None:
         return
     display = os.environ.get("DISPLAY", "")
     if not display:
-        raise ConfigError("gui", "needs a display and DISPLAY is not set (--gui-snapshot FILE.png renders the final "
+        raise ConfigError("gui", "needs a display and DISPLAY is not set (`gui_snapshot` FILE.png renders the final "
                           "state without one)", show_value=False)
     problem = _x_server_problem(display)
     if problem:
-        raise ConfigError("gui", f"cannot reach the X server of DISPLAY={display!r} ({problem}; --gui-snapshot "
+        raise ConfigError("gui", f"cannot reach the X server of DISPLAY={display!r} ({problem}; `gui_snapshot` "
                           "FILE.png renders the final state without one)", show_value=False)
 
 
