@@ -67,7 +67,7 @@ def choose(suite: Suite, rows: list[dict], k: int) -> list[tuple[str, int, dict]
         by_level: dict[int, list[dict]] = {}
         for r in sorted(rows, key=task_key):
             if r["outcome"] == mode.value:
-                by_level.setdefault(suite.level_of(r["part"], r["map_id"]), []).append(r)
+                by_level.setdefault(suite.map_level(r["part"], r["map_id"]), []).append(r)
         queues = [by_level[lv] for lv in sorted(by_level)]
         picked: list[dict] = []
         depth = 0

@@ -108,8 +108,8 @@ class Suite:
                 return p
         raise ConfigError("part", f"is not a part of suite {self.name}", name)
 
-    def level_of(self, part: str, map_id: str) -> int:
-        """The level of the map ``map_id`` of part ``part``."""
+    def map_level(self, part: str, map_id: str) -> int:
+        """The level the manifest gives the map ``map_id`` of part ``part`` (a level: pbdyn.benchmark.levels)."""
         for m in self.maps:
             if m["part"] == part and m["map_id"] == map_id:
                 return int(m["level"])
