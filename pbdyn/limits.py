@@ -74,6 +74,10 @@ MAX_FLAG_COUNT = 1_000_000
 MAX_BOOTSTRAP = 100_000
 MAX_INDEX = 2 ** 63 - 1
 
+CHUNK_ELEMENTS = 4_000_000
+"""Upper bound on the elements of one temporary array of a vectorised computation (a metric's samples x obstacles x
+steps, a marching scan's rays x points x obstacles): larger ones are computed in chunks of at most this many."""
+
 METRICS_HORIZON_S = 44.0
 """Seconds the default metrics need: global survivability's last start (20 s) + its T_max (24 s). A map's rollout
 covers max(world.time_limit, METRICS_HORIZON_S) + dt (pbdyn.world.rollout.default_horizon)."""

@@ -5,20 +5,20 @@ from __future__ import annotations
 
 import json
 import math
-import sys
-import types
 
 import numpy as np
 import pytest
 
-import pbdyn.metrics
+from pbdyn import limits
 from pbdyn.config import load_scenario, parse_scenario
 from pbdyn.errors import ConfigError, HorizonError
 from pbdyn.metrics import survivability as surv_mod
+from pbdyn.metrics.analytic import survival_times
+from pbdyn.metrics.backends import BACKENDS, Backend
 from pbdyn.metrics.density import density
 from pbdyn.metrics.registry import METRICS, compute, parameters
 from pbdyn.metrics.sampling import grid_samples
-from pbdyn.metrics.survivability import global_survivability, survival_times, survivability
+from pbdyn.metrics.survivability import global_survivability, survivability
 from pbdyn.metrics.traversability import dynamic_traversability, neighbour_steps, traversability
 from pbdyn.metrics.vo import velocity_set, vo_feasibility
 from pbdyn.motion.cvm import cvm_fold
@@ -116,7 +116,7 @@ def test_sampled_kernel_matches_brute_force_and_is_chunk_independent(map30, monk
     np.testing.assert_array_equal(got, want)
     exact = survival_times(map30, pts, mode="exact")
     assert np.all(exact <= got) and np.any(exact < got)
-    monkeypatch.setattr(surv_mod, "CHUNK_ELEMENTS", 500)
+    monkeypatch.setattr(limits, "CHUNK_ELEMENTS", 500)
     np.testing.assert_array_equal(survival_times(map30, pts), got)
     np.testing.assert_array_equal(survival_times(map30, pts, mode="exact"), exact)
 
@@ -342,7 +342,7 @@ def test_registry_names_parameters_and_errors(map30):
         survivability(map30, spacing=0.0)
 
 
-def test_bullet_backend_is_dispatched_lazily(map30, monkeypatch):
+def test_the_bullet_backend_is_dispatched_through_the_registry(map30, monkeypatch):
     calls = []
 
     def fake(rollout, points, *, mav_radius, t_max, start_time=0.0):
@@ -352,14 +352,11 @@ def test_bullet_backend_is_dispatched_lazily(map30, monkeypatch):
     def fake_table(rollout, points, starts, *, mav_radius, t_max):
         return np.stack([fake(rollout, points, mav_radius=mav_radius, t_max=t_max, start_time=s) for s in starts])
 
-    fake_mod = types.SimpleNamespace(survival_times_bullet=fake, survival_table_bullet=fake_table)
-    monkeypatch.setitem(sys.modules, "pbdyn.metrics.bullet_backend", fake_mod)
-    monkeypatch.setattr(pbdyn.metrics, "bullet_backend", fake_mod, raising=False)
-
     def broken(*a, **k):
         raise AssertionError("the analytic kernel must not run with backend='bullet'")
 
-    monkeypatch.setattr(surv_mod, "survival_times", broken)
+    monkeypatch.setitem(BACKENDS, "bullet", Backend(fake, fake_table))
+    monkeypatch.setitem(BACKENDS, "analytic", Backend(broken, modes=BACKENDS["analytic"].modes))
     r = compute(map30, "survivability", backend="bullet", mav_radius=0.8)
     assert r.value == 1.5 and r.params["backend"] == "bullet" and r.extra["jitter"]["values"] == [1.5] * 8
     assert len(calls) == 1 and calls[0][1:] == (0.8, 12.0, 0.0)      # base grid and 8 jittered grids in one call
@@ -448,7 +445,7 @@ def test_survivability_decreases_with_count_radius_and_speed():
 def test_compiled_sampled_survival_equals_the_numpy_reference(dims):
     """survival_times' "sampled" mode (compiled, first hit per point) gives the numpy floats of its reference twin
     _survival_reference exactly, for points that are hit at once, later, or never, from several start times."""
-    from pbdyn.metrics.survivability import _survival_reference
+    from pbdyn.metrics.analytic import _survival_reference
     from tests.helpers import handmade_rollout, open_scenario
 
     rng = np.random.default_rng(11 + dims)

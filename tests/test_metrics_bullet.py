@@ -12,7 +12,7 @@ import pytest
 
 from pbdyn.config import parse_scenario
 from pbdyn.errors import HorizonError
-from pbdyn.metrics.bullet_backend import ExtraBody, global_survival_bullet, survival_times_bullet
+from pbdyn.metrics.bullet_backend import ExtraBody, survival_table_bullet, survival_times_bullet
 from pbdyn.metrics.sampling import grid_samples
 from pbdyn.world.geometry import StaticBody
 from pbdyn.world.imported.urdf_loading import urdf_path
@@ -85,7 +85,8 @@ def test_empty_world_and_far_obstacles_give_t_max():
     # obstacles (so Bullet does run) that stay in a corner away from every sample
     far = linear_rollout([[49.0, 49.0], [0.5, 49.0]], np.zeros((2, 2)), [0.5, 0.5], n_steps=441)
     np.testing.assert_array_equal(survival_times_bullet(far, pts, t_max=7.0), np.full(len(pts), 7.0))
-    np.testing.assert_array_equal(global_survival_bullet(far, pts), np.full(6, 24.0))
+    np.testing.assert_array_equal(survival_table_bullet(far, pts, [0.0, 4.0, 8.0, 12.0, 16.0, 20.0], t_max=24.0),
+                                  np.full((6, len(pts)), 24.0))
 
 
 def test_query_spheres_ignore_each_other_and_static_bodies():
@@ -112,7 +113,7 @@ def test_horizon_error():
     with pytest.raises(HorizonError):
         survival_times_bullet(ro, np.array([[25.0, 25.0]]), t_max=12.0)
     with pytest.raises(HorizonError):
-        global_survival_bullet(ro, np.array([[25.0, 25.0]]), t_max=5.0, start_times=(0.0, 5.0))
+        survival_table_bullet(ro, np.array([[25.0, 25.0]]), (0.0, 5.0), t_max=5.0)
 
 
 # ------------------------------------------------------------------------------------------------ any shape
@@ -145,16 +146,16 @@ def test_bullet_backend_does_not_need_the_analytic_module(monkeypatch):
         import sys, numpy as np
         class Block:
             def find_spec(self, name, path=None, target=None):
-                if name == "pbdyn.metrics.survivability":
+                if name == "pbdyn.metrics.analytic":
                     raise ImportError("analytic module blocked")
         sys.meta_path.insert(0, Block())
-        sys.modules.pop("pbdyn.metrics.survivability", None)
+        sys.modules.pop("pbdyn.metrics.analytic", None)
         from pbdyn.world.rollout import Rollout
         from pbdyn.metrics.bullet_backend import survival_times_bullet
         T = 150; t = np.arange(T) * 0.1
         pos = np.stack([5.05 + 2 * t, np.full(T, 10.0)], 1)[:, None, :]
         ro = Rollout(t, pos, np.zeros_like(pos), np.ones(1), np.array([50.0, 50.0]), 0.1)
-        assert "pbdyn.metrics.survivability" not in sys.modules
+        assert "pbdyn.metrics.analytic" not in sys.modules
         print(survival_times_bullet(ro, np.array([[25.0, 10.0]]))[0])
     """)
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
@@ -162,7 +163,7 @@ def test_bullet_backend_does_not_need_the_analytic_module(monkeypatch):
     assert out.stdout.strip().splitlines()[-1] == "9.0"
     # in-process: the analytic functions raising, or its module entry replaced by something that raises
     try:
-        import pbdyn.metrics.survivability as analytic
+        import pbdyn.metrics.analytic as analytic
     except ImportError:
         analytic = None
     if analytic is not None:
@@ -173,7 +174,7 @@ def test_bullet_backend_does_not_need_the_analytic_module(monkeypatch):
     class Raising:
         def __getattr__(self, name):
             raise RuntimeError("analytic module used")
-    monkeypatch.setitem(sys.modules, "pbdyn.metrics.survivability", Raising())
+    monkeypatch.setitem(sys.modules, "pbdyn.metrics.analytic", Raising())
     ro = linear_rollout([[5.05, 10.0]], [[2.0, 0.0]], [1.0])
     np.testing.assert_allclose(survival_times_bullet(ro, np.array([[25.0, 10.0]])), [9.0], atol=1e-12)
 
@@ -211,7 +212,7 @@ def test_agrees_with_independent_reference(maps, bullet_times):
 
 
 def test_agrees_with_analytic_kernel(maps, bullet_times):
-    analytic = pytest.importorskip("pbdyn.metrics.survivability")
+    analytic = pytest.importorskip("pbdyn.metrics.analytic")
     for (ro, pts), times in zip(maps, bullet_times):
         for st, t in times.items():
             assert_agree(t, analytic.survival_times(ro, pts, start_time=st, mode="sampled"), ro.dt)
@@ -226,7 +227,7 @@ def test_global_survival_is_the_first_hit_of_any_point(maps):
     ro, _ = maps[1]
     pts = np.array([[14.0, 14.0], [14.0, 36.0], [36.0, 14.0], [36.0, 36.0], [25.0, 25.0]])
     starts = (0.0, 2.0, 4.0)
-    g = global_survival_bullet(ro, pts, t_max=12.0, start_times=starts)
+    g = survival_table_bullet(ro, pts, starts, t_max=12.0).min(axis=1)          # global survivability's times
     for j, st in enumerate(starts):
         single = survival_times_bullet(ro, pts, t_max=12.0, start_time=st)
         assert g[j] == pytest.approx(single.min(), abs=1e-12)

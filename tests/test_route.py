@@ -12,10 +12,11 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from pbdyn.metrics.analytic import survival_times
 from pbdyn.metrics.route import (GRID_FACTOR, RouteGrid, grid_path, neighbour_offsets, route_detour, route_flux,
                                  route_grid, route_metrics, route_points, route_survivability, static_clearance,
                                  static_route)
-from pbdyn.metrics.survivability import split_static, survival_times
+from pbdyn.metrics.survivability import split_static
 from pbdyn.metrics.task import corridor_flux, corridor_points, corridor_survivability
 from pbdyn.world.geometry import StaticBody
 from tests.conftest import SCENARIOS

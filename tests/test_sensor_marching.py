@@ -9,7 +9,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from pbdyn import api
+from pbdyn import api, limits
 from pbdyn.config import parse_scenario
 from pbdyn.errors import ConfigError
 from pbdyn.perception import marching
@@ -156,7 +156,7 @@ def test_free_and_occupied_cells_for_a_pillar_and_a_wall():
 @pytest.mark.parametrize("fov", [90.0, 360.0])
 @pytest.mark.parametrize("rule", ["ray", "program"])
 def test_grid_and_detections_match_a_per_point_reference_on_random_scenes(fov, rule, monkeypatch):
-    monkeypatch.setattr(marching, "CHUNK_ELEMENTS", 700)           # several obstacle chunks per scan
+    monkeypatch.setattr(limits, "CHUNK_ELEMENTS", 700)           # several obstacle chunks per scan
     rng = np.random.default_rng(11)
     n = 25
     static = [StaticBody("pillar", (8.0, 6.0), radius=1.2),

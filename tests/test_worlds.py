@@ -117,9 +117,9 @@ def test_moving_box_survival_hand_computed_bullet_and_mesh_agree_spheres_differ(
     # (20, 26.2): 0.7 m above the box's face; overlap once the right face passes x = 20 - sqrt(1 - 0.7^2)
     t_contact = (20.0 - math.sqrt(1 - 0.7 ** 2) - 12.0) / 2.0        # 3.643 s
     expect = [math.ceil(t_contact / 0.1) * 0.1, 12.0, 12.0]
+    from pbdyn.metrics.analytic import survival_times
     from pbdyn.metrics.bullet_backend import survival_times_bullet
     from pbdyn.metrics.mesh_backend import survival_times_mesh
-    from pbdyn.metrics.survivability import survival_times
 
     bullet = survival_times_bullet(ro, pts)
     mesh = survival_times_mesh(ro, pts)

@@ -43,12 +43,11 @@ class MetricSamples:
 
 def metric_samples(scenario, rollout, name: str, backend: str) -> MetricSamples:
     """Compute ``name`` on ``rollout`` with the parameters of the scenario's map metrics and return its samples."""
-    from pbdyn.metrics.cached import metric_params
+    from pbdyn.metrics.cached import run_metric
     from pbdyn.metrics.catalog import INFO
-    from pbdyn.metrics.registry import compute
     from pbdyn.metrics.survivability import base_points, split_static
 
-    res = compute(rollout, name, **metric_params(scenario, name, backend))
+    res = run_metric(scenario, rollout, name, backend)
     p = res.params
     pts, _ = split_static(rollout, base_points(rollout, p.get("points"), p["spacing"], p["margin"]), p["mav_radius"])
     values = np.asarray(res.per_sample, dtype=float)

@@ -201,8 +201,7 @@ def measure_metric(scenario: Scenario, metric: str, entries: list[tuple[int, dic
     """(index, the metric's value, the map's seed) of each (index, setup values, replicate) map of ``scenario``:
     its rollout over the metric's horizon, then the metric as `pbdyn metrics` computes it (the scenario's MAV
     radius and backend)."""
-    from pbdyn.metrics.cached import metric_params, resolve_backend
-    from pbdyn.metrics.registry import compute
+    from pbdyn.metrics.cached import resolve_backend, run_metric
     from pbdyn.world.maps import MapSpec, world_digest
     from pbdyn.world.rollout import build_rollout
 
@@ -221,11 +220,10 @@ def measure_metric(scenario: Scenario, metric: str, entries: list[tuple[int, dic
             out.append((i, float(predictor.predict([feats])[0][0]), spec.seed))
         return out
     horizon = INFO[metric].horizon_s + scenario.world.dt
-    params = metric_params(scenario, metric, backend)
     for i, setup, rep in entries:
         spec = MapSpec(i, setup, rep, scenario.obstacles.root_seed, world_digest(scenario, setup))
         ro = build_rollout(scenario, spec, horizon)
-        out.append((i, float(compute(ro, metric, **params).value), spec.seed))
+        out.append((i, float(run_metric(scenario, ro, metric, backend).value), spec.seed))
     return out
 
 

@@ -409,14 +409,13 @@ def run_map_task(task: MapTask, data: bytes | None = None) -> dict:
     """Compute one map's metrics in this worker: a maps-table row (metrics, their compute times, the map's mean
     obstacle speed and radius)."""
     limit_threads()
-    from pbdyn.metrics.cached import metric_params, metrics_code, resolve_backend
-    from pbdyn.metrics.registry import compute
+    from pbdyn.metrics.cached import metrics_code, resolve_backend, run_metric
 
     ro = _rollout(task.rollout, data)
     backend = resolve_backend(task.scenario, task.backend)
     metrics, times = {}, {}
     for name in task.metrics:
-        res = compute(ro, name, **metric_params(task.scenario, name, backend))
+        res = run_metric(task.scenario, ro, name, backend)
         metrics[name] = res.value
         times[name] = res.wall_time_s
     speeds = np.linalg.norm(ro.velocities[0], axis=-1) if ro.n_obstacles else np.zeros(0)

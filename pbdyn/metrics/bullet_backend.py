@@ -1,7 +1,7 @@
 """The ``bullet`` survivability backend: survival times (thesis eq. 3-6, 3-7, "sampled" mode) from PyBullet collision
 queries between static MAV spheres at the sample points and the world's moving bodies, of any shape.
 
-Independent of the analytic kernel (pbdyn.metrics.survivability is never imported). One DIRECT BulletClient per
+Independent of the analytic kernel (pbdyn.metrics.analytic is never imported). One DIRECT BulletClient per
 call, holding only what the query needs: one *query body* per sample (a sphere of the MAV radius, mass 1 so that
 Bullet generates contacts against the mass-0 obstacles) and the *target bodies* that move. Collision filters keep
 query bodies from colliding with each other and with anything but the targets (group QUERY_GROUP, mask
@@ -100,16 +100,15 @@ def add_query_spheres(client_or_world, points3, radius: float) -> np.ndarray:
     return ids
 
 
-def survival_steps_bodies(client_or_world, query_ids, target_ids, set_poses: Callable[[int], None], n_steps: int,
-                          *, stop_at_first: bool = False) -> np.ndarray:
+def survival_steps_bodies(client_or_world, query_ids, target_ids, set_poses: Callable[[int], None],
+                          n_steps: int) -> np.ndarray:
     """First step k in 0..n_steps at which each query body penetrates a target body; -1 if never (int64 [n]).
 
     client_or_world: a BulletClient (or anything with a ``client`` attribute, e.g. a PyBulletWorld) -- use a client
     dedicated to this query: the targets' collision filters are set to (TARGET_GROUP, QUERY_GROUP) for good (every
     link), so they stop colliding with anything else, and hit query bodies are left parked at PARK.
     query_ids: query spheres from add_query_spheres. target_ids: the moving bodies. set_poses(k): places the targets
-    for step k (resetBasePositionAndOrientation). stop_at_first: return as soon as any query body is hit (global
-    survivability). Never calls stepSimulation.
+    for step k (resetBasePositionAndOrientation). Never calls stepSimulation.
     """
     client = _client_of(client_or_world)
     query = np.asarray(query_ids, dtype=np.int64).reshape(-1)
@@ -142,8 +141,6 @@ def survival_steps_bodies(client_or_world, query_ids, target_ids, set_poses: Cal
         if idx.shape[0] == 0:
             continue
         first[idx] = k
-        if stop_at_first:
-            break
         for b in query[idx].tolist():
             reset(b, PARK, _IDENTITY, physicsClientId=cid)
         n_alive -= idx.shape[0]
@@ -218,7 +215,6 @@ class _RolloutScene:
         self.extra_ids = ids[n_spheres:]
         self.target_ids = np.asarray(ids, dtype=np.int64)
         self.query_ids = add_query_spheres(c, self.to3(pts), mav_radius)
-        self.query_home = self.to3(pts).tolist()
         self._cid = c._client
 
     def to3(self, p: np.ndarray) -> np.ndarray:
@@ -239,11 +235,6 @@ class _RolloutScene:
                 p, q = body.pose_at(step, float(ro.times[step]))
                 reset(b, p, q, physicsClientId=cid)
         return set_poses
-
-    def unpark(self) -> None:
-        reset, cid = pybullet.resetBasePositionAndOrientation, self._cid
-        for b, p in zip(self.query_ids.tolist(), self.query_home):
-            reset(b, p, _IDENTITY, physicsClientId=cid)
 
     def close(self) -> None:
         with stdout_to_stderr():
@@ -305,32 +296,3 @@ def survival_times_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: fl
     return survival_table_bullet(rollout, points, [start_time], mav_radius=mav_radius, t_max=t_max,
                                  flight_height=flight_height, exact_pillars=exact_pillars,
                                  extra_bodies=extra_bodies)[0]
-
-
-def global_survival_bullet(rollout, points, *, mav_radius: float = 1.0, t_max: float = 24.0,
-                           start_times=(0.0, 4.0, 8.0, 12.0, 16.0, 20.0), flight_height: float | None = None,
-                           exact_pillars: bool = False, extra_bodies: Sequence[ExtraBody] = ()) -> np.ndarray:
-    """Per start time t_j (s), the time until ANY of the static MAV spheres at ``points`` [n, d] (m) is hit, capped
-    at t_max (thesis eq. 3-7, "sampled" steps as in survival_times_bullet); float [len(start_times)] (s).
-
-    One client for all start times; each start stops at its first hit. HorizonError if a start + t_max is past the
-    rollout's horizon.
-    """
-    mav_radius = check_positive("mav_radius", mav_radius)
-    starts = [float(s) for s in np.asarray(start_times, dtype=float).reshape(-1)]
-    windows = [step_window(rollout, s, t_max) for s in starts]
-    pts = np.asarray(points, dtype=float).reshape(-1, rollout.dims)
-    out = np.full(len(starts), float(t_max))
-    if pts.shape[0] == 0 or (rollout.n_obstacles == 0 and not extra_bodies):
-        return out
-    scene = _RolloutScene(rollout, pts, mav_radius, flight_height, exact_pillars, extra_bodies)
-    try:
-        for j, (k0, n_steps) in enumerate(windows):
-            first = survival_steps_bodies(scene.client, scene.query_ids, scene.target_ids, scene.poser(k0), n_steps,
-                                          stop_at_first=True)
-            if np.any(first >= 0):
-                out[j] = min(float(first[first >= 0].min()) * rollout.dt, float(t_max))
-            scene.unpark()
-    finally:
-        scene.close()
-    return out

@@ -9,14 +9,10 @@ import time
 from pbdyn.config import Scenario, canonical_json
 from pbdyn.errors import ConfigError
 from pbdyn.files import atomic_write_text
+from pbdyn.metrics.backends import BACKENDS
 from pbdyn.metrics.catalog import BACKEND_METRICS, DENSE, INFO, METRIC_TABLE, NAMES, SPARSE
 from pbdyn.world.maps import MapSpec
 from pbdyn.world.rollout import cache_dir, default_horizon, get_rollout, rollout_key
-
-BACKEND_MODULES = {"bullet": "pbdyn.metrics.bullet_backend", "mesh": "pbdyn.metrics.mesh_backend"}
-"""The survivability backends' own modules ("analytic" lives in pbdyn.metrics.survivability): a metric value's
-code identity holds the module of the backend it ran with and no other's."""
-
 
 def metric_code(name: str, backend: str | None = None) -> str:
     """The identity of the code that computes metric ``name`` with ``backend`` (pbdyn.codeid; docs/design.md "Code
@@ -24,10 +20,9 @@ def metric_code(name: str, backend: str | None = None) -> str:
     the cache never serves a value computed by other code (and serves the old values again after a revert)."""
     from pbdyn import codeid
 
-    module = INFO[name].module
-    own = BACKEND_MODULES.get(backend or "")
-    return codeid.identity((module,) + ((own,) if own else ()),
-                           tuple(m for m in BACKEND_MODULES.values() if m != own))
+    own = BACKENDS[backend].times.__module__ if backend else None
+    return codeid.identity((INFO[name].module,) + ((own,) if own else ()),
+                           tuple(b.times.__module__ for b in BACKENDS.values() if b.times.__module__ != own))
 
 
 def metrics_code(names, backend: str | None) -> str:
@@ -53,9 +48,6 @@ def metric_names(requested: list[str] | None, dense: bool) -> list[str]:
     return out
 
 
-BACKENDS = ("analytic", "bullet", "mesh")
-
-
 def resolve_backend(scenario: Scenario, backend: str) -> str:
     """The survivability backend for ``backend`` ("auto": bullet for an imported world with moving bodies, whose
     real shapes it queries, else analytic); ConfigError naming --backend for an unknown name."""
@@ -63,8 +55,8 @@ def resolve_backend(scenario: Scenario, backend: str) -> str:
         return "bullet" if any(b.moving for b in scenario.bodies) else "analytic"
     if backend not in BACKENDS:
         raise ConfigError("backend", f"unknown backend (known: auto, {', '.join(BACKENDS)})", backend)
-    if backend == "mesh" and not scenario.is_world:
-        raise ConfigError("backend", "the mesh backend works on imported worlds ([[bodies]]); generated "
+    if BACKENDS[backend].imported_only and not scenario.is_world:
+        raise ConfigError("backend", f"the {backend} backend works on imported worlds ([[bodies]]); generated "
                           "obstacles are discs/balls: use analytic or bullet", backend)
     return backend
 
@@ -100,12 +92,19 @@ def metric_params(scenario: Scenario, name: str, backend: str) -> dict:
     return params
 
 
+def run_metric(scenario: Scenario, rollout, name: str, backend: str = "auto"):
+    """Metric ``name`` (a MetricResult) of ``rollout``, a map of ``scenario``, as every caller computes a map's
+    metric (`pbdyn metrics`, the batch, generate, the predictor's features, the heat maps): with metric_params for
+    the scenario's resolved ``backend`` (resolve_backend)."""
+    from pbdyn.metrics.registry import compute
+
+    return compute(rollout, name, **metric_params(scenario, name, resolve_backend(scenario, backend)))
+
+
 def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend: str = "analytic",
                 use_cache: bool = True) -> dict[str, dict]:
     """Compute (or read from the cache) each named metric of one map; returns name -> MetricResult.to_dict()
     (plus "cached": bool). Survivability-type metrics use ``backend``; the MAV radius is the scenario's."""
-    from pbdyn.metrics.registry import compute
-
     backend = resolve_backend(scenario, backend)
     horizon = default_horizon(scenario)
     rollout = get_rollout(scenario, spec, horizon)
@@ -125,7 +124,7 @@ def map_metrics(scenario: Scenario, spec: MapSpec, names: list[str], *, backend:
             except (OSError, ValueError):
                 path.unlink(missing_ok=True)
         t0 = time.perf_counter()
-        result = compute(rollout, name, **params)
+        result = run_metric(scenario, rollout, name, backend)
         doc = result.to_dict()
         doc["wall_time_s"] = time.perf_counter() - t0
         if use_cache:

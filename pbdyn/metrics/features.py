@@ -91,8 +91,7 @@ def map_features(scenario, map_index: int, pairs, *, backend: str = "analytic") 
 def rollout_features(scenario, rollout, pairs, backend: str = "analytic") -> dict[str, float]:
     """FEATURES of one map from its ``rollout`` (long enough for the metrics' horizons), without the cache (pbdyn
     generate's candidates): the map metrics as pbdyn.metrics.cached computes them, then the route metrics."""
-    from pbdyn.metrics.cached import metric_params
-    from pbdyn.metrics.registry import compute
+    from pbdyn.metrics.cached import run_metric
 
-    metrics = {m: compute(rollout, m, **metric_params(scenario, m, backend)).value for m in MAP_METRICS}
+    metrics = {m: run_metric(scenario, rollout, m, backend).value for m in MAP_METRICS}
     return features_from(metrics, route_features(scenario, rollout, pairs, backend))

@@ -53,10 +53,11 @@ from scipy import ndimage
 from pbdyn import limits
 from pbdyn.errors import ConfigError
 from pbdyn.jit import njit
+from pbdyn.metrics.backends import kernel
 from pbdyn.metrics.baselines import equivalent_radii
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.sampling import plane_points
-from pbdyn.metrics.survivability import _kernel, jsonable, positive, split_static, summary
+from pbdyn.metrics.survivability import jsonable, positive, split_static, summary
 from pbdyn.metrics.task import points_flux
 from pbdyn.metrics.traversability import default_starts
 
@@ -482,12 +483,12 @@ def route_survivability(rollout, start, goal, *, start_time: float = 0.0, mav_ra
                         route: Route | None = None) -> tuple[float, int]:
     """(route survivability (s; thesis eq. 3-6), number of samples) of the task start -> goal: corridor_survivability
     on route_points of the static route (module doc); (NaN, 0) without a route or samples."""
-    kernel = _kernel(backend, "sampled")
+    find = kernel(backend, "sampled")
     r = _route(rollout, start, goal, route, mav_radius, cell)
     pts = _samples(rollout, r, spacing, half_width, mav_radius)
     if pts.shape[0] == 0:
         return float("nan"), 0
-    times = kernel(rollout, pts, mav_radius=mav_radius, t_max=t_max, start_time=start_time)
+    times = find(rollout, pts, mav_radius=mav_radius, t_max=t_max, start_time=start_time)
     return float(np.mean(times)), int(pts.shape[0])
 
 
@@ -530,7 +531,7 @@ def route_metrics(rollout, *, starts=None, pairs=None, start_time: float = 0.0, 
     n_excluded); extra: the route lengths (m) and statuses. One route_grid serves every task."""
     t0 = _time.perf_counter()
     mav_radius = positive("mav_radius", mav_radius)
-    kernel = _kernel(backend, "sampled")
+    find = kernel(backend, "sampled")
     pts, tasks = _pairs(rollout, starts, pairs)
     grid = route_grid(rollout, mav_radius=mav_radius, cell=cell)
     canon = [(i, j) if tuple(pts[i]) <= tuple(pts[j]) else (j, i) for i, j in tasks]
@@ -540,7 +541,7 @@ def route_metrics(rollout, *, starts=None, pairs=None, start_time: float = 0.0, 
     radii = equivalent_radii(rollout, start_time) if rollout.n_obstacles else None
     samples = [_samples(rollout, routes[k], spacing, half_width, mav_radius) for k in keys]
     allpts = np.concatenate(samples) if keys else np.zeros((0, rollout.dims))
-    times = np.asarray(kernel(rollout, allpts, mav_radius=mav_radius, t_max=t_max, start_time=start_time),
+    times = np.asarray(find(rollout, allpts, mav_radius=mav_radius, t_max=t_max, start_time=start_time),
                        dtype=float) if allpts.shape[0] else np.zeros(0)
     parts = np.split(times, np.cumsum([p.shape[0] for p in samples])[:-1]) if keys else []
     surv = {k: float(np.mean(p)) if p.size else np.nan for k, p in zip(keys, parts)}

@@ -7,7 +7,7 @@ across the segment), kept where the MAV disc/ball stays inside the arena and off
 
 - corridor_survivability (s; higher = easier): thesis eq. 3-6 on the corridor samples -- the mean over samples of
   the time until an obstacle overlaps a resting MAV there, capped at t_max -- from ``start_time`` (the trial's
-  start), with the map's survivability kernel (pbdyn.metrics.survivability; the backend that sees the real shapes
+  start), with the map's survivability kernel (pbdyn.metrics.backends; the backend that sees the real shapes
   for imported worlds).
 - corridor_flux (1/s; higher = harder): its closed-form, simulation-free analogue, the swept-area rate of
   pbdyn.metrics.baselines restricted to the corridor: the number of (sample, obstacle) pairs whose straight path
@@ -23,8 +23,9 @@ import math
 
 import numpy as np
 
+from pbdyn.metrics.backends import kernel
 from pbdyn.metrics.baselines import equivalent_radii
-from pbdyn.metrics.survivability import _kernel, positive, split_static
+from pbdyn.metrics.survivability import positive, split_static
 
 
 def corridor_points(start, goal, arena_size, *, spacing: float = 3.0, half_width: float = 3.0,
@@ -63,7 +64,7 @@ def corridor_survivability(rollout, start, goal, *, start_time: float = 0.0, mav
     pts, _ = split_static(rollout, pts, mav_radius)
     if pts.shape[0] == 0:
         return float("nan"), 0
-    times = _kernel(backend, "sampled")(rollout, pts, mav_radius=mav_radius, t_max=t_max, start_time=start_time)
+    times = kernel(backend, "sampled")(rollout, pts, mav_radius=mav_radius, t_max=t_max, start_time=start_time)
     return float(np.mean(times)), int(pts.shape[0])
 
 

@@ -48,7 +48,6 @@ MARKINGS = ("centre_inside", "program")
 CELL_RULES = ("centre_inside", "program_reset", "program_step")
 """blocked_cells' rules: the default, and the program's freshly built and stepped maps (module doc)."""
 DYNAMIC_TIMES = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
-CHUNK_ELEMENTS = 4_000_000
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -100,7 +99,7 @@ def ray_spheres(origins: np.ndarray, dirs: np.ndarray, centres: np.ndarray, radi
     k = centres.shape[1]
     o, u = origins[:, :k], dirs[:, :k]
     a = np.sum(u * u, axis=1)                                        # [m]
-    step = max(1, CHUNK_ELEMENTS // (n * m))
+    step = max(1, limits.CHUNK_ELEMENTS // (n * m))
     for s in range(0, centres.shape[0], step):
         rel = centres[None, s:s + step, :] - o[:, None, :]          # [n, N, k]
         c = np.sum(rel * rel, axis=2) - radii[None, s:s + step] ** 2  # [n, N]
@@ -233,7 +232,7 @@ def _mark_discs(blocked: np.ndarray, centres: np.ndarray, pos: np.ndarray, radii
                 closed: bool) -> None:
     """blocked[c] |= cell centre c [C, d] lies inside obstacle i (distance < r_i; ``closed``: <= r_i)."""
     n = pos.shape[0]
-    step = max(1, CHUNK_ELEMENTS // max(1, centres.shape[0] * centres.shape[1]))
+    step = max(1, limits.CHUNK_ELEMENTS // max(1, centres.shape[0] * centres.shape[1]))
     for s in range(0, n, step):
         d2 = np.zeros((centres.shape[0], min(step, n - s)))
         for a in range(centres.shape[1]):
@@ -249,7 +248,7 @@ def _mark_squares(blocked: np.ndarray, idx: np.ndarray, pos: np.ndarray, radii: 
     n = pos.shape[0]
     home = np.floor(pos / cell).astype(np.int64)                              # [N, d]
     reach = np.floor(radii / cell).astype(np.int64)                           # [N]
-    step = max(1, CHUNK_ELEMENTS // max(1, idx.shape[0] * idx.shape[1]))
+    step = max(1, limits.CHUNK_ELEMENTS // max(1, idx.shape[0] * idx.shape[1]))
     for s in range(0, n, step):
         near = np.abs(idx[:, None, :] - home[None, s:s + step, :]) <= reach[None, s:s + step, None]
         blocked |= np.any(np.all(near, axis=2), axis=1)

@@ -18,12 +18,12 @@ import time as _time
 
 import numpy as np
 
+from pbdyn import limits
 from pbdyn.errors import ConfigError
 from pbdyn.metrics.result import MetricResult
 from pbdyn.metrics.survivability import base_points, jsonable, positive, split_static, summary
 from pbdyn.metrics.traversability import ray_static, ray_walls, shape_distances
 
-CHUNK_ELEMENTS = 4_000_000
 
 
 def fibonacci_directions(n: int) -> np.ndarray:
@@ -69,7 +69,7 @@ def infeasible_velocities(points: np.ndarray, obs_pos: np.ndarray, obs_vel: np.n
     u = velocities[:, None, :] - obs_vel[None, :, :]                    # [V, N, d]
     uu = np.sum(u * u, axis=2)                                           # [V, N]
     r2uu = reach[None, :] ** 2 * uu
-    step = max(1, CHUNK_ELEMENTS // (n_v * n_o))
+    step = max(1, limits.CHUNK_ELEMENTS // (n_v * n_o))
     for s in range(0, n, step):
         p = obs_pos[None, :, :] - points[s:s + step, None, :]           # [m, N, d]
         pp = np.sum(p * p, axis=2)                                       # [m, N]

@@ -12,7 +12,7 @@ The program's own stepping (march_rule "program", program_march_distances): each
 dominant world axis (0.9-1.27 m along the ray in 2D), and its point at or beyond the range still counts for a hit
 but is never marked free.
 
-Everything is numpy, vectorised over rays x points x obstacles (obstacles in chunks of CHUNK_ELEMENTS).
+Everything is numpy, vectorised over rays x points x obstacles (obstacles in chunks of pbdyn.limits.CHUNK_ELEMENTS).
 """
 
 from __future__ import annotations
@@ -22,11 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pbdyn import limits
+from pbdyn.errors import ConfigError
+from pbdyn.perception.sensor import ray_directions
 from pbdyn.world.geometry import StaticBody
 
 NONE, OBSTACLE, STATIC, WALL = 0, 1, 2, 3
 """Kinds of a ray's hit."""
-CHUNK_ELEMENTS = 4_000_000
 
 
 @dataclass(frozen=True)
@@ -110,7 +112,7 @@ def march(origin: np.ndarray, dirs_t: np.ndarray, ts: np.ndarray, centres: np.nd
     if near.shape[0]:
         proj = rel[near] @ dirs_t                                                     # [M, R]
         t2, r2 = ts2 * ts2, r[near] ** 2
-        step = max(1, CHUNK_ELEMENTS // max(1, n_rays * n_pts))
+        step = max(1, limits.CHUNK_ELEMENTS // max(1, n_rays * n_pts))
         for s in range(0, near.shape[0], step):
             d2 = t2[None, :, :] - 2.0 * proj[s:s + step, :, None] * ts2[None, :, :]
             d2 += dist2[near[s:s + step], None, None]
@@ -158,3 +160,59 @@ def march(origin: np.ndarray, dirs_t: np.ndarray, ts: np.ndarray, centres: np.nd
         index[rows] = near[np.argmax(holds, axis=0)]
         seen = near[holds.any(axis=1)]
     return MarchHits(pts, first, kind, index, seen)
+
+
+class Marching:
+    """The "marching" sensor model (pbdyn.perception.registry.SensorModel; module doc): ``perception.rays`` rays over
+    the FOV (None: from its resolution_deg; 3D rows as "raycast"), points ``march_step`` m apart, stepped by
+    ``march_rule`` ("program": program_march_distances and, in 2D, the program's fan from -fov/2 in fov/rays steps).
+    Sees discs/balls, pillars and boxes: a world with static URDF bodies is refused."""
+
+    def __init__(self, perception):
+        self.p = perception
+        self.check_world(perception.world)
+        self.march_t = march_distances(perception.range_m, perception.march_step)
+        self.bounds = static_bounds(tuple(perception.world.static_bodies), perception.dims)
+
+    @staticmethod
+    def check_world(world) -> None:
+        n_urdf = int(world.static_ids.shape[0]) - len(world.static_bodies)
+        if n_urdf:
+            raise ConfigError("sensor.model", f"\"marching\" marches through discs/balls, pillars and boxes; this "
+                              f"world has {n_urdf} static URDF bodies (use \"raycast\")", "marching")
+
+    def fan(self) -> np.ndarray:
+        p = self.p
+        if p.march_rule == "program" and p.dims == 2:
+            n = p.rays if p.rays is not None else int(round(p.fov_deg / p.resolution_deg)) + 1
+            ang = np.radians(-p.fov_deg / 2.0 + p.fov_deg / n * np.arange(n))    # the program's fan
+            return np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        return ray_directions(0.0, p.fov_deg, p.resolution_deg, p.dims, p.vfov_deg, p.vresolution_deg, p.rays)
+
+    def scan(self, o: np.ndarray, dirs_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The march points before each ray's hit marked FREE, a static or wall hit point's cell OCCUPIED."""
+        world, grid, p = self.p.world, self.p.grid, self.p
+        self.check_world(world)
+        n_rays = dirs_t.shape[1]
+        if p.march_rule == "program":
+            ts, tail = program_march_distances(dirs_t, p.range_m, p.march_step)          # [R, K], [R]
+            per_ray = ts
+        else:
+            ts = self.march_t                                                            # [K], every ray
+            tail = np.full(n_rays, ts.shape[0])
+            per_ray = np.broadcast_to(ts, (n_rays, ts.shape[0]))
+        m = march(o, dirs_t, ts, world.obstacle_positions, world.obstacle_radii, world.arena_size,
+                  tuple(world.static_bodies), self.bounds)
+        n_pts = per_ray.shape[1]
+        k = np.arange(n_pts)[None, :]
+        before = (k < m.first[:, None]) & (k < tail[:, None])                           # [R, K]
+        grid.mark_free(m.points[before])
+        ends = np.flatnonzero((m.kind == STATIC) | (m.kind == WALL))
+        if ends.shape[0]:
+            grid.mark_occupied(m.points[ends, m.first[ends]])
+        hits = np.full(m.kind.shape[0], -1, dtype=np.int64)
+        for kind, ids in ((OBSTACLE, world.obstacle_ids), (STATIC, world.static_ids), (WALL, world.wall_ids)):
+            rows = np.flatnonzero(m.kind == kind)
+            hits[rows] = ids[m.index[rows]]
+        ranges = np.where(m.kind != NONE, per_ray[np.arange(n_rays), np.minimum(m.first, n_pts - 1)], p.range_m)
+        return m.seen, hits, ranges

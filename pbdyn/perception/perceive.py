@@ -6,11 +6,8 @@ real). A dynamic obstacle hit by any ray is detected, and its measurement is its
 the cells of samples taken every <= res/4 along it up to its hit (or full range); a ray ending on a static body or
 wall marks the cell just behind its hit point OCCUPIED; dynamic obstacles are tracked, never mapped.
 
-``model="marching"`` is the thesis program's sensor instead (docs/thesis-program.md "MAV, sensing, tracking";
-pbdyn.perception.marching): ``rays`` rays over the FOV, each a sequence of points ``march_step`` apart, the first
-point inside an obstacle, static body or beyond a wall is the hit; every obstacle holding it is detected (true
-centre); the cells of the points before it become FREE, a static or wall hit point's cell OCCUPIED. It is computed
-in numpy from the world's obstacle positions (as last set) and its generated static bodies, with the same outputs.
+That is the sensor model "raycast"; ``model`` names another of pbdyn.perception.registry.SENSORS, e.g. "marching",
+the thesis program's sensor (docs/thesis-program.md "MAV, sensing, tracking"; pbdyn.perception.marching).
 """
 
 from __future__ import annotations
@@ -26,9 +23,7 @@ from pbdyn.config import SensorConfig
 from pbdyn.errors import ConfigError
 from pbdyn.jit import njit
 from pbdyn.perception.grid import OccupancyGrid
-from pbdyn.perception.marching import (NONE, OBSTACLE, STATIC, WALL, march, march_distances, program_march_distances,
-                                      static_bounds)
-from pbdyn.perception.sensor import ray_directions
+from pbdyn.perception.registry import SENSORS
 
 OCCUPIED_NUDGE = 1e-3
 """Distance (m) past a static hit point used to pick the cell marked OCCUPIED."""
@@ -82,9 +77,8 @@ class Perception:
     range_m: sensor range (m). noise_std: std (m) of the Gaussian noise added to each measured centre (needs rng).
     vfov_deg / vresolution_deg (3D only): vertical field of view and spacing (deg); defaults 60 and resolution_deg.
     Free space is sampled along each ray every <= grid.res / 4.
-    model: "raycast" (PyBullet rays) or "marching" (module doc): rays = rays per horizontal fan (None: from
-    resolution_deg; 3D rows as "raycast"), march_step = spacing of the march points (m). "marching" needs a world
-    whose static bodies are all generated ones (pillars, boxes), not imported URDFs.
+    model: the sensor model's name in pbdyn.perception.registry.SENSORS (module doc), built as ``sensor``; the
+    marching model's parameters: rays (per horizontal fan), march_step (m), march_rule (pbdyn.perception.marching).
     """
 
     def __init__(self, world, grid: OccupancyGrid, *, fov_deg: float, range_m: float, resolution_deg: float,
@@ -103,8 +97,8 @@ class Perception:
             raise ConfigError("sensor.noise_std", "needs an np.random.Generator (rng) when > 0", noise_std)
         if grid.dims != world.dims:
             raise ConfigError("grid", f"has {grid.dims} dimensions, the world {world.dims}", grid.dims)
-        if model not in SensorConfig.MODELS:
-            raise ConfigError("sensor.model", f"must be one of {', '.join(SensorConfig.MODELS)}", model)
+        if model not in SENSORS:
+            raise ConfigError("sensor.model", f"must be one of {', '.join(SENSORS)}", model)
         if rays is not None and (not isinstance(rays, (int, np.integer)) or isinstance(rays, bool) or rays < 1):
             raise ConfigError("sensor.rays", "must be an integer >= 1 (or None)", rays)
         if (isinstance(march_step, bool) or not isinstance(march_step, (int, float))
@@ -115,8 +109,6 @@ class Perception:
         self.model = model
         self.march_step = float(march_step)
         self.march_rule = march_rule
-        if model == "marching":
-            self._check_marching_world(world)
         self.world = world
         self.grid = grid
         self.dims = world.dims
@@ -130,16 +122,9 @@ class Perception:
             self.vresolution_deg = self.resolution_deg if vresolution_deg is None else float(vresolution_deg)
         else:
             self.vfov_deg = self.vresolution_deg = None
-        self.rays = None if rays is None or model != "marching" else int(rays)
-        if model == "marching" and march_rule == "program" and self.dims == 2:
-            n = self.rays if self.rays is not None else int(round(self.fov_deg / self.resolution_deg)) + 1
-            ang = np.radians(-self.fov_deg / 2.0 + self.fov_deg / n * np.arange(n))    # the program's fan
-            base = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-        else:
-            base = ray_directions(0.0, self.fov_deg, self.resolution_deg, self.dims, self.vfov_deg,
-                                  self.vresolution_deg, self.rays)
-        self._march_t = march_distances(self.range_m, self.march_step) if model == "marching" else None
-        self._static_bounds = static_bounds(tuple(world.static_bodies), self.dims) if model == "marching" else None
+        self.rays = None if rays is None else int(rays)
+        self.sensor = SENSORS[model](self)
+        base = self.sensor.fan()
         self.n_rays = int(base.shape[0])
         self._base_t = np.ascontiguousarray(base.T)                 # [d, R], yaw 0
         n_samples = int(math.ceil(self.range_m / (grid.res / 4.0)))
@@ -167,14 +152,6 @@ class Perception:
         n_flags = world.obstacle_ids.shape[0] + 1
         self._obstacle_seen = _scratch(world, ("obstacle_seen", n_flags),              # all False between scans
                                        lambda: np.zeros(n_flags, dtype=bool))
-
-    @staticmethod
-    def _check_marching_world(world) -> None:
-        """ConfigError naming sensor.model when the world holds static bodies the marching sensor cannot see."""
-        n_urdf = int(world.static_ids.shape[0]) - len(world.static_bodies)
-        if n_urdf:
-            raise ConfigError("sensor.model", f"\"marching\" marches through discs/balls, pillars and boxes; this "
-                              f"world has {n_urdf} static URDF bodies (use \"raycast\")", "marching")
 
     def _rotated(self, yaw: float) -> np.ndarray:
         """Ray directions as [d, R] for ``yaw`` (rad)."""
@@ -237,10 +214,6 @@ class Perception:
         """Unit ray directions [R, d] for ``yaw`` (rad)."""
         return self._rotated(yaw).T.copy()
 
-    def set_obstacle_positions(self, positions) -> None:
-        """Move the world's dynamic obstacles (same as world.set_obstacle_positions)."""
-        self.world.set_obstacle_positions(positions)
-
     def sense(self, position, yaw: float) -> Detections:
         """Scan from ``position`` [d] (m) looking along ``yaw`` (rad): detections, and the grid updated in place."""
         scan = self.begin(position, yaw)
@@ -250,8 +223,8 @@ class Perception:
 
     def begin(self, position, yaw: float):
         """The first half of sense(): the scan's rays (a PendingScan, to cast with world.cast_fans, possibly with
-        other MAVs' fans in one call, then complete()), or the finished Detections (model "marching", which casts
-        no Bullet rays)."""
+        other MAVs' fans in one call, then complete()), or the finished Detections (a model that casts no Bullet
+        rays, e.g. "marching")."""
         frame = self.begin_frame(position, yaw)
         if isinstance(frame, Detections):
             return frame
@@ -261,12 +234,11 @@ class Perception:
     def begin_frame(self, position, yaw: float):
         """begin() up to the rays: the sensor origin [d] and the ray directions [d, R], to make a PendingScan of
         with world.fan_rays (or world.fan_rays_many, several MAVs' fans culled together); or the finished
-        Detections (model "marching")."""
+        Detections (a model's own scan, SensorModel.scan)."""
         o = np.asarray(position, dtype=float).reshape(self.dims)
         dirs_t = self._rotated(yaw)                                       # [d, R]
-        if self.model == "marching":
-            return self._sense_marching(o, dirs_t)
-        return o, dirs_t
+        seen = self.sensor.scan(o, dirs_t)
+        return (o, dirs_t) if seen is None else self._detections(*seen)
 
     def complete(self, scan: "PendingScan", hits: np.ndarray, frac: np.ndarray) -> Detections:
         """The second half of sense(): the detections of ``scan`` from its fan's per-ray results (body ids [R],
@@ -281,7 +253,12 @@ class Perception:
             world.dynamic_index_of, world.obstacle_ids.shape[0])
         if newly_occupied:
             grid.version += 1
-        centers = np.asarray(world.obstacle_positions, dtype=float)[ids]
+        return self._detections(ids, hits, ranges)
+
+    def _detections(self, ids: np.ndarray, hits: np.ndarray, ranges: np.ndarray) -> Detections:
+        """The Detections of a scan that saw obstacles ``ids``: their centres as the world holds them, plus the
+        sensor noise."""
+        centers = np.asarray(self.world.obstacle_positions, dtype=float)[ids]
         if self.noise_std > 0 and ids.shape[0]:
             centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
         return Detections(ids, centers, int(hits.shape[0]), hits, ranges)
@@ -302,41 +279,7 @@ class Perception:
         flags[world.dynamic_index_of[hits]] = True
         ids = np.flatnonzero(flags[:-1])
         flags[:] = False
-        centers = np.asarray(world.obstacle_positions, dtype=float)[ids]
-        if self.noise_std > 0 and ids.shape[0]:
-            centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
-        return Detections(ids.astype(np.int64), centers, int(hits.shape[0]), hits, ranges)
-
-    def _sense_marching(self, o: np.ndarray, dirs_t: np.ndarray) -> Detections:
-        """The marching sensor's scan from ``o`` [d] (m) along ``dirs_t`` [d, R] (module doc; thesis 2-4-2)."""
-        world, grid = self.world, self.grid
-        self._check_marching_world(world)
-        n_rays = dirs_t.shape[1]
-        if self.march_rule == "program":
-            ts, tail = program_march_distances(dirs_t, self.range_m, self.march_step)    # [R, K], [R]
-            per_ray = ts
-        else:
-            ts = self._march_t                                                           # [K], every ray
-            tail = np.full(n_rays, ts.shape[0])
-            per_ray = np.broadcast_to(ts, (n_rays, ts.shape[0]))
-        m = march(o, dirs_t, ts, world.obstacle_positions, world.obstacle_radii, world.arena_size,
-                  tuple(world.static_bodies), self._static_bounds)
-        n_pts = per_ray.shape[1]
-        k = np.arange(n_pts)[None, :]
-        before = (k < m.first[:, None]) & (k < tail[:, None])                           # [R, K]
-        grid.mark_free(m.points[before])
-        ends = np.flatnonzero((m.kind == STATIC) | (m.kind == WALL))
-        if ends.shape[0]:
-            grid.mark_occupied(m.points[ends, m.first[ends]])
-        hits = np.full(m.kind.shape[0], -1, dtype=np.int64)
-        for kind, ids in ((OBSTACLE, world.obstacle_ids), (STATIC, world.static_ids), (WALL, world.wall_ids)):
-            rows = np.flatnonzero(m.kind == kind)
-            hits[rows] = ids[m.index[rows]]
-        ranges = np.where(m.kind != NONE, per_ray[np.arange(n_rays), np.minimum(m.first, n_pts - 1)], self.range_m)
-        centers = np.asarray(world.obstacle_positions, dtype=float)[m.seen]
-        if self.noise_std > 0 and m.seen.shape[0]:
-            centers = centers + self.rng.normal(0.0, self.noise_std, size=centers.shape)
-        return Detections(m.seen, centers, int(hits.shape[0]), hits, ranges)
+        return self._detections(ids.astype(np.int64), hits, ranges)
 
 
 @njit(cache=True, nogil=True)
