@@ -19,7 +19,7 @@ import math
 import re
 
 from pbdyn.analysis.html_kit import NA, interval, num, page, table
-from pbdyn.benchmark.card import OUTCOMES
+from pbdyn.benchmark.card import OUTCOMES, rank_text
 
 _MD_SPECIAL = "\\`*_[]<>|~&"
 """Characters a Markdown renderer may read as markup anywhere in a line (emphasis, code, links and images -- with
@@ -242,8 +242,6 @@ def _cost_text(cost: dict) -> str:
 
 
 def _header_facts(card: dict) -> list[tuple[str, str]]:
-    from pbdyn.benchmark.card import rank_text
-
     s, a, pv, pl = card["success"], card["ability"], card["provenance"], card["planner"]
     m = pv["machine"]
     facts = [("planner", f"{_mark(pl)} (fingerprint {pl['fingerprint']}; sensor FOV {num(pl.get('fov_deg'), 'g')} "
@@ -471,13 +469,6 @@ COMPARE_HEAD = ["planner", "suite (hash)", "success [95% CI]", "ability (logits)
                 "planner ms/step (median, p99)", "date"]
 
 
-def _rank_cell(rank: dict) -> str:
-    if rank.get("rank") is None:
-        return NA
-    lo, hi = rank.get("ci95") or [None, None]
-    return f"{rank['rank']} of {rank['of']}" + (f" [{lo}, {hi}]" if lo is not None else "")
-
-
 def comparison_table(cards: list[dict]) -> list[list[str]]:
     """One table row per card."""
     rows = []
@@ -485,7 +476,8 @@ def comparison_table(cards: list[dict]) -> list[list[str]]:
         a, pt = c["ability"], c["planning_time_ms"]
         rows.append([c["planner"]["label"], f"{c['suite']['name']} ({c['suite']['hash'][:12]})",
                      f"{num(c['success']['rate'], '.2f')} {interval(c['success']['ci95'], '.2f')}",
-                     f"{num(a['logit'], '+.2f')} {interval(a['ci95'], '+.2f')}" if a else NA, _rank_cell(c["rank"]),
+                     f"{num(a['logit'], '+.2f')} {interval(a['ci95'], '+.2f')}" if a else NA,
+                     rank_text(c["rank"]) if c["rank"].get("rank") is not None else NA,
                      num(c["cvar20_success"]["rate"], ".2f"), num(c["time_to_goal_s"]["median"], ".2f"),
                      num(c["path_ratio"]["median"], ".3f"), num(c["min_clearance_m"]["median"], ".2f"),
                      f"{num(pt['median'], '.3f')}, {num(pt['p99'], '.3f')}", c["provenance"]["date"]])
