@@ -47,12 +47,6 @@ class RaschFit:
     method: str
     converged: bool
 
-    def probability(self, item: str, respondent: str) -> float:
-        """The model's success probability of ``respondent`` on ``item``."""
-        i = self.items.index(item)
-        r = self.respondents.index(respondent)
-        return float(1.0 / (1.0 + np.exp(-(self.ability[r] - self.difficulty[i]))))
-
     def as_dict(self) -> dict:
         """JSON-able summary."""
         return {"method": self.method, "converged": bool(self.converged), "n_items": len(self.items),

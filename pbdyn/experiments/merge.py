@@ -168,26 +168,22 @@ def check_same_code(stores: list[tuple]) -> None:
             index.update(st.map_indices())
         finally:
             st.conn.close()
-    for map_id, codes in sorted(metric_codes.items(), key=lambda kv: (index.get(kv[0], -1), kv[0])):
-        if len(codes) > 1:
-            (c1, p1), (c2, p2) = list(codes.items())[:2]
-            raise ConfigError("RESULTS", f"the metrics of map {index.get(map_id, '?')} ({map_id}) were computed by "
-                              f"code {c1} in {p1.name} and {c2} in {p2.name} (a metric's code changed); merged, one "
-                              "map would hold two versions of its metrics (re-run one store with `rerun_changed`)",
-                              show_value=False)
-    for label, fps in sorted(planners.items(), key=lambda kv: str(kv[0])):
-        if len(fps) > 1:
-            (f1, p1), (f2, p2) = list(fps.items())[:2]
-            raise ConfigError("RESULTS", f"planner {label} was flown with code {f1} in {p1.name} and {f2} in "
-                              f"{p2.name}; merged, one label would hold two planners (re-fly one store with "
-                              "`rerun_changed`)", show_value=False)
-    for key, fps in sorted(worlds.items(), key=lambda kv: (keys.get(kv[0], -1), kv[0])):
-        if len(fps) > 1:
-            (f1, p1), (f2, p2) = list(fps.items())[:2]
-            raise ConfigError("RESULTS", f"map {keys.get(key, '?')} ({key}) was flown in world {f1} in "
-                              f"{p1.name} and in world {f2} in {p2.name} (its code or files changed); merged, one "
-                              "map would hold two worlds (re-fly one store with `rerun_changed`)",
-                              show_value=False)
+    checks = (
+        (metric_codes, index, lambda m, i, a, b: f"the metrics of map {i} ({m}) were computed by code {a[0]} in "
+         f"{a[1].name} and {b[0]} in {b[1].name} (a metric's code changed); merged, one map would hold two versions "
+         "of its metrics (re-run one store with `rerun_changed`)"),
+        (planners, None, lambda label, i, a, b: f"planner {label} was flown with code {a[0]} in {a[1].name} and "
+         f"{b[0]} in {b[1].name}; merged, one label would hold two planners (re-fly one store with `rerun_changed`)"),
+        (worlds, keys, lambda key, i, a, b: f"map {i} ({key}) was flown in world {a[0]} in {a[1].name} and in world "
+         f"{b[0]} in {b[1].name} (its code or files changed); merged, one map would hold two worlds (re-fly one "
+         "store with `rerun_changed`)"))
+    for found, order, message in checks:      # one version of each map's metrics, each planner, each map's world
+        for name, versions in sorted(found.items(), key=lambda kv: str(kv[0]) if order is None else
+                                     (order.get(kv[0], -1), kv[0])):
+            if len(versions) > 1:
+                a, b = list(versions.items())[:2]
+                raise ConfigError("RESULTS", message(name, "?" if order is None else order.get(name, "?"), a, b),
+                                  show_value=False)
 
 
 def _id_rule(path: Path) -> str:

@@ -231,7 +231,8 @@ class TrialBatch:
         for i, act in moves:
             st = states[i]
             contact = contacts.get(i) if contacts else None
-            before = self._before(i, st) if i in self._observers else None
+            before = (st.t, st.position, st.velocity, st.acceleration, st.yaw, st.tracks, st.detections.ids) \
+                if i in self._observers else None       # what the observers get of t_k
             try:
                 st._move(act, None if contact is None else contact[0])
             except Exception as exc:
@@ -252,7 +253,8 @@ class TrialBatch:
         errors.update(self._errors)
         self._errors = {}
         for i, act, decision, before in records:
-            self._notify(i, errors, "step", StepRecord(*before[:5], self._rate(i, act), *(
+            lim = states[i].limits.yaw_rate
+            self._notify(i, errors, "step", StepRecord(*before[:5], min(max(act.yaw_rate, -lim), lim), *(
                 (decision.planned, decision.plan_ok) if decision else (False, True)), *before[5:], splits[i]),
                 decision)
         for i in ended:
@@ -260,14 +262,6 @@ class TrialBatch:
                 self._notify(i, errors, "end")
         return StepReport(tuple(i for i in ended if i not in errors), tuple(refused), MappingProxyType(errors),
                           MappingProxyType(splits))
-
-    def _before(self, i: int, st: TrialState) -> tuple:
-        """What trial i's observers get of t_k (taken before its move)."""
-        return st.t, st.position, st.velocity, st.acceleration, st.yaw, st.tracks, st.detections.ids
-
-    def _rate(self, i: int, act: Action) -> float:
-        lim = self.states[i].limits.yaw_rate
-        return min(max(act.yaw_rate, -lim), lim)
 
     def _notify(self, i: int, errors: dict, what: str, record=None, decision=None) -> None:
         """Trial i's observers' on_step (``record``) or on_end; one that raises ends the trial with its exception."""

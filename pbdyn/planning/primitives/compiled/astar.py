@@ -301,6 +301,15 @@ def _lt(f1, h1, t1, f2, h2, t2):
     return t1 < t2
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _put(heap, i, f, h, t, c):
+    """Write the entry (f, h, t, c) into row i of the heap."""
+    heap[i, 0] = f
+    heap[i, 1] = h
+    heap[i, 2] = t
+    heap[i, 3] = c
+
+
 @njit(cache=True, nogil=True)
 def _push(heap, size, f, h, t, c):
     """Add (f, h, counter t, node c) to the 4-ary heap [R, 4] of size entries (room checked by the caller); the new
@@ -313,10 +322,7 @@ def _push(heap, size, f, h, t, c):
         for j in range(4):
             heap[i, j] = heap[up, j]
         i = up
-    heap[i, 0] = f
-    heap[i, 1] = h
-    heap[i, 2] = t
-    heap[i, 3] = c
+    _put(heap, i, f, h, t, c)
     return size + 1
 
 
@@ -342,10 +348,7 @@ def _pop(heap, size):
             for j in range(4):
                 heap[i, j] = heap[m, j]
             i = m
-        heap[i, 0] = f
-        heap[i, 1] = h
-        heap[i, 2] = t
-        heap[i, 3] = c
+        _put(heap, i, f, h, t, c)
     return top, size
 
 
