@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from pbdyn.world.geometry import wrap_angle
+
 
 def _fan(fov_deg: float, resolution_deg: float, rays: int | None = None) -> np.ndarray:
     """Angles (rad, relative to the centre) of a fan: round(fov/res)+1 rays edge to edge, or round(360/res) for 360;
@@ -88,7 +90,7 @@ def in_fov(yaw: float, points_rel, fov_deg: float, range_m: float, vfov_deg: flo
     ok = dist2 <= float(range_m) ** 2
     if fov_deg < 360.0:
         bearing = np.arctan2(pts[..., 1], pts[..., 0]) - yaw
-        off = np.abs((bearing + np.pi) % (2.0 * np.pi) - np.pi)
+        off = np.abs(wrap_angle(bearing))
         ok &= off <= math.radians(fov_deg) / 2.0 + 1e-12
     if d == 3 and vfov_deg is not None:
         elev = np.arctan2(pts[..., 2], np.hypot(pts[..., 0], pts[..., 1]))
