@@ -77,3 +77,38 @@ def info(episode, state, terms: dict | None = None) -> dict:
     if terms is not None:
         out["reward_terms"] = terms
     return out
+
+
+def stack_infos(infos: list, n: int) -> dict:
+    """The vector info of ``n`` sub-environments' ``infos`` (a dict or None each), exactly as Gymnasium's
+    VectorEnv._add_info builds it one sub-environment at a time -- the same keys in the same order, each with its
+    "_key" mask, an array typed by the first value (a Python or numpy number: that type; an array: its shape and
+    dtype; anything else: objects), nested dicts stacked alike -- in one pass per key (tests/test_gym_vector.py
+    compares the two)."""
+    cols: dict = {}
+    for i, info in enumerate(infos):
+        for key, value in (info or {}).items():
+            col = cols.get(key)
+            if col is None:
+                cols[key] = col = ([], [])
+            col[0].append(i)
+            col[1].append(value)
+    out: dict = {}
+    for key, (idx, values) in cols.items():
+        first = values[0]
+        if isinstance(first, dict):
+            rows = [None] * n
+            for i, v in zip(idx, values):
+                rows[i] = v
+            array = stack_infos(rows, n)
+        elif type(first) in (int, float, bool) or isinstance(first, np.number) or isinstance(first, np.ndarray):
+            array = np.zeros((n, *np.shape(first)), dtype=type(first) if not isinstance(first, np.ndarray)
+                             else first.dtype)
+            array[idx] = values
+        else:
+            array = np.full(n, None, dtype=object)
+            array[idx] = np.fromiter(values, dtype=object, count=len(values))
+        mask = np.zeros(n, dtype=np.bool_)
+        mask[idx] = True
+        out[key], out[f"_{key}"] = array, mask
+    return out

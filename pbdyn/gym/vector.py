@@ -35,7 +35,7 @@ from gymnasium.vector.utils import batch_space
 
 from pbdyn.gym.env import PolicyYaw, command, gaze_spec
 from pbdyn.gym.episodes import Episode, EpisodeSource, check_options
-from pbdyn.gym.glue import Glue
+from pbdyn.gym.glue import Glue, stack_infos
 from pbdyn.sim.agent import Agent
 from pbdyn.sim.batch import TrialBatch
 from pbdyn.sim.state import make_world
@@ -90,16 +90,15 @@ class _VectorCore(VectorEnv):
         self._options = options
         epoch = self._new_epoch()
         obs = np.zeros(self.observation_space.shape, np.float32)
-        infos: dict = {}
+        infos = [None] * self.num_envs
         for i in range(self.num_envs):
             b = self._join(epoch, i)
             self.slots[i] = (epoch, b)
         epoch.batch.step({})                     # the joined trials begin and sense together
         for i, (ep, b) in enumerate(self.slots):
-            obs[i], info, self._dist[i] = self.glue.first(ep.episode, ep.batch.states[b])
-            infos = self._add_info(infos, info, i)
+            obs[i], infos[i], self._dist[i] = self.glue.first(ep.episode, ep.batch.states[b])
         self._pending[:] = False
-        return obs, infos
+        return obs, stack_infos(infos, self.num_envs)
 
     def step(self, actions):
         """Step every sub-environment: see the module docstring for autoreset."""
@@ -133,21 +132,20 @@ class _VectorCore(VectorEnv):
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
         truncated = np.zeros(self.num_envs, dtype=bool)
-        infos: dict = {}
+        infos = [None] * self.num_envs
         for i, (epoch, b) in enumerate(self.slots):
             st = epoch.batch.states[b]
             if self._pending[i]:
                 self._pending[i] = False
-                obs[i], info, self._dist[i] = self.glue.first(epoch.episode, st)
+                obs[i], infos[i], self._dist[i] = self.glue.first(epoch.episode, st)
             else:
-                obs[i], rewards[i], terminated[i], truncated[i], info, self._dist[i] = \
+                obs[i], rewards[i], terminated[i], truncated[i], infos[i], self._dist[i] = \
                     self.glue.after(epoch.episode, st, self._dist[i], accel0[i])
                 if st.outcome is not None:
                     self._pending[i] = True
                     epoch.batch.release(b)
-            infos = self._add_info(infos, info, i)
         self._drop_finished_epochs()
-        return obs, rewards, terminated, truncated, infos
+        return obs, rewards, terminated, truncated, stack_infos(infos, self.num_envs)
 
     def close_extras(self, **kwargs) -> None:
         """Release every map's PyBullet world (their clients disconnected) and rollout."""
