@@ -46,13 +46,13 @@ class PlanViolation:
         """One readable line, e.g. "plan broke speed at sample 3: 8.000000 m/s > 4.000000 m/s"."""
         where = "" if self.sample < 0 else f" at sample {self.sample}"
         if math.isnan(self.value):
-            return f"plan broke {self.check}{where} ({_EXPLAIN[self.check]})"
+            return f"plan broke {self.check}{where} ({EXPLAIN[self.check]})"
         unit = f" {self.unit}" if self.unit else ""
         return (f"plan broke {self.check}{where}: {self.value:.9g}{unit} > {self.limit:.9g}{unit} "
-                f"({_EXPLAIN[self.check]})")
+                f"({EXPLAIN[self.check]})")
 
 
-_EXPLAIN = {
+EXPLAIN = {
     "type": "plan() must return a pbdyn Trajectory or None",
     "shape": "p, v, a must be [K, d] arrays with K >= 2 and d the world's dimension",
     "finite": "every sample must be finite",
@@ -65,6 +65,7 @@ _EXPLAIN = {
     "velocity_step": "|v_k+1 - v_k| <= a_max dt",
     "position_step": "|p_k+1 - p_k - (v_k + v_k+1) dt/2| <= a_max dt^2/4",
 }
+"""Each check's rule, as its message states it (the guard's step bounds, pbdyn.sim.guard, are the same)."""
 
 
 def _first_over(values: np.ndarray, limit: float, check: str, unit: str, offset: int = 0) -> PlanViolation | None:

@@ -25,18 +25,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from pbdyn.planning.view import MAVLimits
-from pbdyn.sim.contract import REL_TOL, START_TOL
+from pbdyn.sim.contract import EXPLAIN, REL_TOL, START_TOL
 
 GUARD_CHECKS = ("form", "speed", "acceleration", "velocity_step", "position_step")
 """The guard's checks, in the order they are applied."""
 
-_EXPLAIN = {
-    "form": "p, v, a must be finite float vectors [d] of the world's dimension d and the yaw rate a finite number",
-    "speed": "|v| <= v_max",
-    "acceleration": "|a| <= a_max",
-    "velocity_step": "|v_k+1 - v_k| <= a_max dt",
-    "position_step": "|p_k+1 - p_k - (v_k + v_k+1) dt/2| <= a_max dt^2/4",
-}
+_EXPLAIN = {**EXPLAIN, "form": "p, v, a must be finite float vectors [d] of the world's dimension d and the yaw "
+            "rate a finite number"}
 
 
 @dataclass(frozen=True)
